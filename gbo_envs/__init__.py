@@ -1,0 +1,46 @@
+"""gbo-envs: motor plants as Gymnasium environments for data-efficient controller tuning.
+
+Importing the package registers every environment (all ``register`` calls
+live here, as in Gymnasium's classic_control)::
+
+    import gymnasium as gym, gbo_envs
+    env = gym.make("gbo_envs/DCMotor-v0")
+"""
+
+from __future__ import annotations
+
+from gymnasium.envs.registration import register
+
+from gbo_envs.closed_loop import ClosedLoop, StepResponse
+from gbo_envs.controllers import PDT1Controller, PIController
+from gbo_envs.envs.base import ControllerTuningEnv
+from gbo_envs.ground_truth import GroundTruth, ground_truth
+from gbo_envs.metrics import METRIC_NAMES, step_metrics, weighted_cost
+from gbo_envs.physics.lti import ContinuousPlant
+
+__all__ = [
+    "ClosedLoop",
+    "ContinuousPlant",
+    "ControllerTuningEnv",
+    "GroundTruth",
+    "METRIC_NAMES",
+    "PDT1Controller",
+    "PIController",
+    "StepResponse",
+    "ground_truth",
+    "step_metrics",
+    "weighted_cost",
+    "ENV_IDS",
+]
+
+#: Every registered environment id.
+ENV_IDS: list[str] = []
+
+
+def _register(name: str, entry_point: str, max_episode_steps: int, **kwargs) -> None:
+    env_id = f"gbo_envs/{name}"
+    register(id=env_id, entry_point=entry_point, max_episode_steps=max_episode_steps, kwargs=kwargs)
+    ENV_IDS.append(env_id)
+
+
+_register("DCMotor-v0", "gbo_envs.envs.dc_motor:DCMotorEnv", max_episode_steps=35)
