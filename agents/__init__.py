@@ -1,0 +1,40 @@
+"""Tuners behind one API: ``ask`` / ``tell`` and a shared ``run(env, budget, seed)`` loop.
+
+>>> import gymnasium as gym, gbo_envs, agents
+>>> env = gym.make("gbo_envs/DCMotor-v0")
+>>> result = agents.make("random").run(env, budget=5, seed=0)
+>>> result.to_pandas().shape[0]
+5
+
+Tuner classes load lazily, so optional dependencies (Optuna, stable-baselines3)
+are imported only when their tuner is used.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from agents.base import Tuner, TuningInterrupted
+from agents.registry import make, register, registered_names
+from agents.result import TuningResult
+from agents.space import GainSpace
+
+#: Public tuner classes and helpers -> the module that defines them (loaded on first access).
+_LAZY = {
+}
+
+#: Registry name -> entry point.
+_TUNERS = {
+}
+
+for _name, _entry in _TUNERS.items():
+    register(_name, _entry)
+
+__all__ = ["GainSpace", "Tuner", "TuningInterrupted", "TuningResult", "make", "register", "registered_names",
+           *_LAZY]
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'agents' has no attribute {name!r}")

@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-
 from scipy.signal import lfilter, ss2tf
 
 from gbo_envs.controllers import Controller
@@ -245,8 +244,8 @@ class ClosedLoop:
         t = self.time
         r = np.full(self.n_steps, float(self.r2))
         limit = UNSTABLE_LIMIT * abs(self.step_height)
-        finite = np.isfinite(y_out).all(axis=1) & np.isfinite(u_out).all(axis=1)
-        unstable = ~finite | (np.abs(np.nan_to_num(y_out, nan=np.inf) - self.r2) > limit).any(axis=1)
+        # one pass each: NaN compares False, so "not <= limit" also catches NaN and inf
+        unstable = ~(np.max(np.abs(y_out - self.r2), axis=1) <= limit) | ~np.isfinite(u_out.sum(axis=1))
         if unstable.any():
             y_out[unstable] = np.clip(np.nan_to_num(y_out[unstable], nan=self.r2), self.r2 - limit, self.r2 + limit)
             u_bound = limit * max(1.0, float(np.max(np.abs(u_start))))

@@ -58,7 +58,8 @@ def step_metrics(t: np.ndarray, y: np.ndarray, r1: float, r2: float) -> np.ndarr
     overshoot = 100.0 * np.maximum(0.0, (peak - y[:, -1]) * sign / abs(dr))
 
     # eq. (Ts): last sample outside the 2 % band, settled from the next sample on
-    outside = np.abs(y - r2) > SETTLING_BAND * abs(dr)
+    error = np.abs(y - r2)
+    outside = error > SETTLING_BAND * abs(dr)
     any_outside = outside.any(axis=1)
     last_outside = y.shape[1] - 1 - np.argmax(outside[:, ::-1], axis=1)
     settle_idx = np.where(any_outside, last_outside + 1, 0)
@@ -67,10 +68,12 @@ def step_metrics(t: np.ndarray, y: np.ndarray, r1: float, r2: float) -> np.ndarr
     # rise time 10 % -> 60 % of the way (progress measured along the step direction)
     progress = (y - r1) / dr
     crossings = [_first_crossing(t, progress, level) for level in RISE_LEVELS]
-    rise = np.where(np.isfinite(crossings[1]), crossings[1] - crossings[0], t_final)
+    with np.errstate(invalid="ignore"):
+        rise = np.where(np.isfinite(crossings[1]), crossings[1] - crossings[0], t_final)
 
-    # eq. (ITAE)
-    itae = np.trapezoid(t * np.abs(y - r2), t, axis=1)
+    # eq. (ITAE), trapezoidal rule on the (uniform or not) time grid
+    weighted = t * error
+    itae = 0.5 * ((weighted[:, 1:] + weighted[:, :-1]) @ np.diff(t))
 
     out = np.stack([overshoot, settling, rise, itae], axis=1)
     return out[0] if single else out

@@ -78,8 +78,10 @@ class ControllerTuningEnv(gym.Env):
                              f"got {low} and {high}")
         self.action_space = spaces.Box(low=low, high=high, dtype=np.float64)
         n_obs = len(self.gain_names) + len(METRIC_NAMES) + 3
-        obs_low = np.concatenate([low, np.full(n_obs - low.size, -np.inf)])
-        obs_high = np.concatenate([high, np.full(n_obs - high.size, np.inf)])
+        unbounded = out_of_bounds == "allow"  # gains outside the box may then be observed
+        obs_low = np.concatenate([np.full(low.size, -np.inf) if unbounded else low, np.full(n_obs - low.size, -np.inf)])
+        obs_high = np.concatenate([np.full(low.size, np.inf) if unbounded else high,
+                                   np.full(n_obs - high.size, np.inf)])
         self.observation_space = spaces.Box(low=obs_low, high=obs_high, dtype=np.float64)
         self.weights = _validated_vector("weights", weights, len(METRIC_NAMES), positive=True)
         if normalizers is None:
@@ -156,7 +158,7 @@ class ControllerTuningEnv(gym.Env):
         """RGB array of the last step response (``render_mode="rgb_array"``)."""
         if self.render_mode != "rgb_array":
             return None
-        from gbo_envs.plotting import response_figure, figure_to_rgb
+        from gbo_envs.plotting import figure_to_rgb, response_figure
 
         fig = response_figure(self.loop, self._last_response)
         return figure_to_rgb(fig)

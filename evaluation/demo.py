@@ -1,0 +1,118 @@
+"""The main job on an embedded default: ``gbo demo`` (and ``make demo``).
+
+1. Ground truth of DCMotor-v0 by grid search, printed beside the paper's optimum.
+2. PNGs of the optimal step response and of the cost surface.
+3. When the tuners are installed: BO and guided BO on the same seed, their
+   best gains beside the ground truth, and a convergence plot.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+import gbo_envs
+from gbo_envs.plotting import _pyplot, response_figure
+
+__all__ = ["run_demo"]
+
+PAPER_OPTIMUM = {"Kp": 0.54, "Ki": 1.16, "cost": 0.79}
+PAPER_NOMINAL = {"Kp": 0.85, "Ki": 1.07}
+
+
+def run_demo(out: Path, env_id: str = "gbo_envs/DCMotor-v0", seed: int = 0, budget: int = 20,
+             tuners: bool = True) -> dict:
+    """Run the demo and write its figures into ``out``; returns the figures printed.
+
+    Parameters
+    ----------
+    out : Path
+        Output folder (created).
+    env_id : str
+        Plant to tune.
+    seed : int
+        Seed of the tuning runs.
+    budget : int
+        Plant experiments per tuner.
+    tuners : bool
+        Also run the tuners (BO, guided BO) when they are available.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    plt = _pyplot()
+    summary: dict = {}
+
+    start = time.perf_counter()
+    truth = gbo_envs.ground_truth(env_id, resolution=100, noise=False)
+    elapsed = time.perf_counter() - start
+    names = truth.gain_names
+    print(f"Ground truth on {env_id} (100 x 100 grid, {elapsed:.2f} s):")
+    print(f"  {'':12s}" + "".join(f"{n:>8s}" for n in names) + f"{'cost':>8s}")
+    print("  ours        " + "".join(f"{g:8.3f}" for g in truth.gains) + f"{truth.cost:8.3f}")
+    if env_id == "gbo_envs/DCMotor-v0":
+        print("  paper       " + "".join(f"{PAPER_OPTIMUM[n]:8.3f}" for n in names) + f"{PAPER_OPTIMUM['cost']:8.3f}")
+        print("  (the paper's cost has another normalisation scale; the gains are what must agree)")
+    summary["ground_truth"] = {"gains": dict(zip(names, truth.gains.tolist())), "cost": truth.cost,
+                               "seconds": elapsed}
+
+    env = gym.make(env_id, noise=False).unwrapped
+    gains = [truth.gains]
+    labels = [f"optimum {_fmt(names, truth.gains)}"]
+    if env_id == "gbo_envs/DCMotor-v0":
+        nominal = np.array([PAPER_NOMINAL[n] for n in names])
+        gains.append(nominal)
+        labels.append(f"paper's nominal PGM {_fmt(names, nominal)}")
+    response = env.loop.simulate(np.array(gains), rng=np.random.default_rng(0))
+    fig = response_figure(env.loop, response, labels=labels, title=f"{env_id}: step responses")
+    fig.savefig(out / "optimal_step_response.png", dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6.5, 5))
+    truth.plot(ax=ax)
+    ax.set_title(f"{env_id}: noise-free cost surface")
+    fig.tight_layout()
+    fig.savefig(out / "cost_surface.png", dpi=120)
+    plt.close(fig)
+    print(f"Wrote {out / 'optimal_step_response.png'} and {out / 'cost_surface.png'}")
+
+    if tuners:
+        summary["tuners"] = _run_tuners(out, env_id, truth, seed, budget)
+    return summary
+
+
+def _run_tuners(out: Path, env_id: str, truth, seed: int, budget: int) -> dict:
+    import agents
+
+    available = [name for name in ("bo", "guided-bo") if name in agents.registered_names()]
+    if not available:
+        return {}
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    rows = {}
+    print(f"\nTuning {env_id} with {', '.join(available)} (seed {seed}, {budget} plant experiments each):")
+    for name in available:
+        result = agents.make(name).run(gym.make(env_id), budget=budget, seed=seed)
+        ratio = result.best_true_cost_curve() / truth.cost
+        ax.plot(np.arange(1, ratio.size + 1), ratio, label=name)
+        best = result.best_gains
+        rows[name] = {"gains": dict(zip(truth.gain_names, best.tolist())), "final_ratio": float(ratio[-1]),
+                      "twin_evaluations": result.n_twin}
+        print(f"  {name:10s} best {_fmt(truth.gain_names, best)}  optimality ratio {ratio[-1]:.3f}"
+              f"  twin evaluations {result.n_twin}")
+    ax.axhline(1.0, color="k", lw=1)
+    ax.set_xlabel("plant experiments")
+    ax.set_ylabel("optimality ratio of best gains")
+    ax.set_title(f"{env_id}, seed {seed}")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "tuner_convergence.png", dpi=120)
+    plt.close(fig)
+    print(f"Wrote {out / 'tuner_convergence.png'}")
+    return rows
+
+
+def _fmt(names, gains) -> str:
+    return "(" + ", ".join(f"{n}={g:.3g}" for n, g in zip(names, gains)) + ")"
