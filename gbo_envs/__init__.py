@@ -44,3 +44,10 @@ def _register(name: str, entry_point: str, max_episode_steps: int, **kwargs) -> 
 
 
 _register("DCMotor-v0", "gbo_envs.envs.dc_motor:DCMotorEnv", max_episode_steps=35)
+_register("DCMotorDrift-v0", "gbo_envs.envs.time_varying:DCMotorDriftEnv", max_episode_steps=35)
+_register("DCMotorStep-v0", "gbo_envs.envs.time_varying:DCMotorStepEnv", max_episode_steps=35)
+_register("DCMotorRig-v0", "gbo_envs.envs.rigs:DCMotorRigEnv", max_episode_steps=35)
+_register("LinearMotor-v0", "gbo_envs.envs.linear_motor:LinearMotorEnv", max_episode_steps=25)
+_register("LinearMotorDrift-v0", "gbo_envs.envs.time_varying:LinearMotorDriftEnv", max_episode_steps=25)
+_register("LinearMotorStep-v0", "gbo_envs.envs.time_varying:LinearMotorStepEnv", max_episode_steps=25)
+_register("LinearMotorRig-v0", "gbo_envs.envs.rigs:LinearMotorRigEnv", max_episode_steps=25)

@@ -5,9 +5,13 @@ output is measured, the digital controller (:mod:`gbo_envs.controllers`)
 computes the command ``u``, the actuator holds it (zero-order hold) and the
 plant, discretised exactly with its delay (:mod:`gbo_envs.physics.lti`),
 advances one sample. Physical effect blocks (:mod:`gbo_envs.physics`) sit on
-the actuator side (between ``u`` and the plant) or on the sensor side (between
-the plant output and the measurement). The experiment starts at rest at ``r1``
-and the reference steps to ``r2`` at ``t = 0``.
+the actuator side (between the delayed command ``u`` and the plant input), on
+the sensor side (between the plant output and the measurement) or on the plant
+side (changing the linear plant before its discretisation, e.g. per
+experiment). The experiment starts at rest at ``r1`` and the reference steps
+to ``r2`` at ``t = 0``. Without actuator or sensor effects the loop is linear
+and is solved exactly from its closed-loop transfer functions; otherwise it is
+stepped sample by sample, still for the whole batch at once.
 """
 
 from __future__ import annotations
@@ -21,7 +25,10 @@ from gbo_envs.controllers import Controller
 from gbo_envs.metrics import step_metrics
 from gbo_envs.physics.lti import ContinuousPlant
 
-__all__ = ["ClosedLoop", "StepResponse", "UNSTABLE_LIMIT"]
+__all__ = ["ClosedLoop", "SIMULATION_METHODS", "StepResponse", "UNSTABLE_LIMIT"]
+
+#: Values of the ``method`` argument of :meth:`ClosedLoop.simulate`.
+SIMULATION_METHODS = ("auto", "linear", "stepping")
 
 #: A response that leaves ``r2 +- UNSTABLE_LIMIT * |r2 - r1|`` (or overflows) is flagged unstable.
 UNSTABLE_LIMIT = 100.0
@@ -73,10 +80,17 @@ class ClosedLoop:
     r1, r2 : float
         Reference before and after the step, in output units.
     effects : tuple of effect blocks, default ()
-        Physical effects (:mod:`gbo_envs.physics.effects`), applied in order.
+        Physical effects (:mod:`gbo_envs.physics`; build them with
+        :func:`gbo_envs.physics.effects.build_effects`). Actuator blocks act in
+        order from the controller to the plant input, after the input delay;
+        sensor blocks in order from the plant output to the measurement;
+        plant blocks change ``plant`` before it is discretised.
     output_noise_std : float, default 0.0
         Standard deviation of white sensor noise on the measured output, in
         output units; it enters the feedback and the record.
+    experiment_index : int, default 0
+        Experiment of the session that this loop simulates; plant-side effects
+        such as ``drift`` depend on it (see :meth:`at_experiment`).
     """
 
     plant: ContinuousPlant
@@ -87,6 +101,7 @@ class ClosedLoop:
     r2: float
     effects: tuple = ()
     output_noise_std: float = 0.0
+    experiment_index: int = 0
     _discrete: object = field(default=None, init=False, repr=False)
     _linear_parts: tuple = field(default=(), init=False, repr=False)
 
@@ -97,7 +112,7 @@ class ClosedLoop:
             raise ValueError("r1, r2: the reference step must have non-zero height")
         if self.output_noise_std < 0.0:
             raise ValueError(f"output_noise_std: must be >= 0, got {self.output_noise_std}")
-        object.__setattr__(self, "_discrete", self.plant.discretize(self.dt))
+        object.__setattr__(self, "_discrete", self.current_plant.discretize(self.dt))
         num_p, den_p = self._plant_polynomials
         _, u0 = self._discrete.equilibrium(self.r1)
         width = max(den_p.size, num_p.size) + 1
@@ -122,7 +137,8 @@ class ClosedLoop:
         """``r2 - r1`` in output units."""
         return self.r2 - self.r1
 
-    def simulate(self, gains: np.ndarray, rng: np.random.Generator | None = None) -> StepResponse:
+    def simulate(self, gains: np.ndarray, rng: np.random.Generator | None = None,
+                 method: str = "auto") -> StepResponse:
         """Run the step experiment for every row of ``gains``.
 
         Parameters
@@ -132,19 +148,30 @@ class ClosedLoop:
         rng : numpy.random.Generator, optional
             Source of sensor noise and of random effect behaviour; required when
             ``output_noise_std > 0``.
+        method : {"auto", "linear", "stepping"}, default "auto"
+            ``"linear"``: the exact closed-loop transfer functions (only without
+            actuator and sensor effects); ``"stepping"``: sample by sample
+            through the effect blocks; ``"auto"``: linear when there are no
+            actuator or sensor effects, else stepping.
 
         Returns
         -------
         StepResponse
         """
         gains = np.atleast_2d(np.asarray(gains, dtype=float))
+        if method not in SIMULATION_METHODS:
+            raise ValueError(f"method: must be one of {SIMULATION_METHODS}, got {method!r}")
+        nonlinear = bool(self.actuator_effects or self.sensor_effects)
+        if method == "linear" and nonlinear:
+            raise ValueError("method: 'linear' needs a loop without actuator or sensor effects, "
+                             f"this one has {self.actuator_effects + self.sensor_effects}")
         if self.output_noise_std > 0.0 and rng is None:
             raise ValueError("rng: a numpy Generator is required when output_noise_std > 0")
         noise = None
         if self.output_noise_std > 0.0:
             noise = self.output_noise_std * rng.standard_normal((gains.shape[0], self.n_steps))
         with np.errstate(over="ignore", invalid="ignore"):
-            if self.effects:
+            if method == "stepping" or (method == "auto" and nonlinear):
                 u_out, y_out, u_start = self._simulate_stepping(gains, noise, rng)
             else:
                 u_out, y_out, u_start = self._simulate_linear(gains, noise)
@@ -195,49 +222,81 @@ class ClosedLoop:
         return np.trim_zeros(num, "b"), den
 
     def _simulate_stepping(self, gains, noise, rng):
-        """Sample-by-sample simulation for loops with (nonlinear) effect blocks."""
+        """Sample-by-sample simulation through the effect blocks, vectorised over the batch.
+
+        At sample ``k``: the sensor blocks (and the noise) turn the plant output
+        ``c x[k]`` into the measurement, the controller computes ``u[k]``, the
+        actuator blocks turn the delayed command ``u[k-d]`` into the plant
+        input ``v[k]`` at the current mechanical speed (friction acts on the
+        mechanics when the command reaches them), and the exact ZOH model
+        advances, ``x[k+1] = Phi x[k] + Gamma0 v[k] + Gamma1 v[k-1]``
+        (:meth:`gbo_envs.physics.lti.ContinuousPlant.discretize`).
+        """
         batch = gains.shape[0]
         plant = self._discrete
-        n, dt = self.n_steps, self.dt
-        r = np.full(n, float(self.r2))
+        n, dt, lag = self.n_steps, self.dt, plant.delay_steps
+        r2 = float(self.r2)
         b0, b1, a1 = self.controller.coefficients(gains, dt)
+        actuators, sensors = self.actuator_effects, self.sensor_effects
 
-        # start at rest at r1: plant equilibrium, then back through the actuator effects
-        x, u_applied0 = plant.equilibrium(np.full(batch, float(self.r1)))
-        speed_row = plant.velocity_row() if self.plant.output == "position" else plant.c
-        speed0 = speed_row @ x
+        # start at rest: the measurement reads r1 (sensor blocks inverted), the plant rests there
+        # and the command holds it (actuator blocks inverted, which also sets their state)
+        y_rest = np.full(batch, float(self.r1))
+        for block in reversed(sensors):
+            y_rest = block.level_for(y_rest)
+        x, v_prev = plant.equilibrium(y_rest)
+        speed_is_output = self.current_plant.output != "position"
+        speed_row = plant.c if speed_is_output else plant.velocity_row()
         for block in self.effects:
             block.reset(batch, rng, dt)
-        u_cmd0 = u_applied0.copy()
-        for block in reversed(self.actuator_effects):
-            u_cmd0 = block.command_for(u_cmd0, speed0)
+        speed0 = speed_row @ x
+        u_prev = v_prev.copy()
+        for block in reversed(actuators):
+            u_prev = block.command_for(u_prev, speed0)
+        u_start = np.array(u_prev, dtype=float, copy=True)
 
-        history = [u_applied0.copy() for _ in range(plant.delay_steps + 1)]
-        u_prev, e_prev = u_cmd0.copy(), np.zeros(batch)
+        pending = np.empty((n + lag, batch))  # commands on their way through the input delay
+        pending[:lag] = u_start
         u_rec = np.empty((n, batch))
         y_rec = np.empty((n, batch))
-        phi, gamma0, gamma1, c = plant.phi, plant.gamma0[:, None], plant.gamma1[:, None], plant.c
-        actuators, sensors = self.actuator_effects, self.sensor_effects
-        lag = plant.delay_steps
+        noise_rows = None if noise is None else np.ascontiguousarray(noise.T)
+        # one matmul per sample: x[k+1] = [Phi Gamma0 Gamma1] [x[k]; v[k]; v[k-1]]
+        order, c = plant.order, plant.c
+        fractional = bool(np.any(plant.gamma1 != 0.0))
+        columns = [plant.phi, plant.gamma0[:, None]] + ([plant.gamma1[:, None]] if fractional else [])
+        transition = np.hstack(columns)
+        stacked = np.empty((transition.shape[1], batch))
+        stacked[:order] = x
+        x = stacked[:order]
+        e_prev = np.zeros(batch)
         for k in range(n):
-            y_meas = c @ x
+            y_true = c @ x
+            y_meas = y_true
             for block in sensors:
                 y_meas = block.measure(y_meas)
-            if noise is not None:
-                y_meas = y_meas + noise[:, k]
+            if noise_rows is not None:
+                y_meas = y_meas + noise_rows[k]
             y_rec[k] = y_meas
-            e = r[k] - y_meas
+            e = r2 - y_meas
             u = b0 * e + b1 * e_prev - a1 * u_prev
             u_rec[k] = u
             u_prev, e_prev = u, e
+            if lag:
+                pending[k + lag] = u
+                v = pending[k]
+            else:
+                v = u
             if actuators:
-                speed = speed_row @ x
+                speed = y_true if speed_is_output else speed_row @ x
                 for block in actuators:
-                    u = block.actuate(u, speed)
-            history.append(u)
-            x = phi @ x + gamma0 * history[-1 - lag] + gamma1 * history[-2 - lag]
-            history.pop(0)
-        return u_rec.T.copy(), y_rec.T.copy(), u_cmd0
+                    v = block.actuate(v, speed)
+            stacked[order] = v
+            if fractional:
+                stacked[order + 1] = v_prev
+            x = transition @ stacked
+            stacked[:order] = x
+            v_prev = v
+        return _transposed(u_rec), _transposed(y_rec), u_start
 
     def _finish(self, u_out, y_out, u_start):
         """Flag diverged responses and clip them to finite values."""
@@ -263,7 +322,34 @@ class ClosedLoop:
         """Effect blocks between the plant output and the measurement."""
         return tuple(b for b in self.effects if b.side == "sensor")
 
+    @property
+    def plant_effects(self) -> tuple:
+        """Effect blocks that change the linear plant (time delay, drift)."""
+        return tuple(b for b in self.effects if b.side == "plant")
+
+    @property
+    def current_plant(self) -> ContinuousPlant:
+        """``plant`` with the plant-side effects applied, as at experiment ``experiment_index``."""
+        plant = self.plant
+        for block in self.plant_effects:
+            plant = block.modify_plant(plant, self.experiment_index)
+        return plant
+
+    def at_experiment(self, index: int) -> ClosedLoop:
+        """The loop as it is at experiment ``index`` (itself if no plant-side effect depends on it)."""
+        if int(index) == self.experiment_index or not self.plant_effects:
+            return self
+        return self.replace(experiment_index=int(index))
+
     def metrics(self, response: StepResponse) -> np.ndarray:
         """Metrics of shape (batch, 4) of a response of this loop."""
         return response.metrics(self.r1, self.r2)
+
+
+def _transposed(a: np.ndarray, block: int = 64) -> np.ndarray:
+    """C-contiguous transpose of a 2-D array, copied in cache-sized blocks (about 4x faster than ``a.T.copy()``)."""
+    out = np.empty((a.shape[1], a.shape[0]))
+    for start in range(0, a.shape[0], block):
+        out[:, start : start + block] = a[start : start + block].T
+    return out
 

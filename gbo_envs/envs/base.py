@@ -221,8 +221,13 @@ class ControllerTuningEnv(gym.Env):
         return metrics, cost
 
     def loop_for_experiment(self, index: int) -> ClosedLoop:
-        """The loop as it is at experiment ``index`` (time-varying plants override this)."""
-        return self.loop
+        """The loop as it is at experiment ``index``.
+
+        Plant-side effect blocks (e.g. ``drift``) are applied here through
+        :meth:`~gbo_envs.closed_loop.ClosedLoop.at_experiment`; time-varying
+        plants may override this.
+        """
+        return self.loop.at_experiment(index)
 
     def extra_info(self, index: int) -> dict[str, Any]:
         """Extra entries for ``info`` (time-varying plants report their true parameters)."""

@@ -1,0 +1,241 @@
+"""Actuator-path effects: saturation, dead zone, backlash, offset and cogging.
+
+All act on the commanded plant input ``u`` (in the plant's input units, the
+controller output) after the loop's input delay, once per sample; the plant
+holds their output for the sample interval (zero-order hold).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gbo_envs.physics.block import EffectBlock, EffectParameter
+
+__all__ = ["Backlash", "Cogging", "DeadZone", "Offset", "Saturation"]
+
+_INF = float("inf")
+
+
+class Saturation(EffectBlock):
+    """Symmetric input limit (drive current or voltage limit).
+
+    ``u_applied = clip(u, -limit, limit)``.
+
+    Parameters
+    ----------
+    limit : float
+        Largest input magnitude the actuator delivers, in input units, in
+        ``[0, inf]``; ``inf`` (zero magnitude) means no limit.
+
+    Notes
+    -----
+    The experiment starts at rest, so the input that holds the plant at ``r1``
+    must lie within the limit; otherwise :meth:`command_for` raises
+    ``ValueError``.
+    """
+
+    name = "saturation"
+    side = "actuator"
+    parameters = (EffectParameter("limit", "input units", 0.0, _INF, None, _INF,
+                                  "largest input magnitude the actuator delivers"),)
+    magnitude_param = "limit"
+
+    def __init__(self, limit: float) -> None:
+        self._set_params(limit=limit)
+
+    def command_for(self, u_applied, speed):
+        if np.any(np.abs(u_applied) > self.limit):
+            worst = float(np.max(np.abs(u_applied)))
+            raise ValueError(f"saturation: parameter 'limit' = {self.limit:g} input units is below the input "
+                             f"{worst:g} that holds the plant at rest at r1; allowed: limit >= {worst:g}")
+        return u_applied
+
+    def actuate(self, u, speed):
+        return np.minimum(np.maximum(u, -self.limit), self.limit)  # np.clip, at half the call overhead
+
+
+class DeadZone(EffectBlock):
+    """Symmetric dead band around zero input (amplifier or valve dead zone).
+
+    ``u_applied = 0`` for ``|u| <= width / 2``, else ``u - sign(u) width / 2``.
+
+    Parameters
+    ----------
+    width : float
+        Total width of the band in input units, ``>= 0`` (0: no dead zone).
+    """
+
+    name = "dead_zone"
+    side = "actuator"
+    parameters = (EffectParameter("width", "input units", 0.0, _INF, None, 0.0,
+                                  "total width of the band of inputs that produce nothing"),)
+    magnitude_param = "width"
+
+    def __init__(self, width: float) -> None:
+        self._set_params(width=width)
+
+    def command_for(self, u_applied, speed):
+        return u_applied + np.sign(u_applied) * (self.width / 2.0)
+
+    def actuate(self, u, speed):
+        half = self.width / 2.0
+        return u - np.clip(u, -half, half)
+
+
+class Backlash(EffectBlock):
+    """Backlash (play) between the drive and the load, as a hysteresis on the input path.
+
+    The play operator: the transmitted input ``v`` follows ``u`` only once
+    the gap is taken up, ``v[k] = clip(v[k-1], u[k] - width/2, u[k] + width/2)``;
+    reversing ``u`` leaves ``v`` unchanged until ``u`` has travelled ``width``.
+
+    Parameters
+    ----------
+    width : float
+        Total play in input units, ``>= 0`` (0: rigid transmission).
+
+    Notes
+    -----
+    At rest the drive pushes the load (the gap is closed on the side of the
+    holding input), so the commanded input at rest is
+    ``u_applied + sign(u_applied) width / 2``.
+    """
+
+    name = "backlash"
+    side = "actuator"
+    parameters = (EffectParameter("width", "input units", 0.0, _INF, None, 0.0,
+                                  "total play the input travels on reversal before the load follows"),)
+    magnitude_param = "width"
+
+    def __init__(self, width: float) -> None:
+        self._set_params(width=width)
+        self._state = np.zeros(0)
+
+    def reset(self, batch, rng, dt):
+        self._state = np.zeros(batch)
+
+    def command_for(self, u_applied, speed):
+        self._state = np.array(u_applied, dtype=float, copy=True)
+        return u_applied + np.sign(u_applied) * (self.width / 2.0)
+
+    def actuate(self, u, speed):
+        half = self.width / 2.0
+        self._state = np.clip(self._state, u - half, u + half)
+        return self._state
+
+
+class Offset(EffectBlock):
+    """Constant bias on the actuator (default) or on the sensor.
+
+    ``on = "actuator"``: ``u_applied = u + value`` (amplifier/DAC offset, or a
+    constant load expressed as an input); the integrating controller absorbs
+    it, so it shows in the recorded command ``u`` (shifted by ``-value`` at
+    rest) and through any nonlinearity downstream.
+    ``on = "sensor"``: ``y_measured = y + value`` (sensor bias); the loop
+    regulates the *measured* output, so the true output rests ``value`` below it.
+
+    Parameters
+    ----------
+    value : float
+        The bias in input units (actuator) or output units (sensor); 0: none.
+    on : {"actuator", "sensor"}, default "actuator"
+        Where the bias acts.
+    """
+
+    name = "offset"
+    parameters = (EffectParameter("value", "input units (on='actuator') or output units (on='sensor')",
+                                  -_INF, _INF, None, 0.0, "constant bias"),)
+    options = {"on": ("actuator", "sensor")}
+    magnitude_param = "value"
+
+    def __init__(self, value: float, on: str = "actuator") -> None:
+        self._set_params(value=value)
+        self.on = self._check_option("on", on)
+        self.side = on
+        if not np.isfinite(self.value):
+            raise ValueError(f"offset: parameter 'value' must be finite, got {self.value}")
+
+    def command_for(self, u_applied, speed):
+        return u_applied - self.value
+
+    def actuate(self, u, speed):
+        return u + self.value
+
+    def level_for(self, y_measured):
+        return y_measured - self.value
+
+    def measure(self, y):
+        return y + self.value
+
+
+class Cogging(EffectBlock):
+    """Cogging (detent) ripple: an input disturbance periodic in the rotor or slider position.
+
+    ``u_applied = u + amplitude sin(2 pi theta / period + phase)``, averaged
+    over the sample interval: with the position ``theta[k]`` at the start of
+    the interval and ``d = speed[k] dt`` travelled during it, the plant gets
+    ``amplitude sin(a + b / 2) sinc(b / (2 pi))`` with ``a = 2 pi theta[k] / period + phase``,
+    ``b = 2 pi d / period`` and ``sinc(x) = sin(pi x) / (pi x)`` (the plain sine at ``d = 0``).
+    This is the mean ripple the plant integrates under the zero-order hold,
+    so a fast motor whose ripple is faster than the sampling sees it
+    attenuated, not aliased.
+
+    The position is the integral of the mechanical speed (rectangle rule,
+    ``theta[k+1] = theta[k] + speed[k] dt``), from ``theta = 0`` at the start
+    of the experiment: for a speed loop it is the rotor angle (rad when the
+    speed is in rad/s), for a position loop the travel since the start.
+
+    Parameters
+    ----------
+    amplitude : float
+        Peak ripple in input units, ``>= 0`` (0: none).
+    period : float
+        Position travelled per ripple period, in position units (the output
+        integrated over time for a speed loop, e.g. ``2 pi / n_slots`` rad;
+        the output's units for a position loop), ``> 0``.
+    phase : float, default 0.0
+        Ripple phase at ``theta = 0`` in rad.
+    """
+
+    name = "cogging"
+    side = "actuator"
+    parameters = (
+        EffectParameter("amplitude", "input units", 0.0, _INF, None, 0.0, "peak ripple"),
+        EffectParameter("period", "position units (rad for a speed loop in rad/s)", 1e-12, _INF, 2.0 * np.pi,
+                        float("nan"), "position travelled per ripple period"),
+        EffectParameter("phase", "rad", -2.0 * np.pi, 2.0 * np.pi, 0.0, float("nan"), "phase at the start"),
+    )
+    magnitude_param = "amplitude"
+
+    def __init__(self, amplitude: float, period: float = 2.0 * np.pi, phase: float = 0.0) -> None:
+        self._set_params(amplitude=amplitude, period=period, phase=phase)
+        if not np.isfinite(self.amplitude) or not np.isfinite(self.period):
+            raise ValueError(f"cogging: parameters 'amplitude' and 'period' must be finite, "
+                             f"got {self.amplitude}, {self.period}")
+        self._angle = np.zeros(0)
+        self._dt = 0.0
+
+    def reset(self, batch, rng, dt):
+        self._angle = np.zeros(batch)
+        self._dt = float(dt)
+
+    def ripple(self, angle: np.ndarray, travel: np.ndarray) -> np.ndarray:
+        """Mean ripple over an interval starting at phase ``angle`` and advancing by ``travel`` (both rad).
+
+        ``(cos(a) - cos(a + d)) / d = sin(a + d / 2) sinc(d / (2 pi))`` with numpy's
+        normalised ``sinc``; it tends to ``sin(a)`` as ``d -> 0``.
+        """
+        return self.amplitude * np.sin(angle + travel / 2.0) * np.sinc(travel / (2.0 * np.pi))
+
+    def _phase_angle(self) -> np.ndarray:
+        return (2.0 * np.pi / self.period) * self._angle + self.phase
+
+    def command_for(self, u_applied, speed):
+        travel = (2.0 * np.pi / self.period) * speed * self._dt
+        return u_applied - self.ripple(self._phase_angle(), travel)
+
+    def actuate(self, u, speed):
+        travel = (2.0 * np.pi / self.period) * speed * self._dt
+        out = u + self.ripple(self._phase_angle(), travel)
+        self._angle = self._angle + speed * self._dt
+        return out

@@ -1,0 +1,203 @@
+"""Base class of the physical effect blocks and the validation of their parameters.
+
+An effect block sits on one side of the sampled-data loop of
+:class:`gbo_envs.closed_loop.ClosedLoop`:
+
+* ``side = "actuator"``: between the commanded input ``u`` (controller output,
+  after the loop's input delay) and the plant input; called once per sample as
+  ``actuate(u, speed) -> u_applied``, where ``speed`` is the mechanical speed
+  (``y`` for a speed loop, ``dy/dt`` for a position loop);
+* ``side = "sensor"``: between the plant output and the measurement;
+  ``measure(y) -> y_measured``;
+* ``side = "plant"``: changes the linear plant itself before it is discretised,
+  possibly per experiment; ``modify_plant(plant, experiment_index) -> plant``.
+
+Every array argument is of shape (batch,): one entry per gain vector of the
+batch being simulated. Blocks are vectorised over the batch and keep their
+per-row state (if any) between calls; ``reset(batch, rng, dt)`` starts a new
+simulation. To start the experiment at rest, the simulator inverts the static
+maps: ``level_for(y_measured)`` (sensor) gives the true output whose
+measurement is ``y_measured``, and ``command_for(u_applied, speed)``
+(actuator) gives the commanded input that produces ``u_applied`` at rest; a
+stateful block also sets its state to that rest condition there.
+
+Blocks with state (``backlash``, ``cogging``) hold it between ``reset`` and
+the end of one simulation: one block object must not be used by two
+simulations running at the same time (deep-copy the loop for threads).
+"""
+
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from gbo_envs.physics.lti import ContinuousPlant
+
+__all__ = ["EffectBlock", "EffectParameter", "SIDES"]
+
+#: Where a block acts in the loop.
+SIDES = ("actuator", "sensor", "plant")
+
+
+@dataclass(frozen=True)
+class EffectParameter:
+    """Description of one numeric effect parameter (what a twin may fit).
+
+    Attributes
+    ----------
+    name : str
+        Keyword of the block's constructor.
+    unit : str
+        Physical unit; "input units" are those of the commanded plant input
+        (controller output), "output units" those of the measured output,
+        "speed units" those of the mechanical speed.
+    low, high : float
+        Allowed closed range ``[low, high]`` (``high`` may be ``inf``).
+    default : float or None
+        Value used when the parameter is not given; ``None`` means required.
+    zero : float
+        Value at which this parameter makes the block have no effect, or
+        ``nan`` if it is not the block's magnitude.
+    description : str
+        One line of physics.
+    """
+
+    name: str
+    unit: str
+    low: float
+    high: float
+    default: float | None
+    zero: float
+    description: str
+
+    def validate(self, effect: str, value: Any) -> float:
+        """Return ``value`` as a float, or raise ``ValueError`` naming effect, parameter and range."""
+        interval = f"[{self.low:g}, {self.high:g}]"
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            raise ValueError(f"{effect}: parameter {self.name!r} must be a real number in {interval} "
+                             f"({self.unit}), got {value!r} of type {type(value).__name__}")
+        value = float(value)
+        if np.isnan(value) or not (self.low <= value <= self.high):
+            raise ValueError(f"{effect}: parameter {self.name!r} must be in {interval} ({self.unit}), "
+                             f"got {value!r}")
+        return value
+
+
+class EffectBlock:
+    """A physical effect that can be put into any plant loop.
+
+    Subclasses declare ``name`` (catalogue name), ``side``, ``parameters`` (a
+    tuple of :class:`EffectParameter`; the numeric, fittable parameters),
+    ``options`` (non-numeric settings with their allowed values) and
+    ``magnitude_param`` (the parameter whose ``zero`` value switches the
+    block off). ``param_names``, ``param_units`` and ``param_bounds`` are
+    derived class attributes.
+    """
+
+    name: ClassVar[str] = ""
+    side: str = "actuator"
+    parameters: ClassVar[tuple[EffectParameter, ...]] = ()
+    options: ClassVar[dict[str, tuple]] = {}
+    magnitude_param: ClassVar[str] = ""
+    param_names: ClassVar[tuple[str, ...]] = ()
+    param_units: ClassVar[tuple[str, ...]] = ()
+    param_bounds: ClassVar[tuple[tuple[float, float], ...]] = ()
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.param_names = tuple(p.name for p in cls.parameters)
+        cls.param_units = tuple(p.unit for p in cls.parameters)
+        cls.param_bounds = tuple((p.low, p.high) for p in cls.parameters)
+
+    # -- construction and description --------------------------------------------------------------
+    def _set_params(self, **values: Any) -> None:
+        """Validate and store the numeric parameters as attributes."""
+        for spec in self.parameters:
+            value = values[spec.name]
+            if value is None and spec.default is not None:
+                value = spec.default
+            setattr(self, spec.name, spec.validate(self.name, value))
+
+    def _check_option(self, option: str, value: Any) -> Any:
+        """Return ``value`` if it is an allowed value of ``option``, else raise ``ValueError``."""
+        allowed = self.options[option]
+        if not any(value == a and type(value) is type(a) for a in allowed):
+            raise ValueError(f"{self.name}: parameter {option!r} must be one of {allowed}, got {value!r}")
+        return value
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any] | None = None) -> EffectBlock:
+        """Build from a ``{parameter: value}`` dict, rejecting unknown parameter names."""
+        params = {} if params is None else params
+        if not isinstance(params, dict):
+            raise ValueError(f"{cls.name}: parameters must be a dict {{name: value}}, got {params!r}")
+        allowed = cls.param_names + tuple(cls.options)
+        for key in params:
+            if key not in allowed:
+                raise ValueError(f"{cls.name}: unknown parameter {key!r}; allowed parameters are {allowed}")
+        for spec in cls.parameters:
+            if spec.default is None and spec.name not in params:
+                raise ValueError(f"{cls.name}: parameter {spec.name!r} is required "
+                                 f"(a real number in [{spec.low:g}, {spec.high:g}], {spec.unit})")
+        return cls(**params)
+
+    @classmethod
+    def zero(cls, **options: Any) -> EffectBlock:
+        """The block at zero magnitude: it leaves the loop exactly as without it."""
+        spec = next(p for p in cls.parameters if p.name == cls.magnitude_param)
+        return cls(**{cls.magnitude_param: spec.zero}, **options)
+
+    @property
+    def params(self) -> dict[str, Any]:
+        """Numeric parameters and options as a dict (``build_effects`` accepts it back)."""
+        out: dict[str, Any] = {name: getattr(self, name) for name in self.param_names}
+        out.update({name: getattr(self, name) for name in self.options})
+        return out
+
+    @property
+    def magnitude(self) -> float:
+        """Value of the magnitude parameter (see ``magnitude_param``)."""
+        return float(getattr(self, self.magnitude_param))
+
+    @property
+    def is_zero(self) -> bool:
+        """Whether the block is at zero magnitude (no effect at all)."""
+        spec = next(p for p in self.parameters if p.name == self.magnitude_param)
+        return self.magnitude == spec.zero
+
+    def __repr__(self) -> str:
+        body = ", ".join(f"{k}={v!r}" for k, v in self.params.items())
+        return f"{type(self).__name__}({body})"
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is type(self) and other.params == self.params
+
+    def __hash__(self) -> int:
+        return hash((type(self).__name__, repr(self)))
+
+    # -- simulator contract (identity defaults) ---------------------------------------------------
+    def reset(self, batch: int, rng: np.random.Generator | None, dt: float) -> None:
+        """Start a simulation of ``batch`` loops sampled every ``dt`` s (clears any state)."""
+
+    def command_for(self, u_applied: np.ndarray, speed: np.ndarray) -> np.ndarray:
+        """Commanded input of shape (batch,) that yields ``u_applied`` at rest at ``speed`` (actuator side)."""
+        return u_applied
+
+    def actuate(self, u: np.ndarray, speed: np.ndarray) -> np.ndarray:
+        """Plant input of shape (batch,) for the commanded input ``u`` at mechanical ``speed`` (actuator side)."""
+        return u
+
+    def level_for(self, y_measured: np.ndarray) -> np.ndarray:
+        """True output of shape (batch,) whose measurement is ``y_measured`` (sensor side)."""
+        return y_measured
+
+    def measure(self, y: np.ndarray) -> np.ndarray:
+        """Measurement of shape (batch,) of the true plant output ``y`` (sensor side)."""
+        return y
+
+    def modify_plant(self, plant: ContinuousPlant, experiment_index: int) -> ContinuousPlant:
+        """The plant as it is at experiment ``experiment_index`` (plant side)."""
+        return plant
