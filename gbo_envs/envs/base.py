@@ -214,11 +214,21 @@ class ControllerTuningEnv(gym.Env):
             ``unstable_cost`` where the loop diverges.
         """
         index = self.experiment_index if experiment_index is None else experiment_index
-        loop = self.loop_for_experiment(index).replace(output_noise_std=0.0)
+        loop = self._noise_free(self.loop_for_experiment(index))
         response = loop.simulate(np.atleast_2d(gains), rng=np.random.default_rng(0))
         metrics = loop.metrics(response)
         cost = np.where(response.unstable, self.unstable_cost, self.cost(metrics))
         return metrics, cost
+
+    def _noise_free(self, loop: ClosedLoop) -> ClosedLoop:
+        """``loop`` without sensor noise; the copy is cached, since it re-discretises the plant."""
+        if loop.output_noise_std == 0.0:
+            return loop
+        cached = self.__dict__.get("_noise_free_cache")
+        if cached is None or cached[0] is not loop:
+            cached = (loop, loop.replace(output_noise_std=0.0))
+            self._noise_free_cache = cached
+        return cached[1]
 
     def loop_for_experiment(self, index: int) -> ClosedLoop:
         """The loop as it is at experiment ``index``.

@@ -1,0 +1,318 @@
+r"""Simplified refined instrumental variable method for continuous-time models (SRIVC).
+
+The model is the continuous-time transfer function with an input delay
+
+.. math::
+
+    x(t) = \frac{B(p)}{A(p)} u(t - \tau), \qquad y(t_k) = y_0 + x(t_k) + e(t_k),
+
+    A(p) = p^n + a_1 p^{n-1} + \dots + a_n, \qquad B(p) = b_0 p^m + \dots + b_m,
+
+with ``p = d/dt``, ``m < n``, ``e`` the measurement noise, and the record in
+deviations from its rest levels: ``u - u_0`` enters the plant, and ``y_0, u_0``
+(the pre-step equilibrium) are estimated per record when ``offset=True``.
+``k`` known poles at ``s = 0`` are imposed by fixing ``a_{n-k+1} = ... = a_n = 0``.
+
+SRIVC (Young & Jakeman 1980; Garnier, Wang & Young 2008) iterates, from an
+initial estimate ``theta^0`` (here the least-squares state-variable filter fit,
+:func:`lssvf`), for ``j = 1, 2, ...``:
+
+(a) prefilter with ``F(p) = 1 / A^{j-1}(p)``::
+
+        y_f^{(i)} = p^i / A^{j-1}(p) y,   u_f^{(i)} = p^i / A^{j-1}(p) u(t - tau)          (S1)
+
+    (``i = 0..n``; ``y_f^{(n)} = y - sum_i a_i^{j-1} y_f^{(n-i)}``);
+(b) simulate the noise-free auxiliary model and filter it::
+
+        x_hat = B^{j-1}(p) / A^{j-1}(p) u(t - tau),   x_f^{(i)} = p^i / A^{j-1}(p) x_hat     (S2)
+
+(c) regressor, instrument and target::
+
+        phi_f  = [-y_f^{(n-1)}, ..., -y_f^{(0)}, u_f^{(m)}, ..., u_f^{(0)}]^T
+        zeta_f = [-x_f^{(n-1)}, ..., -x_f^{(0)}, u_f^{(m)}, ..., u_f^{(0)}]^T                 (S3)
+
+(d) solve the IV normal equations over all samples of all records::
+
+        theta^j = [ sum_k zeta_f(t_k) phi_f(t_k)^T ]^{-1} sum_k zeta_f(t_k) y_f^{(n)}(t_k)   (S4)
+
+until ``||theta^j - theta^{j-1}|| <= tol ||theta^j||``. The rest levels enter
+(S4) as two nuisance regressors per record, ``1`` (for ``y_0``) and the
+auxiliary model's step response ``B^{j-1}/A^{j-1} 1(t - tau)`` (for ``u_0``),
+projected out of ``phi_f``, ``zeta_f`` and ``y_f^{(n)}`` (they are noise-free,
+so they are their own instruments).
+
+Filters are simulated exactly on the sample grid: the prefilter ``1/A`` in
+controllable canonical form, whose states are ``p^{n-1}/A, ..., 1/A``, is
+discretised with a zero-order hold and the fractional input delay by
+:meth:`gbo_envs.ContinuousPlant.discretize`, turned into one ``z``-transfer
+function per state and run with ``scipy.signal.lfilter`` over all records at
+once. For decimated records (``hold="foh"``) the signals are first interpolated
+linearly onto a grid ``oversample`` times finer (value at the middle of each fine
+interval) and filtered there, which approximates a first-order hold.
+
+Closed loop: ``u`` depends on the noise through the feedback. The instrument
+``zeta_f`` is built from ``u`` and the noise-free model output ``x_hat``, never
+from ``y``, and at convergence (``A^{j-1} = A``) the equation error of (S4) at
+``t_k`` is ``y(t_k) - x(t_k) = e(t_k)`` (white). With a sampled controller,
+``u(t_k)`` depends on ``e`` up to ``t_k``, but the strictly proper filters make
+``zeta_f(t_k)`` depend on ``u`` before ``t_k`` only, so ``zeta_f(t_k)`` is
+uncorrelated with ``e(t_k)`` and the estimate stays consistent under feedback,
+whereas least squares (``zeta_f = phi_f``) is biased. For coloured noise or a
+controller output that reacts within the same sample, prefer the closed-loop
+variant of Gilson et al. (2008), which simulates the instrument from ``r``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from gbo_envs import ContinuousPlant
+
+__all__ = ["Orders", "Signals", "SrivcResult", "prepare", "lssvf", "srivc", "simulate"]
+
+
+@dataclass(frozen=True)
+class Orders:
+    """Model structure: ``n`` poles (``k`` of them at ``s = 0``), ``m`` zeros."""
+
+    n: int
+    m: int
+    k: int = 0
+
+    @property
+    def n_params(self) -> int:
+        """Free parameters ``a_1..a_{n-k}, b_0..b_m``."""
+        return self.n - self.k + self.m + 1
+
+    def den(self, theta: np.ndarray) -> np.ndarray:
+        """Monic ``A`` of shape (n + 1,), highest power first."""
+        return np.concatenate([[1.0], theta[: self.n - self.k], np.zeros(self.k)])
+
+    def num(self, theta: np.ndarray) -> np.ndarray:
+        """``B`` of shape (m + 1,), highest power first."""
+        return np.asarray(theta[self.n - self.k :], dtype=float)
+
+
+@dataclass(frozen=True, eq=False)
+class Signals:
+    """One batch of records in deviations, ready for filtering.
+
+    Attributes
+    ----------
+    h : float
+        Filter step in s (the sample time divided by ``oversample``).
+    u_fine, y_fine : ndarray of shape (n_records, n_fine)
+        Input ``u - u_ref`` and output ``y - y_ref`` as staircases on the filter grid.
+    rows : ndarray of int, shape (n_steps,)
+        Filter-grid index of each measured sample.
+    y : ndarray of shape (n_records, n_steps)
+        Measured ``y - y_ref``.
+    y_ref, u_ref, r2 : ndarray of shape (n_records,)
+        Reference levels subtracted, and the post-step reference.
+    """
+
+    h: float
+    u_fine: np.ndarray
+    y_fine: np.ndarray
+    rows: np.ndarray
+    y: np.ndarray
+    y_ref: np.ndarray
+    u_ref: np.ndarray
+    r2: np.ndarray
+
+
+@dataclass(frozen=True)
+class SrivcResult:
+    """Outcome of :func:`srivc`: parameters, iterations and convergence flag."""
+
+    theta: np.ndarray
+    n_iter: int
+    converged: bool
+
+
+def prepare(dt: float, u: np.ndarray, y: np.ndarray, r2: np.ndarray, offset: bool, hold: str,
+            oversample: int = 10) -> Signals:
+    """Subtract reference levels and lay the signals on the filter grid.
+
+    ``y_ref = y[0]``; ``u_ref = u[0]`` when the rest input is estimated
+    (``offset=True``), else ``0`` (the record is already a deviation).
+    """
+    y_ref = y[:, 0].copy()
+    u_ref = u[:, 0].copy() if offset else np.zeros(u.shape[0])
+    du, dy = u - u_ref[:, None], y - y_ref[:, None]
+    n = u.shape[1]
+    if hold == "zoh":
+        return Signals(dt, du, dy, np.arange(n), dy, y_ref, u_ref, r2)
+    fine_t = np.minimum((np.arange((n - 1) * oversample + 1) + 0.5) / oversample, n - 1)  # mid-interval
+    grid = np.arange(n)
+    u_fine = np.stack([np.interp(fine_t, grid, row) for row in du])
+    y_fine = np.stack([np.interp(fine_t, grid, row) for row in dy])
+    return Signals(dt / oversample, u_fine, y_fine, np.arange(n) * oversample, dy, y_ref, u_ref, r2)
+
+
+class _Prefilter:
+    """``p^i / A(p)``, ``i = n-1 .. 0``, sampled exactly with step ``h`` and input delay."""
+
+    def __init__(self, den: np.ndarray, h: float, delay: float) -> None:
+        plant = ContinuousPlant(num=(1.0,), den=tuple(den), delay=delay).discretize(h)
+        n, d = plant.order, plant.delay_steps
+        den_z = np.real(np.poly(np.exp(np.roots(den) * h)))  # eigenvalues of Phi = e^{A h}
+        num0 = _state_numerators(plant.phi, plant.gamma0, den_z)
+        num1 = _state_numerators(plant.phi, plant.gamma1, den_z)
+        nums = np.zeros((n, d + n + 2))
+        nums[:, d : d + n + 1] += num0  # x[k+1] = Phi x[k] + Gamma0 u[k-d] + Gamma1 u[k-d-1]
+        nums[:, d + 1 : d + n + 2] += num1
+        self.nums, self.den = nums, den_z
+        self.order = n
+
+    def states(self, x: np.ndarray) -> np.ndarray:
+        """Filter ``x`` of shape (batch, n_fine); return states of shape (n, batch, n_fine)."""
+        return np.stack([lfilter(num, self.den, x, axis=-1) for num in self.nums])
+
+
+def _state_numerators(phi: np.ndarray, gamma: np.ndarray, den_z: np.ndarray) -> np.ndarray:
+    """Numerators in ``z^-1`` of ``(zI - Phi)^{-1} gamma``, shape (n, n + 1), over ``den_z``.
+
+    Leverrier: ``adj(zI - Phi) = sum_k z^{n-1-k} M_k`` with ``M_0 = I``, ``M_k = Phi M_{k-1} + c_k I``.
+    """
+    n = phi.shape[0]
+    nums = np.zeros((n, n + 1))
+    vec = gamma.copy()
+    for k in range(n):
+        nums[:, k + 1] = vec
+        vec = phi @ vec + den_z[k + 1] * gamma
+    return nums
+
+
+def _output(orders: Orders, theta: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """``B(p)/A(p) u`` from the prefilter states ``p^{n-1}/A u .. 1/A u`` (state ``n-1-i`` is ``p^i/A``)."""
+    b = orders.num(theta)
+    first = orders.n - 1 - orders.m  # state of p^m / A
+    return np.tensordot(b, states[first : first + orders.m + 1], axes=1)
+
+
+def _projector(nuisance: np.ndarray) -> np.ndarray:
+    """Orthonormal basis of shape (n_steps, q) of the columns of ``nuisance``."""
+    basis, sing, _ = np.linalg.svd(nuisance, full_matrices=False)
+    return basis[:, sing > sing[0] * 1e-10] if sing[0] > 0 else basis[:, :0]
+
+
+def _project(q: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """Remove from ``columns`` of shape (batch, n_steps, p) their components along ``q``."""
+    return columns - np.einsum("nq,bqp->bnp", q, np.einsum("nq,bnp->bqp", q, columns))
+
+
+def _solve(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    scale = 1.0 / np.sqrt(np.maximum(np.abs(np.diag(gram)), 1e-300))
+    sol = np.linalg.lstsq(gram * scale[:, None] * scale[None, :], rhs * scale, rcond=None)[0]
+    return sol * scale
+
+
+def _equations(orders: Orders, batches: list[Signals], den: np.ndarray, delay: float, theta_aux, offset: bool,
+               free_offsets: bool = False):
+    """Accumulate ``sum zeta phi^T`` and ``sum zeta y_f^(n)`` of (S4) over all batches.
+
+    ``theta_aux`` gives the auxiliary model of (S2); ``None`` means least squares (``zeta = phi``).
+    """
+    n, m, k = orders.n, orders.m, orders.k
+    p = orders.n_params
+    gram, rhs = np.zeros((p, p)), np.zeros(p)
+    for sig in batches:
+        fy = _Prefilter(den, sig.h, 0.0)
+        fu = _Prefilter(den, sig.h, delay)
+        ys = fy.states(sig.y_fine)[:, :, sig.rows]  # (S1) y_f^{(n-1)} .. y_f^{(0)}
+        us_fine = fu.states(sig.u_fine)
+        us = us_fine[:, :, sig.rows]  # (S1) u_f^{(n-1)} .. u_f^{(0)}
+        target = sig.y - np.tensordot(den[1:], ys, axes=1)  # y_f^{(n)}
+        u_cols = [us[n - 1 - m + j] for j in range(m + 1)]  # u_f^{(m)} .. u_f^{(0)}
+        phi = np.stack([-ys[i] for i in range(n - k)] + u_cols, axis=-1)  # (S3)
+        if theta_aux is None:
+            zeta = phi
+        else:
+            x_hat = _output(orders, theta_aux, us_fine)  # (S2)
+            xs = fy.states(x_hat)[:, :, sig.rows]
+            zeta = np.stack([-xs[i] for i in range(n - k)] + u_cols, axis=-1)  # (S3)
+        if offset:
+            ones = np.ones((1, sig.u_fine.shape[1]))
+            if free_offsets:  # any y_0 A(p)/A_f(p) 1 - u_0 B(p)/A_f(p) 1(t - tau)
+                s_y = fy.states(ones)[:, 0, sig.rows]
+                s_u = fu.states(ones)[:, 0, sig.rows]
+                nuisance = np.column_stack([np.ones(sig.rows.size), *s_y, *s_u[n - 1 - m :]])
+            else:  # y_0 and u_0 through the auxiliary model's step response
+                step = _output(orders, theta_aux, fu.states(ones))[0, sig.rows]
+                nuisance = np.column_stack([np.ones(sig.rows.size), step])
+            q = _projector(nuisance)
+            phi, zeta = _project(q, phi), _project(q, zeta)
+            target = _project(q, target[:, :, None])[:, :, 0]
+        gram += np.einsum("bnp,bnq->pq", zeta, phi)
+        rhs += np.einsum("bnp,bn->p", zeta, target)
+    return gram, rhs
+
+
+def _stabilised(orders: Orders, theta: np.ndarray) -> np.ndarray:
+    """Mirror unstable roots of the free part of ``A`` into the left half plane."""
+    free = np.concatenate([[1.0], theta[: orders.n - orders.k]])
+    if free.size == 1:
+        return theta
+    roots = np.roots(free)
+    if np.all(roots.real < 0.0):
+        return theta
+    roots = np.where(roots.real >= 0.0, -np.abs(roots.real) - 1e-9 + 1j * roots.imag, roots)
+    out = theta.copy()
+    out[: orders.n - orders.k] = np.real(np.poly(roots))[1:]
+    return out
+
+
+def lssvf(orders: Orders, batches: list[Signals], delay: float, bandwidth: float, offset: bool) -> np.ndarray:
+    """Least-squares state-variable-filter estimate, the SRIVC initialisation.
+
+    Solves (S4) with ``zeta_f = phi_f`` and the fixed prefilter ``1 / (p + bandwidth)^n``
+    (``bandwidth`` in rad/s); the rest levels enter through free step-response regressors.
+    """
+    den = np.real(np.poly(np.full(orders.n, -float(bandwidth))))
+    gram, rhs = _equations(orders, batches, den, delay, None, offset, free_offsets=True)
+    return _stabilised(orders, _solve(gram, rhs))
+
+
+def srivc(orders: Orders, batches: list[Signals], delay: float, theta0: np.ndarray, max_iter: int = 50,
+          tol: float = 1e-8, offset: bool = True) -> SrivcResult:
+    """Iterate (S1)-(S4) from ``theta0`` at a fixed input delay ``delay`` (s)."""
+    theta = _stabilised(orders, np.asarray(theta0, dtype=float))
+    for it in range(1, max_iter + 1):
+        gram, rhs = _equations(orders, batches, orders.den(theta), delay, theta, offset)
+        new = _stabilised(orders, _solve(gram, rhs))
+        change = np.linalg.norm(new - theta) / max(np.linalg.norm(new), 1e-300)
+        theta = new
+        if not np.all(np.isfinite(theta)):
+            return SrivcResult(theta0, it, False)
+        if change <= tol:
+            return SrivcResult(theta, it, True)
+    return SrivcResult(theta, max_iter, False)
+
+
+def simulate(orders: Orders, theta: np.ndarray, delay: float, sig: Signals, offset: bool):
+    """Simulated output ``y0 + B/A u(t - tau) - u0 B/A 1(t - tau)`` at the measured samples.
+
+    With ``offset=True`` the rest levels ``(y0, u0)`` of each record are the
+    least-squares fit of the simulation error; else ``y0 = y[0]``, ``u0 = 0``.
+
+    Returns
+    -------
+    y_sim : ndarray of shape (n_records, n_steps)
+        Simulated output in the units of ``y``.
+    y0, u0 : ndarray of shape (n_records,)
+        Rest levels used.
+    """
+    den = orders.den(theta)
+    fu = _Prefilter(den, sig.h, delay)
+    x = _output(orders, theta, fu.states(sig.u_fine))[:, sig.rows]
+    if not offset:
+        return sig.y_ref[:, None] + x, sig.y_ref.copy(), sig.u_ref.copy()
+    step = _output(orders, theta, fu.states(np.ones((1, sig.u_fine.shape[1]))))[0, sig.rows]
+    basis = np.column_stack([np.ones(sig.rows.size), step])
+    coef = np.linalg.lstsq(basis, (sig.y - x).T, rcond=None)[0]  # (2, n_records)
+    y_sim = sig.y_ref[:, None] + x + (basis @ coef).T
+    return y_sim, sig.y_ref + coef[0], sig.u_ref - coef[1]

@@ -1,0 +1,87 @@
+"""Speed of the digital twin: SRIVC fits and twin experiments.
+
+Prints one JSON object:
+
+* ``fit_s``: wall time of ``TwinEstimator().fit`` on 1, 5 and 35 noise-free
+  DCMotor-v0 records (2501 samples each, delay searched), for the full records
+  and for ``n_samples=100`` (the paper's sampling length), and of a warm-started
+  refit after adding the 35th record (``warm_start=True``, as guided BO refits);
+* ``twin_experiment_s``: median time of one twin experiment (one gain pair,
+  ``TwinEnv.evaluate``: simulation, metrics, cost);
+* ``twin_batch_1000_s``: median time of ``TwinEnv.evaluate`` on 1000 gain pairs;
+* ``fidelity``: parameter errors (%) and the max twin-vs-plant cost error (%)
+  on a 20 x 20 grid of the feasible set for the 35-record fits.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+
+import gymnasium as gym
+import numpy as np
+
+import gbo_envs  # noqa: F401  (registers the envs)
+from agents.twin import TwinEnv, TwinEstimator
+
+TRUE = np.array([9.544, 4.145, 4.199])
+
+
+def _median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))
+
+
+def _records(env, n: int, seed: int = 0) -> list[dict]:
+    env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    low, high = env.action_space.low, env.action_space.high
+    return [env.step(rng.uniform(low, high))[4] for _ in range(n)]
+
+
+def main() -> dict:
+    env = gym.make("gbo_envs/DCMotor-v0", noise=False)
+    records = _records(env, 35)
+    low, high = env.action_space.low, env.action_space.high
+    kp, ki = np.meshgrid(np.linspace(low[0], high[0], 20), np.linspace(low[1], high[1], 20))
+    grid = np.column_stack([kp.ravel(), ki.ravel()])
+    plant_cost = env.unwrapped.evaluate(grid)[1]
+
+    fit_s, fidelity, twins = {}, {}, {}
+    for label, n_samples in (("full", None), ("n100", 100)):
+        fit_s[label] = {}
+        for n in (1, 5, 35):
+            start = time.perf_counter()
+            twin = TwinEstimator(n_samples=n_samples).fit(records[:n])
+            fit_s[label][str(n)] = time.perf_counter() - start
+        twins[label] = twin
+        warm = TwinEstimator(n_samples=n_samples, warm_start=True).fit(records[:34])
+        start = time.perf_counter()
+        warm.fit(records)
+        fit_s[label]["35_warm_start"] = time.perf_counter() - start
+        twin_cost = TwinEnv(env, twin).evaluate(grid)[1]
+        fidelity[label] = {
+            "param_error_pct": (100 * (twin.params_ - TRUE) / TRUE).tolist(),
+            "delay_s": twin.delay_,
+            "rmse": twin.rmse_,
+            "max_cost_error_pct": float(100 * np.max(np.abs(twin_cost - plant_cost) / plant_cost)),
+            "median_cost_error_pct": float(100 * np.median(np.abs(twin_cost - plant_cost) / plant_cost)),
+        }
+
+    twin_env = TwinEnv(env, twins["full"])
+    one = np.array([[0.54, 1.16]])
+    batch = np.random.default_rng(1).uniform(low, high, size=(1000, 2))
+    return {
+        "fit_s": fit_s,
+        "twin_experiment_s": _median_time(lambda: twin_env.evaluate(one), 200),
+        "twin_batch_1000_s": _median_time(lambda: twin_env.evaluate(batch), 5),
+        "fidelity": fidelity,
+    }
+
+
+if __name__ == "__main__":
+    print(json.dumps(main()))

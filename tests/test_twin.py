@@ -1,0 +1,196 @@
+"""Digital twin: SRIVC identification, fidelity of the twin env, sklearn conventions, input validation."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from sklearn.base import clone
+from sklearn.exceptions import NotFittedError
+
+import gbo_envs
+from agents.twin import TwinEnv, TwinEstimator, make_twin_env
+from gbo_envs import ClosedLoop, ContinuousPlant, ControllerTuningEnv, PDT1Controller
+
+TRUE = np.array([9.544, 4.145, 4.199])
+
+
+def _records(n: int, seed: int = 0, **kwargs) -> tuple[gym.Env, list[dict]]:
+    env = gym.make("gbo_envs/DCMotor-v0", **kwargs)
+    env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    low, high = env.action_space.low, env.action_space.high
+    return env, [env.step(rng.uniform(low, high))[4] for _ in range(n)]
+
+
+@pytest.fixture(scope="module")
+def clean():
+    env, records = _records(3, noise=False)
+    return env, records, TwinEstimator().fit(records)
+
+
+def _grid(env, n: int) -> np.ndarray:
+    low, high = env.action_space.low, env.action_space.high
+    kp, ki = np.meshgrid(np.linspace(low[0], high[0], n), np.linspace(low[1], high[1], n))
+    return np.column_stack([kp.ravel(), ki.ravel()])
+
+
+def test_recovers_dc_motor_parameters_on_noise_free_data(clean):
+    _, _, twin = clean
+    assert twin.param_names_ == ("b0", "a1", "a2")
+    np.testing.assert_allclose(twin.params_, TRUE, rtol=1e-3)
+    assert twin.delay_ == pytest.approx(0.002, abs=1e-4)
+    assert twin.rmse_ < 1e-6
+    assert twin.converged_
+    np.testing.assert_allclose(twin.rest_levels_[:, 0], 245.0, atol=1e-3)  # y0 = r1
+    np.testing.assert_allclose(twin.rest_levels_[:, 1], 245.0 * 4.199 / 9.544, rtol=1e-4)  # u0 = r1 / G(0)
+    assert isinstance(twin.plant_, ContinuousPlant)
+    np.testing.assert_allclose(twin.plant_.den, (1.0, *TRUE[1:]), rtol=1e-3)
+
+
+def test_single_experiment_is_enough_without_noise():
+    _, records = _records(1, seed=3, noise=False)
+    twin = TwinEstimator().fit(records[0])  # a single record mapping is accepted
+    np.testing.assert_allclose(twin.params_, TRUE, rtol=1e-2)
+
+
+def test_twin_cost_matches_plant_across_feasible_set(clean):
+    env, _, twin = clean
+    twin_env = make_twin_env(env, twin)
+    assert isinstance(twin_env, TwinEnv) and isinstance(twin_env, ControllerTuningEnv)
+    np.testing.assert_array_equal(twin_env.normalizers, env.unwrapped.normalizers)
+    np.testing.assert_array_equal(twin_env.weights, env.unwrapped.weights)
+    np.testing.assert_array_equal(twin_env.action_space.low, env.action_space.low)
+    assert twin_env.loop.effects == () and twin_env.loop.output_noise_std == 0.0
+    gains = _grid(env, 20)
+    _, plant_cost = env.unwrapped.evaluate(gains)
+    _, twin_cost = twin_env.evaluate(gains)
+    assert twin_cost.shape == (400,)
+    assert np.max(np.abs(twin_cost - plant_cost) / plant_cost) < 0.01
+
+
+def test_twin_env_steps_like_the_plant_env(clean):
+    env, records, twin = clean
+    twin_env = TwinEnv(env, twin)
+    twin_env.reset(seed=0)
+    _, reward, _, _, info = twin_env.step(records[0]["gains"])
+    assert info["y"].shape == records[0]["y"].shape
+    np.testing.assert_allclose(info["y"], records[0]["y"], atol=1e-3)
+    assert -reward == pytest.approx(records[0]["true_cost"], rel=1e-3)
+
+
+def test_delay_is_recovered_within_one_sample():
+    _, records = _records(2, seed=1, noise=False, delay=0.007)
+    twin = TwinEstimator().fit(records)
+    assert abs(twin.delay_ - 0.007) < 0.002
+    np.testing.assert_allclose(twin.params_, TRUE, rtol=1e-2)
+
+
+def test_fixed_delay_and_decimated_records(clean):
+    _, records, _ = clean
+    twin = TwinEstimator(delay=0.002, n_samples=100).fit(records)
+    assert twin.delay_ == 0.002 and twin.n_samples_ == 100
+    assert twin.dt_ == pytest.approx(0.05)
+    np.testing.assert_allclose(twin.params_, TRUE, rtol=1e-2)
+    assert len(twin.predict(records)[0]) == 100
+
+
+def test_sensor_noise_gives_noise_floor_rmse():
+    _, records = _records(5, seed=2, output_noise_std=0.5)
+    twin = TwinEstimator(max_delay=0.01).fit(records)
+    np.testing.assert_allclose(twin.params_, TRUE, rtol=0.03)
+    assert twin.rmse_ == pytest.approx(0.5 / 61.0, rel=0.1)  # white noise of 0.5 rad/s on a 61 rad/s step
+    assert twin.rmse_abs_ == pytest.approx(0.5, rel=0.1)
+
+
+def test_position_loop_with_integrator():
+    plant = ContinuousPlant(num=(0.44262 / 0.070983,), den=(1.0, 15.0, 0.0), delay=0.001, output="position")
+    loop = ClosedLoop(plant=plant, controller=PDT1Controller(), dt=0.001, duration=0.3, r1=0.03, r2=0.04)
+    low, high = np.array([5123.8, 40.1]), np.array([6136.2, 51.0])
+    env = ControllerTuningEnv(loop, low, high, weights=(0.10, 0.18, 0.69, 0.04),
+                              reference_gains=np.linspace(low, high, 5))
+    env.reset(seed=0)
+    records = [env.step(g)[4] for g in np.linspace(low, high, 2)]
+    twin = TwinEstimator(n_integrators=1, output="position", max_delay=0.005).fit(records)
+    np.testing.assert_allclose(twin.params_, (0.44262 / 0.070983, 15.0), rtol=1e-3)
+    assert twin.den_[-1] == 0.0 and twin.delay_ == pytest.approx(0.001, abs=1e-4)
+    twin_env = TwinEnv(env, twin)
+    assert twin_env.plant.output == "position"
+    gains = _grid(env, 5)
+    np.testing.assert_allclose(twin_env.evaluate(gains)[1], env.evaluate(gains)[1], rtol=0.01)
+
+
+def test_warm_start_refit_and_polish_safeguard(clean):
+    _, records, reference = clean
+    est = TwinEstimator(warm_start=True).fit(records[:1])
+    assert est.fit(records) is est and est.n_records_ == 3
+    np.testing.assert_allclose(est.params_, TRUE, rtol=1e-3)
+    _, noisy = _records(2, seed=4, output_noise_std=0.5)
+    plain = TwinEstimator(max_delay=0.006).fit(noisy)
+    polished = TwinEstimator(max_delay=0.006, polish=True).fit(noisy)
+    assert polished.rmse_ <= plain.rmse_
+
+
+# -- scikit-learn conventions -----------------------------------------------------------------------
+def test_sklearn_conventions(clean):
+    _, records, _ = clean
+    est = TwinEstimator(n_poles=2, max_delay=0.004)
+    assert est.get_params()["n_poles"] == 2 and est.get_params()["max_delay"] == 0.004
+    assert not hasattr(est, "params_")
+    with pytest.raises(NotFittedError):
+        est.predict(records)
+    with pytest.raises(NotFittedError):
+        est.rmse(records)
+    assert est.fit(records) is est
+    assert clone(est).get_params() == est.get_params() and not hasattr(clone(est), "plant_")
+    assert est.set_params(n_zeros=1) is est and est.n_zeros == 1
+    with pytest.raises(ValueError, match="not fitted"):
+        TwinEnv(gym.make("gbo_envs/DCMotor-v0"), TwinEstimator())
+
+
+def test_fit_accepts_arrays_and_dataframes(clean):
+    _, records, twin = clean
+    arrays = [np.column_stack([rec["t"], rec["r"], rec["u"], rec["y"]]) for rec in records]
+    np.testing.assert_allclose(TwinEstimator(delay=0.002).fit(arrays).params_, twin.params_, rtol=1e-6)
+    pd = pytest.importorskip("pandas")
+    frame = pd.concat([pd.DataFrame({"experiment": i, "t": r["t"], "r": r["r"], "u": r["u"], "y": r["y"]})
+                       for i, r in enumerate(records)])
+    np.testing.assert_allclose(TwinEstimator(delay=0.002).fit(frame).params_, twin.params_, rtol=1e-6)
+    assert TwinEstimator(delay=0.002).fit(frame).rmse(records) < 1e-6
+
+
+# -- bad input --------------------------------------------------------------------------------------
+def _one(clean) -> dict:
+    rec = clean[1][0]
+    return {name: np.array(rec[name]) for name in ("t", "r", "u", "y")}
+
+
+@pytest.mark.parametrize(
+    ("mutate", "message"),
+    [
+        (lambda rec: rec.update(u=rec["u"][:-1]), "equal lengths"),
+        (lambda rec: rec["y"].__setitem__(10, np.nan), "non-finite value nan at sample 10"),
+        (lambda rec: rec["t"].__setitem__(5, rec["t"][3]), "time must increase"),
+        (lambda rec: rec.pop("u"), "missing field"),
+    ],
+)
+def test_bad_records_raise_clear_value_errors(clean, mutate, message):
+    rec = _one(clean)
+    mutate(rec)
+    with pytest.raises(ValueError, match=message):
+        TwinEstimator(delay=0.002).fit([rec])
+
+
+def test_empty_and_malformed_input_raise(clean):
+    with pytest.raises(ValueError, match="at least one"):
+        TwinEstimator().fit([])
+    with pytest.raises(ValueError, match="shape"):
+        TwinEstimator().fit([np.zeros((10, 3))])
+    with pytest.raises(ValueError, match="n_zeros"):
+        TwinEstimator(n_zeros=2).fit(clean[1])
+    with pytest.raises(ValueError, match="hold"):
+        TwinEstimator(hold="spline").fit(clean[1])
+
+
+def test_env_ids_registered():
+    assert "gbo_envs/DCMotor-v0" in gbo_envs.ENV_IDS
