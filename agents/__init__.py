@@ -21,10 +21,32 @@ from agents.space import GainSpace
 
 #: Public tuner classes and helpers -> the module that defines them (loaded on first access).
 _LAZY = {
+    "RLTuner": "agents.rl",
+    "BayesianOptimization": "agents.bo",
+    "GPSurrogate": "agents.surrogate",
+    "ExpectedImprovement": "agents.acquisition",
+    "expected_improvement": "agents.acquisition",
+    "GridSearch": "agents.baselines",
+    "RandomSearch": "agents.baselines",
+    "NominalPGM": "agents.nominal",
+    "pgm_pi_gains": "agents.nominal",
+    "OptunaTuner": "agents.optuna_tuner",
+    "OptunaGP": "agents.optuna_tuner",
+    "OptunaTPE": "agents.optuna_tuner",
+    "estimate_noise": "agents.noise",
+    "GuidedBO": "agents.guided_bo",
 }
 
 #: Registry name -> entry point.
 _TUNERS = {
+    "rl": "agents.rl:RLTuner",
+    "bo": "agents.bo:BayesianOptimization",
+    "random": "agents.baselines:RandomSearch",
+    "grid": "agents.baselines:GridSearch",
+    "nominal": "agents.nominal:NominalPGM",
+    "optuna-gp": "agents.optuna_tuner:OptunaGP",
+    "optuna-tpe": "agents.optuna_tuner:OptunaTPE",
+    "guided-bo": "agents.guided_bo:GuidedBO",
 }
 
 for _name, _entry in _TUNERS.items():

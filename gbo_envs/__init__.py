@@ -14,6 +14,7 @@ from gymnasium.envs.registration import register
 from gbo_envs.closed_loop import ClosedLoop, StepResponse
 from gbo_envs.controllers import PDT1Controller, PIController
 from gbo_envs.envs.base import ControllerTuningEnv
+from gbo_envs.envs.external import ExperimentFailed, ExternalPlantEnv
 from gbo_envs.ground_truth import GroundTruth, ground_truth
 from gbo_envs.metrics import METRIC_NAMES, step_metrics, weighted_cost
 from gbo_envs.physics.lti import ContinuousPlant
@@ -22,6 +23,8 @@ __all__ = [
     "ClosedLoop",
     "ContinuousPlant",
     "ControllerTuningEnv",
+    "ExperimentFailed",
+    "ExternalPlantEnv",
     "GroundTruth",
     "METRIC_NAMES",
     "PDT1Controller",

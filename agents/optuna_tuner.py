@@ -1,0 +1,109 @@
+"""Any Optuna sampler as a tuner, through Optuna's ask-and-tell interface."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from agents.base import Tuner
+
+__all__ = ["OptunaTuner", "OptunaGP", "OptunaTPE", "SAMPLERS"]
+
+#: Sampler short names -> ``optuna.samplers`` class names.
+SAMPLERS = {"gp": "GPSampler", "tpe": "TPESampler", "random": "RandomSampler", "qmc": "QMCSampler",
+            "cmaes": "CmaEsSampler"}
+
+
+class OptunaTuner(Tuner):
+    """Adapter: an Optuna sampler proposes the gains, one ``suggest_float`` per gain.
+
+    Each :meth:`ask` is ``study.ask()`` followed by ``trial.suggest_float(name,
+    low, high)`` for every gain of the feasible set; each :meth:`tell` is
+    ``study.tell(trial, cost)`` (minimisation). Gains told without a matching
+    ask are added as finished trials. Optuna's logging is set to WARNING.
+
+    Parameters
+    ----------
+    sampler : str, optuna sampler class, callable or sampler instance, default "tpe"
+        ``"gp"``, ``"tpe"``, ``"random"``, ``"qmc"``, ``"cmaes"`` or a sampler
+        class: built as ``cls(seed=seed, **sampler_kwargs)`` at every setup
+        with the run's seed. A callable ``seed -> sampler`` likewise. A
+        sampler *instance* is used as given (its own seed decides
+        reproducibility, and it is shared between runs).
+    sampler_kwargs : dict, optional
+        Extra constructor arguments of the sampler.
+    """
+
+    name = "optuna"
+
+    def __init__(self, *, sampler: Any = "tpe", sampler_kwargs: dict | None = None) -> None:
+        if isinstance(sampler, str) and sampler not in SAMPLERS:
+            raise ValueError(f"sampler: unknown name {sampler!r}; choose from {sorted(SAMPLERS)}")
+        self.sampler = sampler
+        self.sampler_kwargs = dict(sampler_kwargs or {})
+        self._params = {"sampler": sampler if isinstance(sampler, str) else repr(sampler),
+                        "sampler_kwargs": self.sampler_kwargs}
+
+    def _make_sampler(self, seed: int | None):
+        import optuna
+
+        if isinstance(self.sampler, str):
+            return getattr(optuna.samplers, SAMPLERS[self.sampler])(seed=seed, **self.sampler_kwargs)
+        if isinstance(self.sampler, type):
+            return self.sampler(seed=seed, **self.sampler_kwargs)
+        if callable(self.sampler) and not isinstance(self.sampler, optuna.samplers.BaseSampler):
+            return self.sampler(seed)
+        return self.sampler
+
+    def _setup(self) -> None:
+        import optuna
+
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+        # the run's seed, or a draw from the tuner rng when setup got no seed
+        seed = self.seed if self.seed is not None else int(self.rng.integers(2**31))
+        self._distributions = {name: optuna.distributions.FloatDistribution(float(lo), float(hi))
+                               for name, lo, hi in zip(self.space.names, self.space.low, self.space.high)}
+        self.study = optuna.create_study(direction="minimize", sampler=self._make_sampler(seed))
+        self._pending: tuple[Any, np.ndarray] | None = None
+
+    def _ask(self) -> np.ndarray:
+        if self._pending is not None:  # ask twice without tell: same proposal
+            return self._pending[1].copy()
+        trial = self.study.ask()
+        gains = np.array([trial.suggest_float(name, float(lo), float(hi))
+                          for name, lo, hi in zip(self.space.names, self.space.low, self.space.high)])
+        self._pending = (trial, gains)
+        return gains.copy()
+
+    def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:
+        import optuna
+
+        if self._pending is not None and np.allclose(self._pending[1], gains, rtol=0.0, atol=1e-12):
+            self.study.tell(self._pending[0], cost)
+        else:
+            if self._pending is not None:  # the asked gains were not run
+                self.study.tell(self._pending[0], state=optuna.trial.TrialState.FAIL)
+            params = {name: float(g) for name, g in zip(self.space.names, gains)}
+            self.study.add_trial(optuna.trial.create_trial(params=params, distributions=self._distributions,
+                                                           value=cost))
+        self._pending = None
+
+
+class OptunaGP(OptunaTuner):
+    """:class:`OptunaTuner` with ``optuna.samplers.GPSampler(seed=...)`` (registry name ``optuna-gp``)."""
+
+    name = "optuna-gp"
+
+    def __init__(self, *, sampler_kwargs: dict | None = None) -> None:
+        super().__init__(sampler="gp", sampler_kwargs=sampler_kwargs)
+
+
+class OptunaTPE(OptunaTuner):
+    """:class:`OptunaTuner` with ``optuna.samplers.TPESampler(seed=...)`` (registry name ``optuna-tpe``)."""
+
+    name = "optuna-tpe"
+
+    def __init__(self, *, sampler_kwargs: dict | None = None) -> None:
+        super().__init__(sampler="tpe", sampler_kwargs=sampler_kwargs)
+

@@ -1,0 +1,316 @@
+"""Gaussian-process surrogate of the cost ``J(theta)`` (paper, subsec. BO, eqs. (gpr)-(gpr_v)).
+
+The surrogate knows nothing about acquisition functions: it is fitted on
+``(X, y)`` and answers :meth:`GPSurrogate.predict` with the posterior mean and
+standard deviation. Acquisition functions (:mod:`agents.acquisition`) only
+ever call that method (BoTorch's separation of model and acquisition).
+"""
+
+from __future__ import annotations
+
+import functools
+import warnings
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+from scipy.optimize import minimize
+from sklearn.exceptions import ConvergenceWarning
+from sklearn.gaussian_process import GaussianProcessRegressor
+from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
+from threadpoolctl import ThreadpoolController
+
+__all__ = ["GPSurrogate"]
+
+_THREADPOOLS: ThreadpoolController | None = None
+
+
+def _single_threaded_blas():
+    """Context limiting BLAS to one thread: the GP's matrices are small and threads only contend."""
+    global _THREADPOOLS
+    if _THREADPOOLS is None:
+        _THREADPOOLS = ThreadpoolController()
+    return _THREADPOOLS.limit(limits=1, user_api="blas")
+
+
+class GPSurrogate:
+    """GP regression with a Matern 5/2 ARD kernel, a constant mean and Gaussian noise.
+
+    Prior (paper, subsec. BO): ``J_hat ~ GP(mu, k)`` with
+
+    * ``k(x, x') = s^2 Matern_{5/2}(x, x'; l_1..l_d) + sigma_n^2 delta(x, x')``
+      (``ConstantKernel * Matern(nu=2.5) + WhiteKernel``; one length scale per
+      input, ARD);
+    * a constant mean ``mu``: costs are standardised, ``y_s = (y - m) / s_y``
+      with ``m`` the sample mean and ``s_y`` the sample std of the training
+      costs, so the GP's zero prior mean on ``y_s`` *is* the constant mean
+      ``mu = m`` on ``J`` (the paper's "constant prior mean");
+    * the posterior of eqs. (gpr_mio1), (gpr_v) with ``sigma_eps^2 I`` as the
+      learned white-noise level, or fixed when ``noise_std`` is given.
+
+    The kernel amplitude ``s^2``, the length scales and the noise level
+    maximise the log marginal likelihood (scikit-learn's L-BFGS-B), started
+    from the previous fit's values (warm start) and from ``n_restarts``
+    random points drawn from a seeded generator (see ``restart_every``).
+
+    Parameters
+    ----------
+    n_restarts : int, default 2
+        Extra random starts of the likelihood optimiser per fit.
+    length_scale_bounds : (float, float), default (0.05, 0.5)
+        Bounds of the ARD length scales, in units of the (unit-box) inputs.
+    noise_std : float, optional
+        Known cost noise ``sigma_eps`` (cost units, e.g. from
+        :func:`agents.noise.estimate_noise`). ``None`` learns it (WhiteKernel).
+    noise_bounds : (float, float), default (1e-6, 0.5)
+        Bounds of the learned noise variance, in units of the standardised costs.
+    warm_start : bool, default True
+        Start the likelihood optimiser from the previous fit's hyperparameters.
+    restart_every : int, default 5
+        With ``warm_start``, the random restarts run only on every
+        ``restart_every``-th fit (and on the first); the fits in between start
+        from the previous optimum alone (fast when one point was added).
+    min_fit_points : int, default 5
+        With fewer training points the hyperparameters are not fitted (the
+        likelihood of 1-4 points is flat or degenerate); the prior kernel
+        (unit amplitude, length scales 0.3 clipped to the bounds, noise
+        variance 1e-2 in standardised units) is used as is.
+    max_iter : int, default 60
+        L-BFGS-B iterations per start.
+
+    Attributes
+    ----------
+    X_train_ : ndarray of shape (n, d)
+    y_train_ : ndarray of shape (n,)
+        Training costs (cost units).
+    y_mean_, y_scale_ : float
+        Constant prior mean ``m`` and scale ``s_y`` of the standardisation.
+    gp_ : sklearn.gaussian_process.GaussianProcessRegressor
+    kernel_ : sklearn kernel
+        The fitted kernel (standardised units).
+    """
+
+    def __init__(self, *, n_restarts: int = 2, length_scale_bounds: tuple[float, float] = (0.05, 0.5),
+                 noise_std: float | None = None, noise_bounds: tuple[float, float] = (1e-6, 0.5),
+                 warm_start: bool = True, restart_every: int = 5, min_fit_points: int = 5,
+                 max_iter: int = 60) -> None:
+        self.n_restarts = int(n_restarts)
+        self.length_scale_bounds = tuple(float(b) for b in length_scale_bounds)
+        self.noise_std = None if noise_std is None else float(noise_std)
+        self.noise_bounds = tuple(float(b) for b in noise_bounds)
+        self.warm_start = bool(warm_start)
+        self.restart_every = max(1, int(restart_every))
+        self.min_fit_points = int(min_fit_points)
+        self.max_iter = int(max_iter)
+        self._previous_kernel = None
+        self._n_fits = 0
+
+    def _initial_kernel(self, dim: int):
+        if self.warm_start and self._previous_kernel is not None and _kernel_dim(self._previous_kernel) == dim:
+            return self._previous_kernel
+        return self._prior_kernel(dim)
+
+    def _prior_kernel(self, dim: int):
+        length_scale = float(np.clip(0.3, *self.length_scale_bounds))
+        kernel = ConstantKernel(1.0, (1e-2, 1e2)) * Matern(
+            length_scale=np.full(dim, length_scale), length_scale_bounds=self.length_scale_bounds, nu=2.5)
+        if self.noise_std is None:
+            kernel = kernel + WhiteKernel(float(np.clip(1e-2, *self.noise_bounds)), self.noise_bounds)
+        return kernel
+
+    def fit(self, X: np.ndarray, y: np.ndarray, seed: int | None = None, optimize: bool = True) -> GPSurrogate:
+        """Fit to inputs of shape (n, d) (the unit box) and costs of shape (n,).
+
+        Parameters
+        ----------
+        X : ndarray of shape (n, d)
+        y : ndarray of shape (n,)
+            Costs ``J`` (cost units), finite.
+        seed : int, optional
+            Seeds the random restarts of the likelihood optimiser.
+        optimize : bool, default True
+            ``False`` keeps the previous fit's hyperparameters and only conditions
+            the GP on the new data (one Cholesky factorisation): guided BO's
+            iterations on the twin use it.
+
+        Returns
+        -------
+        GPSurrogate
+            ``self``.
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        y = np.asarray(y, dtype=float).ravel()
+        if X.shape[0] != y.shape[0] or X.shape[0] == 0:
+            raise ValueError(f"X, y: need the same number (>= 1) of rows, got {X.shape} and {y.shape}")
+        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(y))):
+            raise ValueError("X, y: must be finite")
+        # Constant mean by standardisation: mu = mean(y) (paper, subsec. BO, constant prior mean).
+        self.y_mean_ = float(np.mean(y))
+        scale = float(np.std(y)) if y.size > 1 else 0.0
+        self.y_scale_ = scale if scale > 1e-12 else 1.0
+        y_std = (y - self.y_mean_) / self.y_scale_
+        # Fixed noise: sigma_eps^2 I of eq. (gpr_mio1), in standardised units; else a small jitter.
+        alpha = 1e-8 if self.noise_std is None else max((self.noise_std / self.y_scale_) ** 2, 1e-8)
+        few = X.shape[0] < self.min_fit_points
+        kernel = self._prior_kernel(X.shape[1]) if few else self._initial_kernel(X.shape[1])
+        warm = kernel is self._previous_kernel
+        if not optimize and warm:
+            few = True  # condition on the data with the previous hyperparameters, no likelihood search
+        restarts = self.n_restarts if (not warm or self._n_fits % self.restart_every == 0) else 0
+        self._n_fits += 1
+        self.gp_ = GaussianProcessRegressor(
+            kernel=kernel, alpha=alpha, optimizer=None if few else self._optimizer,
+            n_restarts_optimizer=restarts if X.shape[0] > 1 else 0, normalize_y=False,
+            random_state=np.random.RandomState(seed if seed is None else int(seed) % (2**32)))
+        self._fit_data = (X, y_std, alpha)
+        with warnings.catch_warnings(), _single_threaded_blas():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            self.gp_.fit(X, y_std)
+        self.kernel_ = self.gp_.kernel_
+        self._amplitude = _constant(self.kernel_)
+        self._length_scales = np.broadcast_to(_matern(self.kernel_).length_scale, (X.shape[1],)).astype(float)
+        self._train_scaled = X / self._length_scales
+        self._train_sq = (self._train_scaled**2).sum(axis=1)
+        self._K_inv = cho_solve((self.gp_.L_, True), np.eye(X.shape[0]), check_finite=False)
+        if not few and optimize:
+            self._previous_kernel = self.kernel_
+        self.X_train_ = X
+        self.y_train_ = y
+        return self
+
+    def _optimizer(self, obj_func, initial_theta, bounds):
+        # Maximise the log marginal likelihood over theta = log([s^2, l_1..l_d, sigma_n^2]) (sklearn's
+        # order). The objective is the same as sklearn's obj_func, evaluated by _neg_log_marginal_likelihood
+        # (about 5x faster for the small data sets of BO); sklearn then refits at the optimum.
+        X, y, alpha = self._fit_data
+        pairwise = (X[:, None, :] - X[None, :, :]) ** 2  # (n, n, d) squared differences per input
+        objective = functools.partial(_neg_log_marginal_likelihood, pairwise=pairwise, y=y, alpha=alpha,
+                                      white=self.noise_std is None)
+        result = minimize(objective, initial_theta, jac=True, method="L-BFGS-B", bounds=bounds,
+                          options={"maxiter": self.max_iter})
+        return result.x, result.fun
+
+    def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior mean and standard deviation of ``J_hat`` (eqs. (gpr_mio1), (gpr_v)).
+
+        Parameters
+        ----------
+        X : ndarray of shape (m, d)
+            Unit-box inputs.
+
+        Returns
+        -------
+        mean : ndarray of shape (m,)
+            ``mu_n(theta)`` in cost units.
+        std : ndarray of shape (m,)
+            ``v_n(theta)^{1/2}`` of the noise-free cost ``J_hat`` (the learned
+            white noise is excluded), in cost units.
+        """
+        if not hasattr(self, "gp_"):
+            raise RuntimeError("GPSurrogate: call fit(X, y) first")
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        with _single_threaded_blas():
+            return self._predict(X)
+
+    def _predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # k_n(theta) of eq. (gpr_mio1): Matern 5/2, k = s^2 (1 + sqrt5 r + 5/3 r^2) exp(-sqrt5 r), r scaled by l
+        scaled = X / self._length_scales
+        r = scaled @ (-2.0 * self._train_scaled.T)  # squared distances, in place from here on
+        r += (scaled**2).sum(axis=1)[:, None]
+        r += self._train_sq[None, :]
+        np.maximum(r, 0.0, out=r)
+        r *= 5.0
+        np.sqrt(r, out=r)  # r <- sqrt(5) r
+        k_star = r / 3.0
+        k_star += 1.0
+        k_star *= r
+        k_star += 1.0
+        np.negative(r, out=r)
+        np.exp(r, out=r)
+        k_star *= r
+        k_star *= self._amplitude
+        mean = k_star @ self.gp_.alpha_  # eq. (gpr_mio1), standardised units
+        # eq. (gpr_v) for the latent J_hat (white noise excluded): s^2 - k^T (K + sigma^2 I)^-1 k
+        product = np.matmul(k_star, self._K_inv, out=r)
+        product *= k_star
+        var = self._amplitude - product.sum(axis=1)
+        std = np.sqrt(np.maximum(var, 1e-18))
+        return self.y_mean_ + self.y_scale_ * mean, self.y_scale_ * std
+
+    @property
+    def noise_std_(self) -> float:
+        """Noise std ``sigma_eps`` the GP uses (learned or given), cost units."""
+        if self.noise_std is not None:
+            return self.noise_std
+        return float(np.sqrt(_white_noise_level(self.kernel_))) * self.y_scale_
+
+    @property
+    def length_scales_(self) -> np.ndarray:
+        """Fitted ARD length scales, shape (d,), unit-box units."""
+        return np.atleast_1d(_matern(self.kernel_).length_scale).astype(float)
+
+
+def _white_noise_level(kernel) -> float:
+    for part in (getattr(kernel, "k1", None), getattr(kernel, "k2", None)):
+        if isinstance(part, WhiteKernel):
+            return float(part.noise_level)
+    return 0.0
+
+
+def _matern(kernel):
+    stack = [kernel]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, Matern):
+            return node
+        stack.extend(p for p in (getattr(node, "k1", None), getattr(node, "k2", None)) if p is not None)
+    raise ValueError("kernel has no Matern part")
+
+
+def _constant(kernel) -> float:
+    stack = [kernel]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, ConstantKernel):
+            return float(node.constant_value)
+        stack.extend(p for p in (getattr(node, "k1", None), getattr(node, "k2", None)) if p is not None)
+    return 1.0
+
+
+def _kernel_dim(kernel) -> int:
+    return np.atleast_1d(_matern(kernel).length_scale).size
+
+
+def _neg_log_marginal_likelihood(theta: np.ndarray, pairwise: np.ndarray, y: np.ndarray, alpha: float,
+                                 white: bool) -> tuple[float, np.ndarray]:
+    """``-log p(y | X, theta)`` and its gradient for ``s^2 Matern52 (+ sigma_n^2 I) + alpha I``.
+
+    ``log p = -1/2 y^T K^-1 y - 1/2 log|K| - n/2 log(2 pi)``; ``d log p / d theta_i
+    = 1/2 tr((a a^T - K^-1) dK/d theta_i)`` with ``a = K^-1 y`` (Rasmussen & Williams, eq. 5.9).
+    ``theta = log([s^2, l_1, ..., l_d, sigma_n^2])`` (the last entry only if ``white``).
+    """
+    n, _, dim = pairwise.shape
+    amplitude = np.exp(theta[0])
+    scaled = pairwise / np.exp(2.0 * theta[1:1 + dim])  # d_j^2 / l_j^2
+    r = np.sqrt(5.0 * scaled.sum(axis=2))  # sqrt(5) r
+    decay = np.exp(-r)
+    matern = (1.0 + r + r**2 / 3.0) * decay
+    noise = np.exp(theta[-1]) if white else 0.0
+    K = amplitude * matern
+    K[np.diag_indices(n)] += noise + alpha
+    try:
+        factor = cho_factor(K, lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return 1e25, np.zeros_like(theta)
+    a = cho_solve(factor, y, check_finite=False)
+    K_inv = cho_solve(factor, np.eye(n), check_finite=False)
+    lml = -0.5 * y @ a - np.log(np.diag(factor[0])).sum() - 0.5 * n * np.log(2.0 * np.pi)
+    inner = np.outer(a, a) - K_inv
+    grad = np.empty_like(theta)
+    grad[0] = 0.5 * np.sum(inner * (amplitude * matern))  # dK/d log s^2 = s^2 M
+    # dM/d log l_j = 5/3 (1 + sqrt5 r) exp(-sqrt5 r) d_j^2 / l_j^2
+    common = amplitude * (5.0 / 3.0) * (1.0 + r) * decay
+    for j in range(dim):
+        grad[1 + j] = 0.5 * np.sum(inner * common * scaled[:, :, j])
+    if white:
+        grad[-1] = 0.5 * noise * np.trace(inner)
+    return float(-lml), -grad

@@ -1,0 +1,64 @@
+"""Speed of ``BayesianOptimization.ask()`` with 50 observations (median over repeats); prints JSON.
+
+The tuner is fed 50 experiments on DCMotor-v0 (random gains, measured costs),
+then ``ask()`` is timed ``--repeats`` times, each after telling one more
+experiment (so every timed ask refits the GP, as in a tuning run: warm-started
+hyperparameters, then EI on the precomputed 100 x 100 unit grid). Wall time
+is the figure of merit; ``median_cpu_ms`` (process CPU time) is reported too,
+because on a shared machine wall time also counts other processes.
+
+    python benchmarks/bench_bo_ask.py
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+
+import gymnasium as gym
+import numpy as np
+
+import agents
+import gbo_envs  # noqa: F401  (registers the envs)
+
+__all__ = ["main"]
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--observations", type=int, default=50)
+    parser.add_argument("--repeats", type=int, default=21)
+    parser.add_argument("--grid-points", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+
+    env = gym.make("gbo_envs/DCMotor-v0")
+    env.reset(seed=args.seed)
+    tuner = agents.BayesianOptimization(grid_points=args.grid_points)
+    tuner.setup(agents.GainSpace.from_env(env), seed=args.seed, env=env)
+    rng = np.random.default_rng(args.seed)
+    for _ in range(args.observations):
+        gains = rng.uniform(tuner.space.low, tuner.space.high)
+        tuner.tell(gains, env.step(gains)[4]["cost"])
+    times, cpu_times = [], []
+    for _ in range(args.repeats):
+        start, cpu_start = time.perf_counter(), time.process_time()
+        gains = tuner.ask()
+        times.append(time.perf_counter() - start)
+        cpu_times.append(time.process_time() - cpu_start)
+        tuner.tell(gains, env.step(np.asarray(gains))[4]["cost"])
+    ms = np.asarray(times) * 1e3
+    report = {"benchmark": "bo_ask", "observations": args.observations, "repeats": args.repeats,
+              "grid_points": args.grid_points ** tuner.space.dim, "median_ms": float(np.median(ms)),
+              "p90_ms": float(np.percentile(ms, 90)), "max_ms": float(ms.max()),
+              "median_cpu_ms": float(np.median(cpu_times) * 1e3), "target_median_ms": 50.0,
+              "cpus": os.cpu_count(), "load_avg_1min": os.getloadavg()[0], "python": platform.python_version()}
+    print(json.dumps(report, indent=2))
+    return report
+
+
+if __name__ == "__main__":
+    main()

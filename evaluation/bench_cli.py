@@ -1,0 +1,88 @@
+"""``gbo bench STUDY``: run a Monte Carlo study, then write its report and figures.
+
+Examples::
+
+    gbo bench --list
+    gbo bench smoke --out /tmp/smoke                       # all cores, joblib
+    gbo bench performance --batches 10                     # first 10 batches only (resumable)
+    gbo bench performance --backend dask                   # a local dask.distributed cluster
+    gbo bench performance --backend dask --address tcp://scheduler:8786
+    gbo bench performance --report-only                    # redo the report from the saved batches
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+__all__ = ["add_parser", "bench"]
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``bench`` sub-command to the ``gbo`` parser."""
+    parser = subparsers.add_parser(
+        "bench", help="run a Monte Carlo study (TOML spec) and write its report",
+        description="Run a study's batches in parallel, saving each finished batch at once (rerun to resume), "
+                    "then write report.md and PNG figures.")
+    parser.add_argument("study", nargs="?", help="a shipped study name (see --list) or a path to a .toml/.yaml spec")
+    parser.add_argument("--list", action="store_true", help="list the shipped studies and exit")
+    parser.add_argument("--batches", type=int, help="run only the first N batches of every tuner")
+    parser.add_argument("--backend", choices=("local", "dask"), default="local",
+                        help="local: joblib processes (default); dask: dask.distributed")
+    parser.add_argument("--address", help="dask scheduler address (default with --backend dask: a LocalCluster)")
+    parser.add_argument("--workers", type=int, help="worker processes (default: all cores; 1 = in this process)")
+    parser.add_argument("--out", help="output folder (default: evaluation/reports/<study>)")
+    parser.add_argument("--no-report", action="store_true", help="only run the batches")
+    parser.add_argument("--report-only", action="store_true", help="only write the report from saved batches")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=bench)
+    return parser
+
+
+def bench(args: argparse.Namespace) -> int:
+    """Handler of ``gbo bench``; returns the exit status (130 after Ctrl-C, 1 if a batch failed)."""
+    from evaluation.runner import default_out_dir, run_study
+    from evaluation.study import StudySpecError, load_study, shipped_studies
+
+    if args.list:
+        for name in shipped_studies():
+            study = load_study(name)
+            print(f"{name:18s} {study.title} ({len(study.tuners)} tuners x {study.batches} batches x "
+                  f"{study.budget} experiments)")
+        return 0
+    if not args.study:
+        print("gbo bench: give a STUDY (a shipped name or a spec path); see gbo bench --list", file=sys.stderr)
+        return 2
+    if args.address and args.backend != "dask":
+        print("gbo bench: --address needs --backend dask", file=sys.stderr)
+        return 2
+    try:
+        study = load_study(args.study)
+        if args.batches is not None:
+            study = study.with_batches(args.batches)
+    except StudySpecError as exc:
+        print(f"gbo bench: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out) if args.out else default_out_dir(study)
+    status = 0
+    if not args.report_only:
+        try:
+            run = run_study(study, out, backend=args.backend, address=args.address, workers=args.workers,
+                            progress=not args.quiet)
+        except ValueError as exc:  # unknown tuner or rejected params
+            print(f"gbo bench: {exc}", file=sys.stderr)
+            return 2
+        print(f"{study.name}: {run.skipped + run.completed} of {run.total} batches finished "
+              f"({run.completed} now, {run.wall_time:.1f} s); results in {out / 'results'}")
+        if run.interrupted:
+            return 130
+        if run.failed:
+            print(f"gbo bench: {len(run.failed)} batch(es) failed; rerun to retry them", file=sys.stderr)
+            status = 1
+    if not args.no_report:
+        from evaluation.report import write_report
+
+        path = write_report(study, out)
+        print(f"report: {path}")
+    return status

@@ -1,0 +1,414 @@
+"""Run a study's batches in parallel, write each finished batch at once, resume what is missing.
+
+Results layout (``OUT`` is the study's output folder)::
+
+    OUT/results/<tuner-label-slug>__b<batch>__<key>.parquet   one file per finished batch
+    OUT/study.toml                                            the spec as run (study.yaml for YAML)
+    OUT/runs.jsonl                                            one line per `gbo bench` run (runtime)
+
+Each batch (one tuner entry x one seed) is written by the main process as soon as
+it finishes: to a temporary name, then ``os.replace`` (atomic), so a file is
+either complete or absent. ``key`` hashes everything that determines the batch
+(env id and kwargs, tuner name and params, budget, seed), so a rerun skips
+exactly the batches that already exist and reruns those whose spec changed.
+Ctrl-C stops the run and keeps every finished batch; rerunning resumes.
+
+The rows are :meth:`agents.TuningResult.to_pandas` plus ``study``, ``tuner``
+(the label), ``tuner_name`` (registry name), ``batch``, ``seed``, ``row``
+(order within the batch), ``params`` and ``info`` (JSON text) and
+``batch_wall_time`` (s).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import json
+import os
+import sys
+import time
+import traceback
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from evaluation.study import Study, TunerEntry, slugify
+
+__all__ = ["BatchTask", "StudyRun", "BACKENDS", "default_out_dir", "plan_batches", "finished_files",
+           "run_batch", "run_study", "resolve_params"]
+
+#: Execution backends of :func:`run_study`.
+BACKENDS = ("local", "dask")
+RESULTS_DIR = "results"
+
+
+@dataclass(frozen=True)
+class BatchTask:
+    """One batch: one tuner entry on one seed. Picklable; :func:`run_batch` runs it anywhere.
+
+    Attributes
+    ----------
+    study, label, tuner : str
+        Study name, tuner label and registry name.
+    params : dict
+        Constructor keyword arguments (``n_initial`` resolved).
+    batch, seed : int
+    env_id : str
+    env_kwargs : dict
+    budget : int
+        Plant experiments.
+    """
+
+    study: str
+    label: str
+    tuner: str
+    params: dict
+    batch: int
+    seed: int
+    env_id: str
+    env_kwargs: dict
+    budget: int
+
+    @property
+    def key(self) -> str:
+        """10 hex digits hashing what determines the batch's results (not the study or label)."""
+        payload = json.dumps([self.env_id, self.env_kwargs, self.tuner, self.params, self.budget, self.seed],
+                             sort_keys=True, default=_json_default)
+        return hashlib.sha256(payload.encode()).hexdigest()[:10]
+
+    @property
+    def filename(self) -> str:
+        """Result file name of this batch."""
+        return f"{slugify(self.label)}__b{self.batch:04d}__{self.key}.parquet"
+
+
+@dataclass
+class StudyRun:
+    """What :func:`run_study` did.
+
+    Attributes
+    ----------
+    out : Path
+    total : int
+        Batches in the study.
+    skipped : int
+        Batches already finished before this run.
+    completed : int
+        Batches finished by this run.
+    failed : list of (str, str)
+        ``(file name, traceback)`` of batches that raised (not written; a rerun retries them).
+    interrupted : bool
+        Stopped by Ctrl-C (finished batches are kept).
+    wall_time : float
+        Seconds this run took.
+    """
+
+    out: Path
+    total: int
+    skipped: int = 0
+    completed: int = 0
+    failed: list = field(default_factory=list)
+    interrupted: bool = False
+    wall_time: float = 0.0
+
+    @property
+    def done(self) -> bool:
+        """Every batch of the study is finished."""
+        return self.skipped + self.completed == self.total
+
+
+def default_out_dir(study: Study) -> Path:
+    """``evaluation/reports/<study name>`` beside this package."""
+    return Path(__file__).resolve().parent / "reports" / study.name
+
+
+# -- planning -----------------------------------------------------------------------------------------
+def resolve_params(entry: TunerEntry, n_initial: int | None) -> dict:
+    """The entry's params with the study's N0 added when the tuner takes ``n_initial`` and params lack it.
+
+    Raises
+    ------
+    ValueError
+        Unknown tuner name (the message lists the registered ones) or params the tuner rejects.
+    """
+    import agents
+
+    params = dict(entry.params)
+    try:
+        tuner = agents.make(entry.name, **params)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"tuner '{entry.label}' ({entry.name}, params {params}): {exc}") from exc
+    if n_initial is not None and "n_initial" not in params and _accepts(type(tuner), "n_initial"):
+        params["n_initial"] = int(n_initial)
+    return params
+
+
+def _accepts(cls: type, name: str) -> bool:
+    parameters = inspect.signature(cls.__init__).parameters
+    return name in parameters or any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())
+
+
+def plan_batches(study: Study) -> list[BatchTask]:
+    """Every batch of ``study``, batch-major (batch 0 of every tuner first) so partial runs stay balanced."""
+    params = {entry.label: resolve_params(entry, study.n_initial) for entry in study.tuners}
+    return [BatchTask(study=study.name, label=entry.label, tuner=entry.name, params=params[entry.label],
+                      batch=batch, seed=study.seed + batch, env_id=study.env_id, env_kwargs=dict(study.env_kwargs),
+                      budget=study.budget)
+            for batch in range(study.batches) for entry in study.tuners]
+
+
+def finished_files(out: Path) -> set[str]:
+    """Names of the result files already written under ``out/results``."""
+    folder = Path(out) / RESULTS_DIR
+    return {p.name for p in folder.glob("*.parquet")} if folder.is_dir() else set()
+
+
+# -- one batch ----------------------------------------------------------------------------------------
+def run_batch(task: BatchTask):
+    """Run one batch and return its tidy table (a pandas DataFrame, one row per experiment).
+
+    A pure function of ``task``: the env and the tuner are both seeded with
+    ``task.seed`` and BLAS runs single-threaded, so any process on any backend
+    returns the same numbers.
+    """
+    import gymnasium as gym
+
+    import agents
+    import gbo_envs  # noqa: F401  (registers the envs)
+
+    with _single_thread():
+        kwargs = dict(task.env_kwargs)
+        kwargs.setdefault("max_episode_steps", task.budget)
+        env = gym.make(task.env_id, **kwargs)
+        tuner = agents.make(task.tuner, **task.params)
+        start = time.perf_counter()
+        result = tuner.run(env, budget=task.budget, seed=task.seed)
+        elapsed = time.perf_counter() - start
+        env.close()
+    frame = result.to_pandas()
+    info = {k: v for k, v in result.info.items() if k != "params"}
+    frame.insert(0, "row", np.arange(len(frame)))
+    for position, (column, value) in enumerate([("study", task.study), ("tuner", task.label),
+                                                 ("tuner_name", task.tuner), ("batch", task.batch),
+                                                 ("seed", task.seed)]):
+        frame.insert(position, column, value)
+    frame["params"] = json.dumps(task.params, sort_keys=True, default=_json_default)
+    frame["info"] = json.dumps(info, sort_keys=True, default=_json_default)
+    frame["batch_wall_time"] = float(elapsed)
+    return _tidy(frame)
+
+
+def _safe_run_batch(task: BatchTask):
+    """``(task, frame, None)`` or ``(task, None, traceback)``: one failing batch does not stop the study."""
+    try:
+        return task, run_batch(task), None
+    except Exception:
+        return task, None, traceback.format_exc()
+
+
+class _single_thread:
+    """Limit BLAS/OpenMP pools to one thread (identical numbers across backends, no oversubscription)."""
+
+    def __enter__(self):
+        try:
+            from threadpoolctl import threadpool_limits
+
+            self._limits = threadpool_limits(limits=1)
+        except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
+            self._limits = None
+        return self
+
+    def __exit__(self, *exc):
+        if self._limits is not None:
+            self._limits.restore_original_limits()
+        return False
+
+
+def _tidy(frame):
+    """Make every column Parquet-friendly: ``unstable`` as bool, nested values as JSON text."""
+    import pyarrow as pa
+
+    if "unstable" in frame:
+        frame["unstable"] = frame["unstable"].fillna(False).astype(bool)
+    for column in frame.columns:
+        if frame[column].dtype == object:
+            try:
+                pa.array(frame[column], from_pandas=True)
+            except (pa.ArrowInvalid, pa.ArrowTypeError, TypeError, ValueError):
+                frame[column] = [None if _is_missing(v) else json.dumps(v, default=_json_default)
+                                 for v in frame[column]]
+    return frame
+
+
+def _is_missing(value: Any) -> bool:
+    return value is None or (isinstance(value, float) and np.isnan(value))
+
+
+def _json_default(value: Any):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, (set, tuple)):
+        return list(value)
+    return str(value)
+
+
+def write_batch(frame, out: Path, filename: str) -> Path:
+    """Write a batch table atomically to ``out/results/filename`` (temp file, then ``os.replace``)."""
+    folder = Path(out) / RESULTS_DIR
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / filename
+    tmp = folder / f".{filename}.{os.getpid()}.tmp"
+    frame.to_parquet(tmp, index=False)
+    os.replace(tmp, path)
+    return path
+
+
+# -- backends -----------------------------------------------------------------------------------------
+def _local(tasks: list[BatchTask], workers: int) -> Iterator:
+    if workers == 1:
+        for task in tasks:
+            yield _safe_run_batch(task)
+        return
+    from joblib import Parallel, delayed
+
+    parallel = Parallel(n_jobs=workers, return_as="generator_unordered", batch_size=1)
+    yield from parallel(delayed(_safe_run_batch)(task) for task in tasks)
+
+
+def _dask(tasks: list[BatchTask], workers: int, address: str | None) -> Iterator:
+    from distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if address:
+        client = Client(address)
+    else:
+        with _sigint_ignored():  # Ctrl-C stops the client loop below, not the workers mid-batch
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0")
+        client = Client(cluster)
+    futures = [client.submit(_safe_run_batch, task, pure=False) for task in tasks]
+    try:
+        for future in as_completed(futures):
+            yield future.result()
+    finally:
+        client.cancel(futures)
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+class _sigint_ignored:
+    """Processes started inside inherit an ignored SIGINT (main thread only; no-op elsewhere)."""
+
+    def __enter__(self):
+        import signal
+
+        try:
+            self._previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except ValueError:  # not the main thread
+            self._previous = None
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+        return False
+
+
+# -- a whole study ------------------------------------------------------------------------------------
+def run_study(study: Study, out: Path | str | None = None, backend: str = "local", address: str | None = None,
+              workers: int | None = None, progress: bool = True, log=None) -> StudyRun:
+    """Run every unfinished batch of ``study`` and write each one as it finishes.
+
+    Parameters
+    ----------
+    study : Study
+    out : Path, optional
+        Output folder (default :func:`default_out_dir`).
+    backend : {"local", "dask"}
+        ``"local"``: joblib worker processes on this machine. ``"dask"``: a
+        ``dask.distributed`` scheduler at ``address``, or a new LocalCluster.
+    address : str, optional
+        Scheduler address for ``backend="dask"`` (e.g. ``"tcp://10.0.0.5:8786"``);
+        its workers need this package installed.
+    workers : int, optional
+        Worker processes (default: all cores; ignored with a dask ``address``).
+        ``1`` runs the batches in this process, one after the other.
+    progress : bool
+        Show a tqdm bar (batches done, ETA).
+    log : callable, optional
+        Message sink (default ``print`` to stderr).
+
+    Returns
+    -------
+    StudyRun
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
+    if address and backend != "dask":
+        raise ValueError("address: only used with backend='dask'")
+    log = log or (lambda message: print(message, file=sys.stderr))
+    out = Path(out) if out is not None else default_out_dir(study)
+    tasks = plan_batches(study)  # raises on unknown tuners or rejected params before anything is written
+    out.mkdir(parents=True, exist_ok=True)
+    if study.text:
+        suffix = study.path.suffix if study.path is not None else ".toml"
+        (out / f"study{suffix}").write_text(study.text, encoding="utf-8")
+    done = finished_files(out)
+    pending = [task for task in tasks if task.filename not in done]
+    run = StudyRun(out=out, total=len(tasks), skipped=len(tasks) - len(pending))
+    if run.skipped:
+        log(f"{study.name}: {run.skipped} of {run.total} batches already finished in {out / RESULTS_DIR}; "
+            "running the rest")
+    if not pending:
+        return run
+    workers = int(workers) if workers else (os.cpu_count() or 1)
+    workers = max(1, min(workers, len(pending)))
+    start = time.perf_counter()
+    bar = _bar(run.total, run.skipped, study.name, progress)
+    results: Iterable = _local(pending, workers) if backend == "local" else _dask(pending, workers, address)
+    try:
+        for task, frame, error in results:
+            if error is None:
+                write_batch(frame, out, task.filename)
+                run.completed += 1
+            else:
+                run.failed.append((task.filename, error))
+                log(f"{study.name}: batch {task.batch} of '{task.label}' failed (not written):\n{error}")
+            bar.update(1)
+    except KeyboardInterrupt:
+        run.interrupted = True
+        log(f"\n{study.name}: interrupted; {run.skipped + run.completed} of {run.total} batches are saved in "
+            f"{out / RESULTS_DIR}; rerun the same command to resume")
+    finally:
+        close = getattr(results, "close", None)
+        if close is not None:
+            try:
+                close()
+            except Exception:  # pragma: no cover - best effort while shutting down workers
+                pass
+        bar.close()
+        run.wall_time = time.perf_counter() - start
+        _append_run_log(out, run, backend, workers, address)
+    return run
+
+
+def _bar(total: int, initial: int, name: str, enabled: bool):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, initial=initial, desc=name, unit="batch", disable=not enabled, smoothing=0.1)
+
+
+def _append_run_log(out: Path, run: StudyRun, backend: str, workers: int, address: str | None) -> None:
+    entry = {"finished": time.strftime("%Y-%m-%dT%H:%M:%S"), "backend": backend, "address": address,
+             "workers": workers, "batches_run": run.completed, "batches_failed": len(run.failed),
+             "interrupted": run.interrupted, "wall_time": round(run.wall_time, 3), "python": sys.version.split()[0],
+             "cpu_count": os.cpu_count()}
+    with open(out / "runs.jsonl", "a", encoding="utf-8") as handle:
+        handle.write(json.dumps(entry) + "\n")

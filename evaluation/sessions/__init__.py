@@ -1,0 +1,42 @@
+"""Crash-safe tuning sessions: an SQLite experiment log, resume by replay, and export.
+
+>>> from evaluation.sessions import TuningSession
+>>> session = TuningSession("runs.sqlite", "gbo_envs/DCMotor-v0", "bo", budget=20, seed=0)  # doctest: +SKIP
+>>> result = session.run(progress=True)  # doctest: +SKIP
+
+Rerunning the same session after a crash resumes it (see
+:mod:`evaluation.sessions.runner` for the replay and the crash policy). The
+command line is ``gbo tune``, ``gbo sessions`` and ``gbo export``
+(:mod:`evaluation.tune_cli`).
+"""
+
+from __future__ import annotations
+
+from evaluation.sessions.export import export_csv, load_result, sessions_table
+from evaluation.sessions.runner import (
+    CRASH_POLICIES,
+    ReplayMismatch,
+    SessionStopped,
+    TuningSession,
+    env_state,
+    restore_env_state,
+    session_spec,
+)
+from evaluation.sessions.store import ExperimentRow, SessionBusy, SessionInfo, SessionStore
+
+__all__ = [
+    "CRASH_POLICIES",
+    "ExperimentRow",
+    "ReplayMismatch",
+    "SessionBusy",
+    "SessionInfo",
+    "SessionStopped",
+    "SessionStore",
+    "TuningSession",
+    "env_state",
+    "export_csv",
+    "load_result",
+    "restore_env_state",
+    "session_spec",
+    "sessions_table",
+]

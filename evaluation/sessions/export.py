@@ -1,0 +1,131 @@
+"""Read a session back: a :class:`~agents.TuningResult`, the workbench CSV, and the session table."""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+from pathlib import Path
+
+import numpy as np
+
+from agents.result import METRIC_COLUMNS, TuningResult
+from evaluation.sessions.store import SessionInfo, SessionStore
+
+__all__ = ["export_csv", "load_result", "sessions_table"]
+
+#: Columns of ``gbo sessions``.
+TABLE_COLUMNS = ("id", "env", "tuner", "seed", "budget", "done", "failed", "best cost", "status", "created",
+                 "updated")
+
+
+def load_result(store: SessionStore, session_id: int) -> TuningResult:
+    """The stored session as a tidy result: one row per plant experiment the tuner learned from, plus twin rows.
+
+    Columns as :meth:`agents.Tuner.run` writes them, plus ``status`` (``ok`` or
+    ``failed``: penalised) and ``reason``; ``wall_time`` is in s since the
+    session was created.
+    """
+    info = store.session(session_id)
+    result = TuningResult(tuner=info.tuner, env_id=info.env_id, gain_names=info.gain_names, seed=info.seed,
+                          info={"params": info.spec.get("tuner_params", {}), "session_id": session_id,
+                                "db": str(store.path)},
+                          interrupted=info.done < info.budget)
+    plant_ids: set[int] = set()
+    best = math.inf
+    for row in store.experiments(session_id):
+        if row.source == "plant":
+            if not row.told:
+                continue
+            plant_ids.add(row.id)
+            cost = row.told_cost
+            best = min(best, cost)
+        elif row.parent_id not in plant_ids or row.status != "ok":
+            continue
+        else:
+            cost = math.nan if row.cost is None else row.cost
+        out = {"experiment": row.experiment, "source": row.source}
+        out.update({name: float(g) for name, g in zip(info.gain_names, row.gains)})
+        out["cost"] = float(cost)
+        out["best_cost"] = float(best) if row.source == "plant" else math.nan
+        out["true_cost"] = math.nan if row.true_cost is None else row.true_cost
+        out["unstable"] = bool(row.unstable)
+        metrics = row.metrics if isinstance(row.metrics, dict) else dict(zip(METRIC_COLUMNS, row.metrics or ()))
+        for column in METRIC_COLUMNS:
+            value = metrics.get(column)
+            out[column] = math.nan if value is None else float(value)
+        out["wall_time"] = (row.finished_at or row.started_at) - info.created_at
+        out["status"] = row.status
+        out["reason"] = row.reason
+        result.rows.append(out)
+    return result
+
+
+def export_csv(store: SessionStore, out: str | Path, session_id: int | None = None, include_twin: bool = False,
+               include_failed: bool = False) -> tuple[SessionInfo, int]:
+    """Write a session in the workbench CSV format (DESIGN.md, "Measured data CSV").
+
+    Columns: ``experiment,t,r,u,y`` (one row per sample), then one column per
+    gain (e.g. ``Kp,Ki``), then ``source`` and ``cost``.
+
+    Parameters
+    ----------
+    store : SessionStore
+    out : str or Path
+        CSV file to write.
+    session_id : int, optional
+        Default: the most recently updated session.
+    include_twin : bool, default False
+        Also write twin evaluations that stored ``t, r, u, y``.
+    include_failed : bool, default False
+        Also write failed plant experiments whose arrays were stored.
+
+    Returns
+    -------
+    (SessionInfo, int)
+        The session and the number of experiments written.
+
+    Raises
+    ------
+    LookupError
+        If the session holds no experiment to write.
+    """
+    import pandas as pd
+
+    info = store.session(session_id) if session_id is not None else store.latest_session()
+    frames = []
+    for row in store.experiments(info.id):
+        wanted = (row.source == "plant" and (row.status == "ok" or (include_failed and row.status == "failed"))) or (
+            include_twin and row.source == "twin" and row.status == "ok")
+        arrays = row.arrays() if wanted else {}
+        if not wanted or any(name not in arrays or arrays[name].size == 0 for name in ("t", "r", "u", "y")):
+            continue
+        n = arrays["t"].size
+        frame = {"experiment": np.full(n, row.experiment, dtype=int)}
+        frame.update({name: np.asarray(arrays[name], dtype=float) for name in ("t", "r", "u", "y")})
+        frame.update({name: np.full(n, float(g)) for name, g in zip(info.gain_names, row.gains)})
+        frame["source"] = np.full(n, row.source)
+        cost = row.cost if row.source == "twin" else row.told_cost
+        frame["cost"] = np.full(n, np.nan if cost is None else float(cost))
+        frames.append(pd.DataFrame(frame))
+    if not frames:
+        raise LookupError(f"session {info.id}: no experiment with stored t, r, u, y to export")
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    pd.concat(frames, ignore_index=True).to_csv(out, index=False)
+    return info, len(frames)
+
+
+def sessions_table(sessions: list[SessionInfo]) -> str:
+    """The sessions as a plain-text table (columns :data:`TABLE_COLUMNS`)."""
+    cells = [[str(s.id), s.env_id, s.tuner, "-" if s.seed is None else str(s.seed), str(s.budget), str(s.done),
+              str(s.failed), "-" if math.isnan(s.best_cost) else f"{s.best_cost:.4g}", s.status,
+              _when(s.created_at), _when(s.updated_at)] for s in sessions]
+    widths = [max(len(h), *(len(row[i]) for row in cells)) if cells else len(h) for i, h in enumerate(TABLE_COLUMNS)]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(TABLE_COLUMNS, widths))]
+    lines.append("  ".join("-" * w for w in widths))
+    lines += ["  ".join(c.ljust(w) for c, w in zip(row, widths)) for row in cells]
+    return "\n".join(line.rstrip() for line in lines)
+
+
+def _when(timestamp: float) -> str:
+    return dt.datetime.fromtimestamp(timestamp).strftime("%Y-%m-%d %H:%M:%S")

@@ -1,0 +1,497 @@
+"""The experiment log: one SQLite file, written through the standard library's ``sqlite3``.
+
+Every write is one short ``BEGIN IMMEDIATE ... COMMIT`` transaction, so a
+crash leaves either the whole change or none of it. The database runs in WAL
+mode with ``synchronous=FULL`` (a committed experiment survives a power cut),
+a busy timeout (several processes may share one file: each waits for the
+write lock instead of failing) and foreign keys on.
+
+Tables
+------
+``sessions``
+    One row per tuning session, keyed by a hash of its specification (env id
+    and kwargs, tuner name and parameters, budget, seed).
+``experiments``
+    One row per plant experiment attempt or twin evaluation, in the order they
+    happened (``seq``). Plant rows go through ``running`` (the intent, committed
+    before the plant is touched) to ``ok`` / ``failed``; an intent found on
+    resume becomes ``lost-in-crash``, one cut short by Ctrl-C ``interrupted``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import socket
+import sqlite3
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ARRAY_FIELDS", "PLANT_STATUSES", "ExperimentRow", "SessionBusy", "SessionInfo", "SessionStore",
+           "array_from_blob", "array_to_blob"]
+
+#: Status values of an experiment row.
+PLANT_STATUSES = ("running", "ok", "failed", "lost-in-crash", "interrupted")
+#: Record arrays stored as BLOBs.
+ARRAY_FIELDS = ("t", "r", "u", "y")
+
+SCHEMA_VERSION = 1
+BUSY_TIMEOUT_MS = 60_000
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS sessions (
+    id          INTEGER PRIMARY KEY AUTOINCREMENT,
+    key         TEXT NOT NULL UNIQUE,
+    spec        TEXT NOT NULL,
+    env_id      TEXT NOT NULL,
+    tuner       TEXT NOT NULL,
+    seed        INTEGER,
+    budget      INTEGER NOT NULL CHECK (budget >= 1),
+    gain_names  TEXT NOT NULL,
+    status      TEXT NOT NULL DEFAULT 'new',
+    message     TEXT,
+    owner_host  TEXT,
+    owner_pid   INTEGER,
+    created_at  REAL NOT NULL,
+    updated_at  REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS experiments (
+    id           INTEGER PRIMARY KEY AUTOINCREMENT,
+    session_id   INTEGER NOT NULL REFERENCES sessions(id) ON DELETE CASCADE,
+    seq          INTEGER NOT NULL,
+    experiment   INTEGER NOT NULL,
+    source       TEXT NOT NULL CHECK (source IN ('plant', 'twin')),
+    parent_id    INTEGER REFERENCES experiments(id) ON DELETE CASCADE,
+    phase        TEXT,
+    status       TEXT NOT NULL CHECK (status IN ('running', 'ok', 'failed', 'lost-in-crash', 'interrupted')),
+    reason       TEXT,
+    told         INTEGER NOT NULL DEFAULT 0,
+    gains        TEXT NOT NULL,
+    cost         REAL,
+    told_cost    REAL,
+    true_cost    REAL,
+    unstable     INTEGER,
+    metrics      TEXT,
+    t            BLOB,
+    r            BLOB,
+    u            BLOB,
+    y            BLOB,
+    extra        TEXT,
+    env_state    TEXT,
+    started_at   REAL NOT NULL,
+    finished_at  REAL,
+    UNIQUE (session_id, seq)
+);
+CREATE UNIQUE INDEX IF NOT EXISTS experiments_told_once
+    ON experiments (session_id, experiment) WHERE source = 'plant' AND told = 1;
+CREATE INDEX IF NOT EXISTS experiments_parent ON experiments (parent_id);
+"""
+
+
+class SessionBusy(RuntimeError):
+    """Another live process is running this session."""
+
+
+@dataclass(frozen=True)
+class SessionInfo:
+    """A row of the ``sessions`` table with its experiment counts.
+
+    Attributes
+    ----------
+    done : int
+        Plant experiments the tuner learned from (``ok`` or penalised failures).
+    failed : int
+        Failed plant experiments (penalised or skipped).
+    best_cost : float
+        Lowest cost of an ``ok`` plant experiment (NaN if none).
+    created_at, updated_at : float
+        Unix times in s.
+    """
+
+    id: int
+    key: str
+    spec: dict
+    env_id: str
+    tuner: str
+    seed: int | None
+    budget: int
+    gain_names: tuple[str, ...]
+    status: str
+    message: str | None
+    created_at: float
+    updated_at: float
+    done: int = 0
+    failed: int = 0
+    best_cost: float = math.nan
+
+
+@dataclass(frozen=True)
+class ExperimentRow:
+    """One stored experiment (plant attempt or twin evaluation); arrays are decoded lazily."""
+
+    id: int
+    seq: int
+    experiment: int
+    source: str
+    parent_id: int | None
+    phase: str | None
+    status: str
+    reason: str | None
+    told: bool
+    gains: tuple[float, ...]
+    cost: float | None
+    told_cost: float | None
+    true_cost: float | None
+    unstable: bool | None
+    metrics: dict | None
+    blobs: dict
+    extra: dict
+    env_state: dict | None
+    started_at: float
+    finished_at: float | None
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The stored ``t, r, u, y`` arrays (those present), each of shape (n_steps,)."""
+        return {name: array_from_blob(blob) for name, blob in self.blobs.items() if blob is not None}
+
+    def record(self) -> dict[str, Any]:
+        """The experiment record as ``env.step`` reported it in ``info`` (the stored part of it)."""
+        record: dict[str, Any] = dict(self.extra)
+        record.update(self.arrays())
+        record["gains"] = np.asarray(self.gains, dtype=float)
+        if self.metrics is not None:
+            record["metrics"] = dict(self.metrics)
+        if self.cost is not None:
+            record["cost"] = self.cost
+        if self.true_cost is not None:
+            record["true_cost"] = self.true_cost
+        if self.unstable is not None:
+            record["unstable"] = bool(self.unstable)
+        return record
+
+
+def array_to_blob(array) -> bytes:
+    """Serialise an array with ``np.save`` (dtype and shape kept, no pickle)."""
+    buffer = io.BytesIO()
+    np.save(buffer, np.asarray(array), allow_pickle=False)
+    return buffer.getvalue()
+
+
+def array_from_blob(blob: bytes) -> np.ndarray:
+    """Inverse of :func:`array_to_blob`."""
+    return np.load(io.BytesIO(blob), allow_pickle=False)
+
+
+def to_json(value: Any) -> str:
+    """JSON text of ``value`` with numpy scalars and arrays converted (floats round-trip exactly)."""
+    return json.dumps(_plain(value), sort_keys=True)
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return repr(value)
+
+
+def _real(value) -> float | None:
+    """A float for a REAL column (None for missing or NaN, which SQLite cannot store)."""
+    if value is None:
+        return None
+    value = float(value)
+    return None if math.isnan(value) else value
+
+
+class SessionStore:
+    """Connection to one experiment-log database.
+
+    Parameters
+    ----------
+    path : str or Path
+        SQLite file (created with its folder if missing).
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.conn = sqlite3.connect(str(self.path), timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None)
+        self.conn.row_factory = sqlite3.Row
+        self.conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
+        mode = self.conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+        if str(mode).lower() != "wal":
+            raise RuntimeError(f"{self.path}: could not switch to WAL mode (got {mode!r})")
+        self.conn.execute("PRAGMA synchronous = FULL")
+        self.conn.execute("PRAGMA foreign_keys = ON")
+        with self.transaction() as conn:
+            version = conn.execute("PRAGMA user_version").fetchone()[0]
+            if version not in (0, SCHEMA_VERSION):
+                raise RuntimeError(f"{self.path}: schema version {version}, this code reads {SCHEMA_VERSION}")
+            for statement in _SCHEMA.split(";"):
+                if statement.strip():
+                    conn.execute(statement)
+            conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+
+    def close(self) -> None:
+        """Close the connection."""
+        self.conn.close()
+
+    def __enter__(self) -> SessionStore:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @contextmanager
+    def transaction(self) -> Iterator[sqlite3.Connection]:
+        """``BEGIN IMMEDIATE`` (takes the write lock up front, waiting up to the busy timeout) ... ``COMMIT``."""
+        self.conn.execute("BEGIN IMMEDIATE")
+        try:
+            yield self.conn
+        except BaseException:
+            self.conn.execute("ROLLBACK")
+            raise
+        self.conn.execute("COMMIT")
+
+    # -- sessions ------------------------------------------------------------------------------------
+    def open_session(self, key: str, spec: dict, gain_names, claim: bool = True, force: bool = False) -> SessionInfo:
+        """The session of ``key``, created if new; with ``claim``, this process becomes its owner.
+
+        Raises
+        ------
+        SessionBusy
+            If another live process on this host, or any process on another
+            host, owns the session (a process killed with SIGKILL leaves its
+            claim behind; a dead owner on this host is replaced, one on another
+            host only with ``force``).
+        """
+        now = time.time()
+        host, pid = socket.gethostname(), os.getpid()
+        with self.transaction() as conn:
+            row = conn.execute("SELECT * FROM sessions WHERE key = ?", (key,)).fetchone()
+            if row is None:
+                conn.execute(
+                    "INSERT INTO sessions (key, spec, env_id, tuner, seed, budget, gain_names, status, "
+                    "created_at, updated_at) VALUES (?, ?, ?, ?, ?, ?, ?, 'new', ?, ?)",
+                    (key, to_json(spec), spec["env"], spec["tuner"], spec["seed"], spec["budget"],
+                     to_json(list(gain_names)), now, now))
+                row = conn.execute("SELECT * FROM sessions WHERE key = ?", (key,)).fetchone()
+            elif (claim and not force and row["owner_pid"] is not None
+                  and (row["owner_host"], row["owner_pid"]) != (host, pid)):
+                if row["owner_host"] != host or _alive(row["owner_pid"]):
+                    raise SessionBusy(f"session {row['id']} is being run by process {row['owner_pid']} on "
+                                      f"{row['owner_host']}; wait for it to finish (or end it) first, or take "
+                                      "it over if that process is gone (gbo tune --force)")
+            if claim:
+                conn.execute("UPDATE sessions SET owner_host = ?, owner_pid = ?, status = 'running', message = NULL,"
+                             " updated_at = ? WHERE id = ?", (host, pid, now, row["id"]))
+        return self.session(row["id"])
+
+    def release_session(self, session_id: int, status: str, message: str | None = None) -> None:
+        """Drop this process's claim and set the session status (``done``, ``stopped``, ``failed`` ...)."""
+        with self.transaction() as conn:
+            conn.execute("UPDATE sessions SET owner_host = NULL, owner_pid = NULL, status = ?, message = ?, "
+                         "updated_at = ? WHERE id = ?", (status, message, time.time(), session_id))
+
+    def session(self, session_id: int) -> SessionInfo:
+        """One session with its counts.
+
+        Raises
+        ------
+        KeyError
+            For an unknown id.
+        """
+        rows = self.sessions(session_id=session_id)
+        if not rows:
+            raise KeyError(f"session {session_id}: not in {self.path}")
+        return rows[0]
+
+    def sessions(self, session_id: int | None = None) -> list[SessionInfo]:
+        """All sessions (or one), oldest first, with done / failed counts and best cost."""
+        where, args = ("WHERE s.id = ?", (session_id,)) if session_id is not None else ("", ())
+        query = f"""
+            SELECT s.*,
+                (SELECT COUNT(*) FROM experiments e WHERE e.session_id = s.id AND e.source = 'plant'
+                    AND e.told = 1) AS done,
+                (SELECT COUNT(*) FROM experiments e WHERE e.session_id = s.id AND e.source = 'plant'
+                    AND e.status = 'failed') AS failed,
+                (SELECT MIN(e.cost) FROM experiments e WHERE e.session_id = s.id AND e.source = 'plant'
+                    AND e.status = 'ok') AS best_cost
+            FROM sessions s {where} ORDER BY s.id"""
+        return [SessionInfo(
+            id=row["id"], key=row["key"], spec=json.loads(row["spec"]), env_id=row["env_id"], tuner=row["tuner"],
+            seed=row["seed"], budget=row["budget"], gain_names=tuple(json.loads(row["gain_names"])),
+            status=row["status"], message=row["message"], created_at=row["created_at"],
+            updated_at=row["updated_at"], done=row["done"], failed=row["failed"],
+            best_cost=math.nan if row["best_cost"] is None else row["best_cost"])
+            for row in self.conn.execute(query, args)]
+
+    def latest_session(self) -> SessionInfo:
+        """The most recently updated session.
+
+        Raises
+        ------
+        LookupError
+            If the database holds no session.
+        """
+        row = self.conn.execute("SELECT id FROM sessions ORDER BY updated_at DESC, id DESC LIMIT 1").fetchone()
+        if row is None:
+            raise LookupError(f"{self.path}: no session stored yet")
+        return self.session(row["id"])
+
+    # -- experiments ---------------------------------------------------------------------------------
+    def experiments(self, session_id: int, source: str | None = None) -> list[ExperimentRow]:
+        """Rows of a session in the order they were written (``seq``)."""
+        query = "SELECT * FROM experiments WHERE session_id = ?"
+        args: tuple = (session_id,)
+        if source is not None:
+            query += " AND source = ?"
+            args += (source,)
+        return [_decode(row) for row in self.conn.execute(query + " ORDER BY seq", args)]
+
+    def begin_plant(self, session_id: int, experiment: int, gains, twin_rows=()) -> int:
+        """Commit the intent of a plant experiment (status ``running``) before the plant is touched.
+
+        Twin evaluations the tuner made while proposing these gains are
+        committed in the same transaction. Returns the row id.
+        """
+        now = time.time()
+        with self.transaction() as conn:
+            seq = self._next_seq(conn, session_id)
+            cursor = conn.execute(
+                "INSERT INTO experiments (session_id, seq, experiment, source, status, gains, started_at) "
+                "VALUES (?, ?, ?, 'plant', 'running', ?, ?)", (session_id, seq, experiment, to_json(gains), now))
+            row_id = cursor.lastrowid
+            self._insert_twins(conn, session_id, seq + 1, experiment, row_id, "ask", twin_rows, now)
+            self._touch(conn, session_id, now)
+        return row_id
+
+    def finish_plant(self, row_id: int, status: str, record: Mapping | None, *, reason: str | None = None,
+                     told: bool, told_cost: float | None, env_state: dict | None) -> None:
+        """Complete a plant row with the experiment record (arrays as BLOBs) in one transaction."""
+        if status not in ("ok", "failed"):
+            raise ValueError(f"status: expected 'ok' or 'failed', got {status!r}")
+        record = dict(record or {})
+        blobs = {name: _blob_or_none(record.get(name)) for name in ARRAY_FIELDS}
+        metrics = record.get("metrics")
+        if metrics is not None and not isinstance(metrics, Mapping):
+            metrics = list(np.asarray(metrics, dtype=float))
+        extra = {k: v for k, v in record.items()
+                 if k not in (*ARRAY_FIELDS, "gains", "metrics", "cost", "true_cost", "unstable")}
+        unstable = record.get("unstable")
+        now = time.time()
+        with self.transaction() as conn:
+            cursor = conn.execute(
+                "UPDATE experiments SET status = ?, reason = ?, told = ?, cost = ?, told_cost = ?, true_cost = ?, "
+                "unstable = ?, metrics = ?, t = ?, r = ?, u = ?, y = ?, extra = ?, env_state = ?, finished_at = ? "
+                "WHERE id = ? AND status = 'running'",
+                (status, reason, int(told), _real(record.get("cost")), _real(told_cost),
+                 _real(record.get("true_cost")), None if unstable is None else int(bool(unstable)),
+                 None if metrics is None else to_json(metrics), blobs["t"], blobs["r"], blobs["u"], blobs["y"],
+                 to_json(extra), None if env_state is None else to_json(env_state), now, row_id))
+            if cursor.rowcount != 1:
+                raise RuntimeError(f"experiment row {row_id}: not an open intent (already completed?)")
+            self._touch_row(conn, row_id, now)
+
+    def abandon_plant(self, row_id: int, status: str, reason: str) -> None:
+        """Mark an intent (and its twin rows) ``lost-in-crash`` or ``interrupted``: it is not replayed."""
+        if status not in ("lost-in-crash", "interrupted"):
+            raise ValueError(f"status: expected 'lost-in-crash' or 'interrupted', got {status!r}")
+        now = time.time()
+        with self.transaction() as conn:
+            conn.execute("UPDATE experiments SET status = ?, reason = ?, finished_at = ? WHERE id = ? OR parent_id = ?",
+                         (status, reason, now, row_id, row_id))
+            self._touch_row(conn, row_id, now)
+
+    def add_twins(self, session_id: int, experiment: int, parent_id: int, phase: str, twin_rows) -> None:
+        """Commit twin evaluations made while the tuner learned from plant row ``parent_id``."""
+        if not twin_rows:
+            return
+        now = time.time()
+        with self.transaction() as conn:
+            seq = self._next_seq(conn, session_id)
+            self._insert_twins(conn, session_id, seq, experiment, parent_id, phase, twin_rows, now)
+            self._touch(conn, session_id, now)
+
+    def integrity_check(self) -> str:
+        """``PRAGMA integrity_check`` (``"ok"`` for a sound file)."""
+        return "; ".join(str(row[0]) for row in self.conn.execute("PRAGMA integrity_check"))
+
+    # -- helpers -------------------------------------------------------------------------------------
+    @staticmethod
+    def _next_seq(conn: sqlite3.Connection, session_id: int) -> int:
+        return int(conn.execute("SELECT COALESCE(MAX(seq), 0) + 1 FROM experiments WHERE session_id = ?",
+                                (session_id,)).fetchone()[0])
+
+    @staticmethod
+    def _insert_twins(conn, session_id, seq, experiment, parent_id, phase, twin_rows, now) -> None:
+        for offset, twin in enumerate(twin_rows):
+            twin = dict(twin)
+            blobs = {name: _blob_or_none(twin.pop(name, None)) for name in ARRAY_FIELDS}
+            gains = twin.pop("gains")
+            cost = twin.pop("cost", None)
+            metrics = twin.pop("metrics", None)
+            if metrics is not None and not isinstance(metrics, Mapping):
+                metrics = list(np.asarray(metrics, dtype=float))
+            conn.execute(
+                "INSERT INTO experiments (session_id, seq, experiment, source, parent_id, phase, status, told, gains,"
+                " cost, metrics, t, r, u, y, extra, started_at, finished_at) "
+                "VALUES (?, ?, ?, 'twin', ?, ?, 'ok', 0, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (session_id, seq + offset, experiment, parent_id, phase, to_json(gains), _real(cost),
+                 None if metrics is None else to_json(metrics), blobs["t"], blobs["r"], blobs["u"], blobs["y"],
+                 to_json(twin), now, now))
+
+    @staticmethod
+    def _touch(conn, session_id: int, now: float) -> None:
+        conn.execute("UPDATE sessions SET updated_at = ? WHERE id = ?", (now, session_id))
+
+    def _touch_row(self, conn, row_id: int, now: float) -> None:
+        conn.execute("UPDATE sessions SET updated_at = ? WHERE id = (SELECT session_id FROM experiments "
+                     "WHERE id = ?)", (now, row_id))
+
+
+def _blob_or_none(value) -> bytes | None:
+    if value is None:
+        return None
+    array = np.asarray(value)
+    if array.dtype == object:
+        return None
+    return array_to_blob(array)
+
+
+def _decode(row: sqlite3.Row) -> ExperimentRow:
+    return ExperimentRow(
+        id=row["id"], seq=row["seq"], experiment=row["experiment"], source=row["source"],
+        parent_id=row["parent_id"], phase=row["phase"], status=row["status"], reason=row["reason"],
+        told=bool(row["told"]), gains=tuple(json.loads(row["gains"])), cost=row["cost"],
+        told_cost=row["told_cost"], true_cost=row["true_cost"],
+        unstable=None if row["unstable"] is None else bool(row["unstable"]),
+        metrics=None if row["metrics"] is None else json.loads(row["metrics"]),
+        blobs={name: row[name] for name in ARRAY_FIELDS}, extra=json.loads(row["extra"] or "{}"),
+        env_state=None if row["env_state"] is None else json.loads(row["env_state"]),
+        started_at=row["started_at"], finished_at=row["finished_at"])
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process with this id exists on this host."""
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

@@ -1,0 +1,145 @@
+"""``gbo tune``, ``gbo sessions`` and ``gbo export``: crash-safe tuning sessions from the command line.
+
+::
+
+    gbo tune --env gbo_envs/DCMotor-v0 --tuner bo --budget 30 --db runs.sqlite --seed 0
+    gbo sessions --db runs.sqlite
+    gbo export --db runs.sqlite --csv out/session.csv        # the latest session
+
+Rerunning an interrupted ``gbo tune`` command resumes its session (see
+:mod:`evaluation.sessions.runner`). ``--import MODULE`` imports a module first,
+for envs and tuners registered outside this package (e.g. an
+:class:`~gbo_envs.envs.external.ExternalPlantEnv` around your rig).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+
+__all__ = ["add_parser"]
+
+
+def add_parser(subparsers) -> None:
+    """Add ``tune``, ``sessions`` and ``export`` to the ``gbo`` sub-command parsers."""
+    tune = subparsers.add_parser("tune", help="run or resume a crash-safe tuning session stored in SQLite",
+                                 description="Run a tuner on an env for a budget of plant experiments, committing "
+                                             "every experiment to the database before the next is proposed. "
+                                             "Rerun the same command to resume after an interruption.")
+    tune.add_argument("--env", default="gbo_envs/DCMotor-v0", help="env id (default: gbo_envs/DCMotor-v0)")
+    tune.add_argument("--tuner", default="bo", help="tuner registry name (default: bo)")
+    tune.add_argument("--budget", type=int, required=True, help="plant experiments the tuner learns from")
+    tune.add_argument("--db", default="runs.sqlite", help="SQLite file (default: runs.sqlite)")
+    tune.add_argument("--seed", type=int, default=0, help="seed of env and tuner (default: 0)")
+    tune.add_argument("--env-kwargs", type=_json_object, default={}, metavar="JSON",
+                      help='gym.make keyword arguments, e.g. \'{"noise": false}\'')
+    tune.add_argument("--tuner-kwargs", type=_json_object, default={}, metavar="JSON",
+                      help="tuner constructor keyword arguments as a JSON object")
+    tune.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",
+                      help="import MODULE first (registers your own envs or tuners); repeatable")
+    tune.add_argument("--on-crash", choices=("rerun", "stop"), default="rerun",
+                      help="an experiment cut by a crash: run it again (default) or stop for a check of the rig")
+    tune.add_argument("--max-skips", type=int, default=5,
+                      help="stop after this many skipped failed experiments in a row (default: 5)")
+    tune.add_argument("--force", action="store_true",
+                      help="take over a session whose recorded owner process is gone (e.g. crashed on another host)")
+    tune.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tune.set_defaults(handler=_tune)
+
+    sessions = subparsers.add_parser("sessions", help="list the tuning sessions of a database")
+    sessions.add_argument("--db", default="runs.sqlite", help="SQLite file (default: runs.sqlite)")
+    sessions.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    sessions.set_defaults(handler=_sessions)
+
+    export = subparsers.add_parser("export", help="write a session as workbench CSV (experiment,t,r,u,y + gains)")
+    export.add_argument("--db", default="runs.sqlite", help="SQLite file (default: runs.sqlite)")
+    export.add_argument("--session", type=int, default=None, help="session id (default: the latest session)")
+    export.add_argument("--csv", required=True, help="output CSV file")
+    export.add_argument("--include-twin", action="store_true", help="also twin evaluations with stored arrays")
+    export.add_argument("--include-failed", action="store_true", help="also failed experiments with stored arrays")
+    export.set_defaults(handler=_export)
+
+
+def _json_object(text: str) -> dict:
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"not valid JSON: {exc}") from exc
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
+    return value
+
+
+def _tune(args: argparse.Namespace) -> int:
+    import math
+
+    from gymnasium.error import Error as GymError
+
+    from evaluation.sessions import ReplayMismatch, SessionBusy, SessionStopped, TuningSession
+
+    for module in args.imports:
+        importlib.import_module(module)
+    try:
+        session = TuningSession(args.db, args.env, args.tuner, budget=args.budget, seed=args.seed,
+                                env_kwargs=args.env_kwargs, tuner_kwargs=args.tuner_kwargs, on_crash=args.on_crash,
+                                max_consecutive_skips=args.max_skips, force=args.force)
+        result = session.run(progress=not args.no_progress)
+    except KeyboardInterrupt:
+        print("gbo tune: interrupted; finished experiments are stored, rerun the same command to resume",
+              file=sys.stderr)
+        return 130
+    except (SessionStopped, ReplayMismatch, SessionBusy, ValueError, GymError) as exc:
+        print(f"gbo tune: {exc}", file=sys.stderr)
+        return 1
+    resumed = f" (resumed after {session.n_replayed})" if session.n_replayed else ""
+    failed = sum(row.get("status") == "failed" for row in result.plant_rows)
+    print(f"session {session.session_id} in {args.db}: {result.n_experiments}/{args.budget} plant experiments"
+          f"{resumed}, {failed} failed, {result.n_twin} twin evaluations")
+    ok = [row for row in result.plant_rows if row.get("status") == "ok"]
+    if ok:
+        best = min(ok, key=lambda row: row["cost"])
+        gains = ", ".join(f"{name} = {best[name]:.6g}" for name in result.gain_names)
+        true = "" if math.isnan(best["true_cost"]) else f" (true cost {best['true_cost']:.4f})"
+        print(f"best measured: {gains}, cost {best['cost']:.4f}{true} at experiment {best['experiment']}")
+    return 0
+
+
+def _sessions(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from evaluation.sessions import SessionStore, sessions_table
+
+    if not Path(args.db).exists():
+        print(f"gbo sessions: {args.db} does not exist", file=sys.stderr)
+        return 1
+    with SessionStore(args.db) as store:
+        sessions = store.sessions()
+    if args.json:
+        print(json.dumps([{"id": s.id, "env": s.env_id, "tuner": s.tuner, "seed": s.seed, "budget": s.budget,
+                           "done": s.done, "failed": s.failed, "best_cost": None if s.best_cost != s.best_cost
+                           else s.best_cost, "status": s.status, "created": s.created_at, "updated": s.updated_at}
+                          for s in sessions]))
+    else:
+        print(sessions_table(sessions))
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from evaluation.sessions import SessionStore, export_csv
+
+    if not Path(args.db).exists():
+        print(f"gbo export: {args.db} does not exist", file=sys.stderr)
+        return 1
+    with SessionStore(args.db) as store:
+        try:
+            info, count = export_csv(store, args.csv, session_id=args.session, include_twin=args.include_twin,
+                                     include_failed=args.include_failed)
+        except (KeyError, LookupError) as exc:
+            print(f"gbo export: {exc.args[0] if exc.args else exc}", file=sys.stderr)
+            return 1
+    print(f"wrote {count} experiments of session {info.id} ({info.tuner} on {info.env_id}) to {args.csv}")
+    return 0

@@ -1,0 +1,42 @@
+"""The dask backend on a real 2-worker LocalCluster gives the same results as local joblib processes."""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+from evaluation import analysis
+from evaluation.runner import run_study
+from evaluation.study import parse_study
+
+distributed = pytest.importorskip("distributed")
+
+TIMING = ["wall_time", "batch_wall_time"]
+
+
+def study():
+    return parse_study({"study": {"name": "dask-tiny", "batches": 2, "budget": 3, "seed": 11, "resolution": 10},
+                        "env": {"id": "gbo_envs/DCMotor-v0"},
+                        "tuners": [{"name": "random", "label": "random search"}]})
+
+
+def test_dask_local_cluster_matches_local_backend(tmp_path):
+    spec = study()
+    local = run_study(spec, tmp_path / "local", backend="local", workers=2, progress=False)
+    assert local.completed == 2
+    with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
+                                  dashboard_address=":0") as cluster:
+        remote = run_study(spec, tmp_path / "dask", backend="dask", address=cluster.scheduler_address,
+                           progress=False)
+    assert remote.completed == 2 and not remote.failed
+    a = analysis.load_results(tmp_path / "local", spec).drop(columns=TIMING)
+    b = analysis.load_results(tmp_path / "dask", spec).drop(columns=TIMING)
+    assert len(a) == 6 and a["seed"].tolist() == [11, 11, 11, 12, 12, 12]
+    pd.testing.assert_frame_equal(a, b)
+
+
+def test_dask_without_address_starts_its_own_cluster(tmp_path):
+    spec = study()
+    run = run_study(spec, tmp_path, backend="dask", workers=2, progress=False)
+    assert run.completed == 2 and run.done
+    assert len(analysis.load_results(tmp_path, spec)) == 6
