@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import functools
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg import cho_factor, cho_solve, cholesky
 from scipy.optimize import minimize
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
@@ -20,6 +21,15 @@ from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 from threadpoolctl import ThreadpoolController
 
 __all__ = ["GPSurrogate"]
+
+
+@dataclass(frozen=True, eq=False)
+class _Conditioned:
+    """The parts of a fitted scikit-learn GP that prediction uses, for a fixed-hyperparameter fit."""
+
+    kernel_: object
+    L_: np.ndarray
+    alpha_: np.ndarray
 
 _THREADPOOLS: ThreadpoolController | None = None
 
@@ -154,7 +164,7 @@ class GPSurrogate:
         kernel = self._prior_kernel(X.shape[1]) if few else self._initial_kernel(X.shape[1])
         warm = kernel is self._previous_kernel
         if not optimize and warm:
-            few = True  # condition on the data with the previous hyperparameters, no likelihood search
+            return self._condition(kernel, X, y, y_std, alpha)
         restarts = self.n_restarts if (not warm or self._n_fits % self.restart_every == 0) else 0
         self._n_fits += 1
         self.gp_ = GaussianProcessRegressor(
@@ -165,17 +175,37 @@ class GPSurrogate:
         with warnings.catch_warnings(), _single_threaded_blas():
             warnings.simplefilter("ignore", ConvergenceWarning)
             self.gp_.fit(X, y_std)
+        self._store_fit(X, y)
+        if not few:
+            self._previous_kernel = self.kernel_
+        return self
+
+    def _condition(self, kernel, X: np.ndarray, y: np.ndarray, y_std: np.ndarray, alpha: float) -> GPSurrogate:
+        """Posterior on ``(X, y)`` with fixed hyperparameters: ``L = chol(K + alpha I)``, ``a = K^-1 y_s``.
+
+        The same algebra as scikit-learn's ``GaussianProcessRegressor.fit`` with
+        ``optimizer=None``, without its per-call validation overhead.
+        """
+        with _single_threaded_blas():
+            gram = kernel(X)
+            gram[np.diag_indices_from(gram)] += alpha
+            lower = cholesky(gram, lower=True, check_finite=False)
+            self.gp_ = _Conditioned(kernel_=kernel, L_=lower, alpha_=cho_solve((lower, True), y_std,
+                                                                               check_finite=False))
+        self._n_fits += 1
+        self._store_fit(X, y)
+        return self
+
+    def _store_fit(self, X: np.ndarray, y: np.ndarray) -> None:
+        """Cache what :meth:`predict` needs from the fitted ``gp_``."""
         self.kernel_ = self.gp_.kernel_
         self._amplitude = _constant(self.kernel_)
         self._length_scales = np.broadcast_to(_matern(self.kernel_).length_scale, (X.shape[1],)).astype(float)
         self._train_scaled = X / self._length_scales
         self._train_sq = (self._train_scaled**2).sum(axis=1)
         self._K_inv = cho_solve((self.gp_.L_, True), np.eye(X.shape[0]), check_finite=False)
-        if not few and optimize:
-            self._previous_kernel = self.kernel_
         self.X_train_ = X
         self.y_train_ = y
-        return self
 
     def _optimizer(self, obj_func, initial_theta, bounds):
         # Maximise the log marginal likelihood over theta = log([s^2, l_1..l_d, sigma_n^2]) (sklearn's
