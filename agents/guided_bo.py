@@ -117,6 +117,8 @@ class GuidedBO(BayesianOptimization):
                  delta: float = 2.0, max_twin_iterations: int = 35, n_samples: int | None = 100,
                  noise_std: float | None = None, activation: str = "uncertainty", period: int = 1,
                  twin_poles: int = 2, twin_zeros: int = 0, twin=None, twin_hyperparameters: str = "refit",
+                 twin_noise: float = 1.0, best_point: str = "posterior_mean", min_twin_iterations: int = 1,
+                 twin_incumbent: str | None = None, twin_polish: bool | None = None,
                  **bo_kwargs) -> None:
         super().__init__(noise_std=noise_std, **bo_kwargs)
         for name, value in (("eta1", eta1), ("eta3", eta3), ("delta", delta)):
@@ -147,11 +149,18 @@ class GuidedBO(BayesianOptimization):
         self.twin_poles, self.twin_zeros = int(twin_poles), int(twin_zeros)
         self.twin_template = twin
         self.twin_hyperparameters = twin_hyperparameters
+        self.twin_noise = float(twin_noise)
+        self.best_point = best_point
+        self.min_twin_iterations = int(min_twin_iterations)
+        self.twin_incumbent = twin_incumbent
+        self.twin_polish = twin_polish
         self._params.update({"eta1": self.eta1, "eta2": eta2, "eta3": self.eta3, "n_ei": self.n_ei,
                              "delta": self.delta, "max_twin_iterations": self.max_twin_iterations,
                              "n_samples": self.n_samples, "activation": activation, "period": self.period,
                              "twin_poles": self.twin_poles, "twin_zeros": self.twin_zeros,
-                             "twin_hyperparameters": twin_hyperparameters})
+                             "twin_hyperparameters": twin_hyperparameters, "twin_noise": self.twin_noise,
+                             "best_point": best_point, "min_twin_iterations": self.min_twin_iterations,
+                             "twin_incumbent": twin_incumbent, "twin_polish": twin_polish})
 
     # -- Tuner hooks ---------------------------------------------------------------------------------
     def _setup(self) -> None:
@@ -170,7 +179,8 @@ class GuidedBO(BayesianOptimization):
         self.activations_ = 0
         self.twin_evaluations_ = 0
         self.reinitializations_ = 0
-        self._since_activation = 0
+        # periodic rule (Sec. V-A): the twin is used right after the initial data, then every N_G experiments
+        self._since_activation = self.period
         self._twin_rmse_history: list[float] = []
 
     def _ask(self) -> np.ndarray:
@@ -244,19 +254,28 @@ class GuidedBO(BayesianOptimization):
         periodic = self.activation == "periodic"
         cap = self.n_ei if periodic else self.max_twin_iterations
         self._optimize_hyperparameters = self.twin_hyperparameters == "refit"
+        saved = self.incumbent_rule, self.polish
+        if self.twin_incumbent is not None:
+            self.incumbent_rule = self.twin_incumbent
+        if self.twin_polish is not None:
+            self.polish = bool(self.twin_polish)
         try:
             best = self._twin_iterations(twin_env, gains, ei, cap, periodic)
         finally:
             self._optimize_hyperparameters = True
+            self.incumbent_rule, self.polish = saved
         self.remove_data("twin")  # line remove_DT_data
         return best
 
     def _twin_iterations(self, twin_env, gains: np.ndarray, ei: float, cap: int, periodic: bool) -> np.ndarray:
         """Lines 9-16 of Algorithm 1; returns the best point of ``D`` (line theta_plus)."""
         eis, calm = [ei], 0
+        twin_X, twin_J = [], []
         for iteration in range(1, cap + 1):
             metrics, clean = twin_env.evaluate(gains[None, :])
-            noisy = float(clean[0]) + self.sigma_eps * self._twin_noise.standard_normal()  # J~ = J^ + eps
+            twin_X.append(gains.copy())
+            twin_J.append(float(clean[0]))
+            noisy = float(clean[0]) + self.twin_noise * self.sigma_eps * self._twin_noise.standard_normal()
             self.add_data(gains, noisy, source="twin")  # line D_in_DT
             self.log_twin(gains, noisy, dict(zip(METRIC_NAMES, metrics[0])), activation=self.activations_,
                           twin_iteration=iteration, twin_true_cost=float(clean[0]))
@@ -266,9 +285,16 @@ class GuidedBO(BayesianOptimization):
                 # eq. (DT_stop_a), against the largest EI realised since the activation
                 calm = calm + 1 if ei <= self.eta3 * max(eis) else 0
                 eis.append(ei)
-                if calm >= self.n_ei:
+                if calm >= self.n_ei and iteration >= self.min_twin_iterations:
                     break
-        X, _ = self.training_set()
+        if self.best_point == "twin_new":
+            return twin_X[int(np.argmin(twin_J))]
+        X, y = self.training_set()
+        if self.best_point == "twin_cost":
+            values = twin_env.evaluate(self.space.from_unit(X))[1]
+            return self.space.from_unit(X[int(np.argmin(values))])
+        if self.best_point == "observed":
+            return self.space.from_unit(X[int(np.argmin(y))])
         # line theta_plus: the best point of D, judged by the GP's posterior mean so that one
         # lucky noise draw cannot pick it (the same point as the paper's rule when noise is zero)
         mean = self.fit_surrogate().predict(X)[0]
