@@ -21,31 +21,23 @@ import time
 import control as ct
 import gymnasium as gym
 import numpy as np
+from timing import median_time
 
 import gbo_envs
-
-
-def _median_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
 
 
 def main() -> dict:
     env = gym.make("gbo_envs/DCMotor-v0", noise=False).unwrapped
     loop = env.loop
     gains = np.array([[0.54, 1.16]])
-    ours = _median_time(lambda: loop.metrics(loop.simulate(gains)), 300)
+    ours = median_time(lambda: loop.metrics(loop.simulate(gains)), 300)
 
     plant = ct.tf([9.544], [1.0, 4.145, 4.199])
     pade = ct.tf(*ct.pade(0.002, 5))
     controller = ct.tf([0.54, 0.54 * 1.16], [1.0, 0.0])
     closed = ct.feedback(controller * plant * pade, 1)
     times = loop.time
-    reference = _median_time(lambda: ct.step_response(closed, times), 30)
+    reference = median_time(lambda: ct.step_response(closed, times), 30)
 
     start = time.perf_counter()
     truth = gbo_envs.ground_truth(env, resolution=100)

@@ -20,20 +20,13 @@ import time
 
 import gymnasium as gym
 import numpy as np
+from timing import median_time
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin import TwinEnv, TwinEstimator
 
 TRUE = np.array([9.544, 4.145, 4.199])
 
-
-def _median_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
 
 
 def _records(env, n: int, seed: int = 0) -> list[dict]:
@@ -77,8 +70,8 @@ def main() -> dict:
     batch = np.random.default_rng(1).uniform(low, high, size=(1000, 2))
     return {
         "fit_s": fit_s,
-        "twin_experiment_s": _median_time(lambda: twin_env.evaluate(one), 200),
-        "twin_batch_1000_s": _median_time(lambda: twin_env.evaluate(batch), 5),
+        "twin_experiment_s": median_time(lambda: twin_env.evaluate(one), 200),
+        "twin_batch_1000_s": median_time(lambda: twin_env.evaluate(batch), 5),
         "fidelity": fidelity,
     }
 
