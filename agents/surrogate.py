@@ -15,12 +15,103 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, cholesky
 from scipy.optimize import minimize
+from scipy.special import ndtri
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 from threadpoolctl import ThreadpoolController
 
-__all__ = ["GPSurrogate"]
+__all__ = ["GPSurrogate", "OutputTransform", "OUTPUT_TRANSFORMS"]
+
+#: Monotone output transforms ``z = T(J)`` the GP can be fitted on (see :class:`OutputTransform`).
+OUTPUT_TRANSFORMS = ("none", "log", "rank")
+
+#: How the constant prior mean ``mu`` is set (see :class:`GPSurrogate`).
+PRIOR_MEANS = ("sample", "ml", "max")
+
+
+class OutputTransform:
+    """Strictly increasing map ``z = T(J)`` of costs, fitted on the training costs ``y``.
+
+    * ``"none"``: ``T(J) = J``.
+    * ``"log"``: ``T(J) = log(J - min(y) + c)``, ``c = 0.1 (max(y) - min(y))`` (or 1 if all
+      costs are equal), continued linearly below ``min(y)``: stretches the low costs,
+      compresses the high ones.
+    * ``"rank"``: the Gaussian copula transform (Salinas et al., 2020; HEBO's idea): the
+      training costs map to normal scores ``Phi^-1((rank_i - 1/2) / n)`` (ties: average rank),
+      other costs by linear interpolation between the sorted pairs, extrapolated linearly
+      beyond them with the end slopes. Makes the GP model the *ordering* of the costs, so
+      that the large costs far from the valley do not dictate the length scales.
+
+    Parameters
+    ----------
+    kind : {"none", "log", "rank"}
+    y : ndarray of shape (n,)
+        Training costs.
+
+    Attributes
+    ----------
+    slope_ : float
+        Mean slope ``(T(max y) - T(min y)) / (max y - min y)`` (1 for ``"none"``); converts a
+        known cost noise std to transformed units.
+    """
+
+    def __init__(self, kind: str, y: np.ndarray) -> None:
+        self.kind = kind
+        y = np.asarray(y, dtype=float).ravel()
+        span = float(np.ptp(y)) if y.size else 0.0
+        self._low = float(np.min(y)) if y.size else 0.0
+        self._offset = 0.1 * span if span > 1e-12 else 1.0
+        if kind == "rank":
+            values, counts = np.unique(y, return_counts=True)
+            ranks = np.cumsum(counts) - 0.5 * (counts - 1)  # average 1-based rank of each distinct cost
+            scores = ndtri((ranks - 0.5) / y.size) if y.size > 1 else np.zeros(1)
+            if values.size == 1:  # one distinct cost: the identity around it
+                values, scores = np.array([values[0], values[0] + 1.0]), np.array([0.0, 1.0])
+            self._y, self._z = values, scores
+            self._slope_low = (scores[1] - scores[0]) / (values[1] - values[0])
+            self._slope_high = (scores[-1] - scores[-2]) / (values[-1] - values[-2])
+        self.slope_ = 1.0
+        if kind != "none" and span > 1e-12:
+            self.slope_ = float((self(np.max(y)) - self(np.min(y))) / span)
+
+    def __call__(self, y):
+        """``z = T(y)``, elementwise."""
+        y = np.asarray(y, dtype=float)
+        if self.kind == "none":
+            return y
+        if self.kind == "log":  # linear below min(y), so that T stays finite and increasing everywhere
+            shifted = y - self._low
+            return np.where(shifted >= 0, np.log(np.maximum(shifted, 0.0) + self._offset),
+                            np.log(self._offset) + shifted / self._offset)
+        z = np.interp(y, self._y, self._z)
+        z = np.where(y < self._y[0], self._z[0] + self._slope_low * (y - self._y[0]), z)
+        return np.where(y > self._y[-1], self._z[-1] + self._slope_high * (y - self._y[-1]), z)
+
+    def inverse(self, z):
+        """``y = T^-1(z)``, elementwise."""
+        z = np.asarray(z, dtype=float)
+        if self.kind == "none":
+            return z
+        if self.kind == "log":
+            edge = np.log(self._offset)
+            return self._low + np.where(z >= edge, np.exp(np.maximum(z, edge)) - self._offset,
+                                        (z - edge) * self._offset)
+        y = np.interp(z, self._z, self._y)
+        y = np.where(z < self._z[0], self._y[0] + (z - self._z[0]) / self._slope_low, y)
+        return np.where(z > self._z[-1], self._y[-1] + (z - self._z[-1]) / self._slope_high, y)
+
+    def derivative(self, y):
+        """``dT/dy`` at ``y`` (for ``"rank"``: the slope of the segment containing ``y``)."""
+        y = np.asarray(y, dtype=float)
+        if self.kind == "none":
+            return np.ones_like(y)
+        if self.kind == "log":
+            return 1.0 / (np.maximum(y - self._low, 0.0) + self._offset)
+        slopes = np.diff(self._z) / np.diff(self._y)
+        index = np.clip(np.searchsorted(self._y, y, side="right") - 1, 0, slopes.size - 1)
+        return np.where(y < self._y[0], self._slope_low, np.where(y > self._y[-1], self._slope_high,
+                                                                  slopes[index]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,6 +177,18 @@ class GPSurrogate:
         variance 1e-2 in standardised units) is used as is.
     max_iter : int, default 60
         L-BFGS-B iterations per start.
+    output_transform : {"none", "log", "rank"}, default "none"
+        The GP models ``z = T(J)`` (:class:`OutputTransform`), standardised as above;
+        :meth:`predict` maps back to cost units, :meth:`predict_latent` does not. A known
+        ``noise_std`` is converted to ``z`` units with the transform's mean slope.
+    length_scale_prior, noise_prior : (float, float), optional
+        ``(m, s)`` of normal priors on ``log l_j`` and on the log noise variance: the fit
+        maximises the log marginal likelihood plus ``-sum (theta_i - m)^2 / (2 s^2)`` (MAP;
+        a log-normal prior on each hyperparameter). ``None``: flat (maximum likelihood).
+    prior_mean : {"sample", "ml", "max"}, default "sample"
+        The constant prior mean ``mu`` (eq. (gpr_mio1)): the sample mean of ``z``; its
+        generalised-least-squares estimate ``1' K^-1 z / 1' K^-1 1``, profiled out of the
+        marginal likelihood (ordinary kriging; clustered points count less); or ``max z``.
 
     Attributes
     ----------
@@ -102,7 +205,17 @@ class GPSurrogate:
     def __init__(self, *, n_restarts: int = 2, length_scale_bounds: tuple[float, float] = (0.05, 0.5),
                  noise_std: float | None = None, noise_bounds: tuple[float, float] = (1e-6, 0.5),
                  warm_start: bool = True, restart_every: int = 5, min_fit_points: int = 5,
-                 max_iter: int = 60) -> None:
+                 max_iter: int = 60, output_transform: str = "none",
+                 length_scale_prior: tuple[float, float] | None = None,
+                 noise_prior: tuple[float, float] | None = None, prior_mean: str = "sample") -> None:
+        if prior_mean not in PRIOR_MEANS:
+            raise ValueError(f"prior_mean: must be one of {PRIOR_MEANS}, got {prior_mean!r}")
+        self.prior_mean = prior_mean
+        self.length_scale_prior = None if length_scale_prior is None else tuple(map(float, length_scale_prior))
+        self.noise_prior = None if noise_prior is None else tuple(map(float, noise_prior))
+        if output_transform not in OUTPUT_TRANSFORMS:
+            raise ValueError(f"output_transform: must be one of {OUTPUT_TRANSFORMS}, got {output_transform!r}")
+        self.output_transform = output_transform
         self.n_restarts = int(n_restarts)
         self.length_scale_bounds = tuple(float(b) for b in length_scale_bounds)
         self.noise_std = None if noise_std is None else float(noise_std)
@@ -153,13 +266,16 @@ class GPSurrogate:
             raise ValueError(f"X, y: need the same number (>= 1) of rows, got {X.shape} and {y.shape}")
         if not (np.all(np.isfinite(X)) and np.all(np.isfinite(y))):
             raise ValueError("X, y: must be finite")
-        # Constant mean by standardisation: mu = mean(y) (paper, subsec. BO, constant prior mean).
-        self.y_mean_ = float(np.mean(y))
-        scale = float(np.std(y)) if y.size > 1 else 0.0
+        self.transform_ = OutputTransform(self.output_transform, y)
+        z = self.transform_(y)
+        # Constant mean by standardisation: mu = mean(z) (paper, subsec. BO, constant prior mean).
+        self.y_mean_ = float(np.max(z)) if self.prior_mean == "max" else float(np.mean(z))
+        scale = float(np.std(z)) if z.size > 1 else 0.0
         self.y_scale_ = scale if scale > 1e-12 else 1.0
-        y_std = (y - self.y_mean_) / self.y_scale_
+        y_std = (z - self.y_mean_) / self.y_scale_
         # Fixed noise: sigma_eps^2 I of eq. (gpr_mio1), in standardised units; else a small jitter.
-        alpha = 1e-8 if self.noise_std is None else max((self.noise_std / self.y_scale_) ** 2, 1e-8)
+        noise = None if self.noise_std is None else self.noise_std * self.transform_.slope_
+        alpha = 1e-8 if noise is None else max((noise / self.y_scale_) ** 2, 1e-8)
         few = X.shape[0] < self.min_fit_points
         kernel = self._prior_kernel(X.shape[1]) if few else self._initial_kernel(X.shape[1])
         warm = kernel is self._previous_kernel
@@ -178,6 +294,14 @@ class GPSurrogate:
         self._store_fit(X, y)
         if not few:
             self._previous_kernel = self.kernel_
+        if self.prior_mean == "ml" and X.shape[0] > 1:
+            # mu by marginal likelihood (GLS, ordinary kriging): mu = 1' K^-1 y / 1' K^-1 1
+            ones = np.ones(X.shape[0])
+            k_inv_ones = self._K_inv @ ones
+            shift = float(k_inv_ones @ y_std / (ones @ k_inv_ones))
+            self.y_mean_ += shift * self.y_scale_
+            self._n_fits -= 1
+            return self._condition(self.kernel_, X, y, y_std - shift, alpha)
         return self
 
     def _condition(self, kernel, X: np.ndarray, y: np.ndarray, y_std: np.ndarray, alpha: float) -> GPSurrogate:
@@ -214,12 +338,38 @@ class GPSurrogate:
         X, y, alpha = self._fit_data
         pairwise = (X[:, None, :] - X[None, :, :]) ** 2  # (n, n, d) squared differences per input
         objective = functools.partial(_neg_log_marginal_likelihood, pairwise=pairwise, y=y, alpha=alpha,
-                                      white=self.noise_std is None)
+                                      white=self.noise_std is None, priors=self._log_priors(),
+                                      profile_mean=self.prior_mean == "ml")
         result = minimize(objective, initial_theta, jac=True, method="L-BFGS-B", bounds=bounds,
                           options={"maxiter": self.max_iter})
         return result.x, result.fun
 
+    def _log_priors(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Normal priors on ``theta = log([s^2, l_1..l_d, sigma_n^2])`` as (means, stds); inf std = flat."""
+        if self.length_scale_prior is None and self.noise_prior is None:
+            return None
+        X = self._fit_data[0]
+        size = 1 + X.shape[1] + (1 if self.noise_std is None else 0)
+        means, stds = np.zeros(size), np.full(size, np.inf)
+        if self.length_scale_prior is not None:
+            means[1:1 + X.shape[1]], stds[1:1 + X.shape[1]] = self.length_scale_prior
+        if self.noise_prior is not None and self.noise_std is None:
+            means[-1], stds[-1] = self.noise_prior
+        return means, stds
+
     def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior of ``J_hat`` in cost units: latent mean and std mapped back through the output transform.
+
+        With ``output_transform="none"`` this is eqs. (gpr_mio1), (gpr_v) exactly. With a
+        transform ``T``, the mean is ``T^-1(mu_z)`` (the posterior *median* of ``J_hat``)
+        and the std is the delta-method ``sigma_z / T'(T^-1(mu_z))``.
+        """
+        mean, std = self.predict_latent(X)
+        if self.transform_.kind == "none":
+            return mean, std
+        return self.transform_.inverse(mean), std / self.transform_.derivative(self.transform_.inverse(mean))
+
+    def predict_latent(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean and standard deviation of ``J_hat`` (eqs. (gpr_mio1), (gpr_v)).
 
         Parameters
@@ -230,10 +380,11 @@ class GPSurrogate:
         Returns
         -------
         mean : ndarray of shape (m,)
-            ``mu_n(theta)`` in cost units.
+            ``mu_n(theta)`` in transformed-cost units ``z = T(J)``.
         std : ndarray of shape (m,)
             ``v_n(theta)^{1/2}`` of the noise-free cost ``J_hat`` (the learned
-            white noise is excluded), in cost units.
+            white noise is excluded), in transformed-cost units ``z = T(J)``
+            (cost units when ``output_transform="none"``).
         """
         if not hasattr(self, "gp_"):
             raise RuntimeError("GPSurrogate: call fit(X, y) first")
@@ -311,7 +462,8 @@ def _kernel_dim(kernel) -> int:
 
 
 def _neg_log_marginal_likelihood(theta: np.ndarray, pairwise: np.ndarray, y: np.ndarray, alpha: float,
-                                 white: bool) -> tuple[float, np.ndarray]:
+                                 white: bool, priors: tuple | None = None,
+                                 profile_mean: bool = False) -> tuple[float, np.ndarray]:
     """``-log p(y | X, theta)`` and its gradient for ``s^2 Matern52 (+ sigma_n^2 I) + alpha I``.
 
     ``log p = -1/2 y^T K^-1 y - 1/2 log|K| - n/2 log(2 pi)``; ``d log p / d theta_i
@@ -331,8 +483,11 @@ def _neg_log_marginal_likelihood(theta: np.ndarray, pairwise: np.ndarray, y: np.
         factor = cho_factor(K, lower=True, check_finite=False)
     except np.linalg.LinAlgError:
         return 1e25, np.zeros_like(theta)
-    a = cho_solve(factor, y, check_finite=False)
     K_inv = cho_solve(factor, np.eye(n), check_finite=False)
+    if profile_mean:  # constant mean profiled out: y - mu_hat(theta), mu_hat = 1'K^-1 y / 1'K^-1 1
+        row = K_inv.sum(axis=0)
+        y = y - float(row @ y / row.sum())
+    a = K_inv @ y
     lml = -0.5 * y @ a - np.log(np.diag(factor[0])).sum() - 0.5 * n * np.log(2.0 * np.pi)
     inner = np.outer(a, a) - K_inv
     grad = np.empty_like(theta)
@@ -343,4 +498,10 @@ def _neg_log_marginal_likelihood(theta: np.ndarray, pairwise: np.ndarray, y: np.
         grad[1 + j] = 0.5 * np.sum(inner * common * scaled[:, :, j])
     if white:
         grad[-1] = 0.5 * noise * np.trace(inner)
+    if priors is not None:  # MAP: + sum_i log N(theta_i; m_i, s_i^2) over the entries with a prior
+        means, stds = priors
+        mask = np.isfinite(stds)
+        dev = np.where(mask, (theta - means) / np.where(mask, stds, 1.0), 0.0)
+        lml -= 0.5 * float(np.sum(dev**2))
+        grad -= np.where(mask, dev / np.where(mask, stds, 1.0), 0.0)
     return float(-lml), -grad

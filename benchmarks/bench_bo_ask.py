@@ -33,26 +33,31 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--repeats", type=int, default=21)
     parser.add_argument("--grid-points", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--bo-kwargs", type=json.loads, default={},
+                        help='JSON kwargs for BayesianOptimization, e.g. \'{"model": "metrics"}\'')
     args = parser.parse_args(argv)
 
     env = gym.make("gbo_envs/DCMotor-v0")
     env.reset(seed=args.seed)
-    tuner = agents.BayesianOptimization(grid_points=args.grid_points)
+    tuner = agents.BayesianOptimization(**{"grid_points": args.grid_points, **args.bo_kwargs})
     tuner.setup(agents.GainSpace.from_env(env), seed=args.seed, env=env)
     rng = np.random.default_rng(args.seed)
     for _ in range(args.observations):
         gains = rng.uniform(tuner.space.low, tuner.space.high)
-        tuner.tell(gains, env.step(gains)[4]["cost"])
+        info = env.step(gains)[4]
+        tuner.tell(gains, info["cost"], info)  # the record carries the metrics (model="metrics")
     times, cpu_times = [], []
     for _ in range(args.repeats):
         start, cpu_start = time.perf_counter(), time.process_time()
         gains = tuner.ask()
         times.append(time.perf_counter() - start)
         cpu_times.append(time.process_time() - cpu_start)
-        tuner.tell(gains, env.step(np.asarray(gains))[4]["cost"])
+        info = env.step(np.asarray(gains))[4]
+        tuner.tell(gains, info["cost"], info)
     ms = np.asarray(times) * 1e3
     report = {"benchmark": "bo_ask", "observations": args.observations, "repeats": args.repeats,
-              "grid_points": args.grid_points ** tuner.space.dim, "median_ms": float(np.median(ms)),
+              "grid_points": args.grid_points ** tuner.space.dim,
+              "bo_kwargs": args.bo_kwargs, "model_in_use": tuner.model_in_use, "median_ms": float(np.median(ms)),
               "p90_ms": float(np.percentile(ms, 90)), "max_ms": float(ms.max()),
               "median_cpu_ms": float(np.median(cpu_times) * 1e3), "target_median_ms": 50.0,
               "cpus": os.cpu_count(), "load_avg_1min": os.getloadavg()[0], "python": platform.python_version()}

@@ -12,6 +12,7 @@ Not a test: prints JSON and a Markdown table. Seeds run in parallel (joblib).
 
     python benchmarks/data_efficiency.py                      # 30 seeds, all tuners
     python benchmarks/data_efficiency.py --tuners bo random --seeds 10
+    python benchmarks/data_efficiency.py --tuners bo random --seeds 30 --seed0 30   # check range 30-59
 """
 
 from __future__ import annotations
@@ -93,7 +94,8 @@ def markdown(table: dict, budget: int, n_seeds: int) -> str:
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tuners", nargs="+", default=list(TUNERS))
-    parser.add_argument("--seeds", type=int, default=30)
+    parser.add_argument("--seeds", type=int, default=30, help="number of seeds")
+    parser.add_argument("--seed0", type=int, default=0, help="first seed (seeds seed0 .. seed0 + seeds - 1)")
     parser.add_argument("--budget", type=int, default=35)
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--bo-kwargs", type=json.loads, default={}, help="JSON kwargs for the 'bo' tuner")
@@ -101,12 +103,13 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_args(argv)
 
     truth = ground_truth("gbo_envs/DCMotor-v0", resolution=100)
-    jobs = [(tuner, seed) for tuner in args.tuners for seed in range(args.seeds)]
+    jobs = [(tuner, seed) for tuner in args.tuners for seed in range(args.seed0, args.seed0 + args.seeds)]
     runs = Parallel(n_jobs=args.jobs, verbose=5)(
         delayed(run_one)(tuner, seed, args.budget, truth.cost, args.bo_kwargs if tuner == "bo" else None)
         for tuner, seed in jobs)
     table = summarise(runs, args.budget)
     report = {"env": "gbo_envs/DCMotor-v0", "budget": args.budget, "n_initial": 1, "seeds": args.seeds,
+              "seed0": args.seed0,
               "optimum_cost": truth.cost, "optimum_gains": truth.gains.tolist(), "bo_kwargs": args.bo_kwargs,
               "table": table}
     if "bo" in table and "random" in table:

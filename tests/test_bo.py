@@ -204,3 +204,234 @@ def test_fast_log_marginal_likelihood_equals_sklearn():
         value, grad = _neg_log_marginal_likelihood(theta, pairwise, y_std, 1e-8, True)
         assert -value == pytest.approx(ref, rel=1e-9)
         np.testing.assert_allclose(-grad, ref_grad, rtol=1e-7, atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", ["none", "log", "rank"])
+def test_output_transform_is_monotone_and_invertible(kind):
+    from agents.surrogate import OutputTransform
+
+    y = np.array([0.9, 0.3, 0.5, 0.5, 1.4, 0.31])  # with a tie
+    transform = OutputTransform(kind, y)
+    grid = np.linspace(0.0, 2.0, 401)  # inside and beyond the training range
+    z = transform(grid)
+    assert np.all(np.diff(z) > 0)  # strictly increasing
+    np.testing.assert_allclose(transform.inverse(z), grid, atol=1e-12)
+    assert np.all(transform.derivative(grid) > 0)
+    inner = np.array([0.305, 0.4, 0.7, 1.2])  # inside a segment, away from the knots
+    numeric = (transform(inner + 1e-7) - transform(inner - 1e-7)) / 2e-7
+    np.testing.assert_allclose(transform.derivative(inner), numeric, rtol=1e-5)
+    if kind == "rank":  # training costs map to normal scores of their (average) ranks
+        np.testing.assert_allclose(transform(np.array([0.3, 0.5, 1.4])),
+                                   norm.ppf((np.array([1.0, 3.5, 6.0]) - 0.5) / 6))
+
+
+def test_transformed_gp_predicts_in_cost_units():
+    rng = np.random.default_rng(3)
+    X = rng.uniform(size=(12, 2))
+    y = 0.2 + 5.0 * ((X[:, 0] - 0.4) ** 2 + (X[:, 1] - 0.6) ** 2)
+    for kind in ("log", "rank"):
+        gp = GPSurrogate(output_transform=kind, noise_bounds=(1e-6, 1e-3)).fit(X, y, seed=0)
+        mean, std = gp.predict(X)
+        np.testing.assert_allclose(mean, y, atol=0.05 * np.ptp(y))  # median back in cost units
+        latent_mean, _ = gp.predict_latent(X)
+        np.testing.assert_allclose(gp.transform_.inverse(latent_mean), mean)
+        assert np.all(std > 0)
+
+
+def test_length_scale_prior_pulls_the_map_fit():
+    rng = np.random.default_rng(0)
+    X = rng.uniform(size=(10, 2))
+    y = np.sin(6 * X[:, 0]) + X[:, 1]
+    bounds = (0.01, 5.0)
+    free = GPSurrogate(length_scale_bounds=bounds).fit(X, y, seed=0).length_scales_
+    short = GPSurrogate(length_scale_bounds=bounds, length_scale_prior=(np.log(0.05), 0.1)).fit(X, y, seed=0)
+    long = GPSurrogate(length_scale_bounds=bounds, length_scale_prior=(np.log(3.0), 0.1)).fit(X, y, seed=0)
+    assert np.all(short.length_scales_ < 0.1) and np.all(long.length_scales_ > 1.5)
+    assert np.all(short.length_scales_ < free) or np.all(long.length_scales_ > free)
+
+
+def test_map_objective_adds_the_log_prior_and_its_gradient():
+    from agents.surrogate import _neg_log_marginal_likelihood
+
+    rng = np.random.default_rng(1)
+    X = rng.uniform(size=(8, 2))
+    y = rng.standard_normal(8)
+    pairwise = (X[:, None, :] - X[None, :, :]) ** 2
+    theta = np.log([1.5, 0.2, 0.4, 0.01])
+    priors = (np.array([0.0, -1.0, -1.0, -5.0]), np.array([np.inf, 0.5, 0.5, 2.0]))
+    plain, _ = _neg_log_marginal_likelihood(theta, pairwise, y, 1e-8, True)
+    value, grad = _neg_log_marginal_likelihood(theta, pairwise, y, 1e-8, True, priors=priors)
+    dev = (theta[1:] - priors[0][1:]) / priors[1][1:]
+    assert value == pytest.approx(plain + 0.5 * np.sum(dev**2))
+    numeric = [(_neg_log_marginal_likelihood(theta + step, pairwise, y, 1e-8, True, priors=priors)[0]
+                - _neg_log_marginal_likelihood(theta - step, pairwise, y, 1e-8, True, priors=priors)[0]) / 2e-6
+               for step in 1e-6 * np.eye(4)]
+    np.testing.assert_allclose(grad, numeric, rtol=1e-4, atol=1e-6)
+
+
+def test_prior_mean_rules():
+    rng = np.random.default_rng(2)
+    X = np.vstack([rng.uniform(size=(4, 2)), 0.5 + 0.02 * rng.standard_normal((8, 2))])
+    y = np.r_[np.full(4, 3.0), np.zeros(8)] + 0.01 * rng.standard_normal(12)
+    far = np.array([[50.0, 50.0]])
+    sample = GPSurrogate(prior_mean="sample").fit(X, y, seed=0)
+    ml = GPSurrogate(prior_mean="ml").fit(X, y, seed=0)
+    high = GPSurrogate(prior_mean="max").fit(X, y, seed=0)
+    assert sample.predict(far)[0][0] == pytest.approx(y.mean())
+    assert high.predict(far)[0][0] == pytest.approx(y.max())
+    # GLS mean: the 8 clustered points count less than 8 independent ones -> above the sample mean
+    assert y.mean() < ml.predict(far)[0][0] < y.max()
+    ones = np.ones(12)
+    k_inv = np.linalg.inv(ml.kernel_(X) + 1e-8 * np.eye(12) - np.diag(np.full(12, 0.0)))
+    gls = ones @ k_inv @ y / (ones @ k_inv @ ones)
+    assert ml.y_mean_ == pytest.approx(gls, rel=1e-3)
+    np.testing.assert_allclose(ml.predict(X)[0], y, atol=0.1)
+
+
+def test_trust_region_steps_search_around_the_best_point():
+    bo = agents.BayesianOptimization(grid_points=25, local_every=2, trust_region=0.1, local_points=11)
+    bo.setup(SPACE, seed=0)
+    for gains in ([0.2, 1.0], [0.9, 2.0], [0.5, 1.5], [0.3, 1.9], [1.0, 0.9]):
+        bo.tell(gains, bowl(gains))
+    steps = []
+    for _ in range(4):
+        local = bo.is_local_step()
+        X, y = bo.training_set()
+        best = X[int(np.argmin(y))]
+        gains = bo.ask()
+        if local:
+            assert np.all(np.abs(SPACE.to_unit(np.asarray(gains)) - best) <= 0.1 + 1e-12)
+        steps.append(local)
+        bo.tell(gains, bowl(gains))
+    assert steps == [False, True, False, True]
+
+
+@pytest.mark.parametrize("kwargs", [{"output_transform": "rank"}, {"output_transform": "log"},
+                                    {"prior_mean": "ml"}, {"prior_mean": "max"},
+                                    {"length_scale_prior": (-1.6, 0.5), "min_fit_points": 2}])
+def test_bo_variants_propose_inside_the_box(kwargs):
+    bo = agents.BayesianOptimization(grid_points=25, **kwargs)
+    bo.setup(SPACE, seed=0)
+    for _ in range(10):
+        gains = bo.ask()
+        assert np.all(np.asarray(gains) >= SPACE.low) and np.all(np.asarray(gains) <= SPACE.high)
+        bo.tell(gains, bowl(gains))
+    _, ei, std = bo.propose()
+    assert np.isfinite(ei) and ei >= 0 and std >= 0
+
+
+def test_bo_variant_argument_validation():
+    for kwargs, match in (({"output_transform": "cube"}, "output_transform"), ({"prior_mean": "min"}, "prior_mean"),
+                          ({"local_every": -1}, "local_every"), ({"trust_region": 0.0}, "trust_region"),
+                          ({"length_scale_prior": (0.0, -1.0)}, "length_scale_prior")):
+        with pytest.raises(ValueError, match=match):
+            agents.BayesianOptimization(**kwargs)
+
+
+# -- model="metrics": one GP per performance metric (paper, abstract and eq. (J_used)) ---------------------------
+class _MetricEnv:
+    """Stands in for an env: only ``weights`` and ``normalizers`` of ``J = sum w_i f_i / n_i`` are read."""
+
+    weights = np.array([0.44, 0.22, 0.22, 0.11])
+    normalizers = np.array([14.0, 3.5, 1.0, 100.0])
+
+
+def _metrics(gains) -> dict:
+    u = SPACE.to_unit(gains)
+    values = (10.0 * u[0] ** 2, 2.0 + 3.0 * (u[1] - 0.6) ** 2, 0.5 + u[0] * u[1], 80.0 + 40.0 * (u[0] - 0.3) ** 2)
+    return dict(zip(agents.result.METRIC_COLUMNS, values))
+
+
+def _cost(metrics: dict) -> float:
+    f = np.array([metrics[name] for name in agents.result.METRIC_COLUMNS])
+    return float(np.sum(_MetricEnv.weights * f / _MetricEnv.normalizers))
+
+
+def _metrics_bo(seed: int, **kwargs):
+    bo = agents.BayesianOptimization(model="metrics", grid_points=25, **kwargs)
+    bo.setup(SPACE, seed=seed, env=_MetricEnv())
+    return bo
+
+
+def test_composite_posterior_is_the_weighted_sum_of_the_metric_gps():
+    from agents.metric_surrogate import CompositeSurrogate, MetricSurrogate
+
+    rng = np.random.default_rng(3)
+    X = rng.uniform(size=(12, 2))
+    F = np.column_stack([10 * X[:, 0], 2 + X[:, 1] ** 2, 0.5 + X[:, 0] * X[:, 1], 80 + 40 * X[:, 0] ** 2])
+    noise = 0.01 * rng.standard_normal(12)
+    surrogate = MetricSurrogate(_MetricEnv.weights, _MetricEnv.normalizers, min_fit_points=1)
+    composite = surrogate.fit(X, F, costs=surrogate.reconstruct(F) + noise, seed=0)
+    assert isinstance(composite, CompositeSurrogate)
+    grid = rng.uniform(size=(40, 2))
+    means, stds = composite.predict_metrics(grid)
+    for i, gp in enumerate(surrogate.models):  # each GP is fitted on its normalised metric f_i / n_i
+        np.testing.assert_allclose(gp.y_train_, F[:, i] / _MetricEnv.normalizers[i])
+        np.testing.assert_array_equal(means[:, i], gp.predict(grid)[0])
+    mean, std = composite.predict(grid)
+    # J = sum w_i f_i / n_i: mean = sum w_i mu_i, var = sum w_i^2 sigma_i^2 (mu_i, sigma_i of f_i / n_i)
+    np.testing.assert_allclose(mean, means @ _MetricEnv.weights, rtol=1e-12)
+    np.testing.assert_allclose(std**2, stds**2 @ _MetricEnv.weights**2, rtol=1e-12)
+    # the cost-level noise is the RMS residual of J against sum w f / n
+    assert composite.cost_noise_std_ == pytest.approx(np.sqrt(np.mean(noise**2)))
+    assert composite.noise_std_ >= composite.cost_noise_std_
+
+
+def test_metrics_mode_proposes_in_bounds_and_is_deterministic_per_seed():
+    runs = []
+    for _ in range(2):
+        bo = _metrics_bo(seed=5)
+        asked = []
+        for _ in range(8):
+            gains = np.asarray(bo.ask())
+            assert np.all(gains >= SPACE.low) and np.all(gains <= SPACE.high)
+            metrics = _metrics(gains)
+            bo.tell(gains, _cost(metrics) + 0.001, {"metrics": metrics})
+            asked.append(gains)
+        assert bo.model_in_use == "metrics" and bo.last_ei_ >= 0.0 and np.isfinite(bo.last_mean_)
+        # the "observed" incumbent is J_hat of the measured metrics (the cost noise is not in them)
+        assert bo.incumbent() == pytest.approx(min(_cost(_metrics(g)) for g in asked))
+        assert bo.run_summary()["model"] == "metrics"
+        runs.append(np.asarray(asked))
+    np.testing.assert_array_equal(runs[0], runs[1])
+    other = _metrics_bo(seed=6)
+    for gains in runs[0][:3]:
+        other.tell(gains, _cost(_metrics(gains)), {"metrics": _metrics(gains)})
+    assert other.propose()[0].shape == (2,)
+
+
+def test_metrics_mode_falls_back_to_the_cost_gp_without_metrics():
+    # no env weights/normalizers: the cost GP, as model="cost"
+    bo = agents.BayesianOptimization(model="metrics", grid_points=25)
+    bo.setup(SPACE, seed=0)
+    for gains in ([0.2, 1.0], [0.9, 2.0], [0.5, 1.5]):
+        bo.tell(gains, bowl(gains), {"metrics": _metrics(gains)})
+    bo.ask()
+    assert bo.model_in_use == "cost"
+    # a record without metrics (or an unstable one): the cost GP for that fit
+    bo = _metrics_bo(seed=0)
+    bo.tell([0.2, 1.0], 0.5, {"metrics": _metrics([0.2, 1.0])})
+    bo.tell([0.9, 2.0], 0.7)
+    gains = bo.ask()
+    assert bo.model_in_use == "cost" and np.all(np.asarray(gains) <= SPACE.high)
+    # twin data without metrics: the cost GP while they are in D; with metrics: the metrics model
+    bo = _metrics_bo(seed=1)
+    for gains in ([0.2, 1.0], [0.9, 2.0], [0.5, 1.5], [0.3, 1.9], [1.0, 0.9]):
+        bo.tell(gains, _cost(_metrics(gains)), {"metrics": _metrics(gains)})
+    bo.propose()
+    assert bo.model_in_use == "metrics"
+    with bo.extra_data([0.4, 1.6], 0.1):
+        bo.propose()
+        assert bo.model_in_use == "cost"
+    twin = _metrics([0.4, 1.6])
+    with bo.extra_data([0.4, 1.6], _cost(twin), metrics=[twin[name] for name in agents.result.METRIC_COLUMNS]):
+        bo.propose()
+        assert bo.model_in_use == "metrics"
+    bo.propose()
+    assert bo.model_in_use == "metrics"
+    with pytest.raises(ValueError, match="metrics"):
+        bo.add_data([0.4, 1.6], 0.1, metrics=[1.0, 2.0])
+    with pytest.raises(ValueError, match="model"):
+        agents.BayesianOptimization(model="metric")
+    with pytest.raises(ValueError, match="log_metrics"):
+        agents.BayesianOptimization(log_metrics=("settle",))

@@ -84,6 +84,14 @@ class TwinEstimator(BaseEstimator):
         (``scipy.optimize.least_squares``) from the SRIVC estimate and keep the
         result only if it lowers ``rmse_`` (it matters on short, noisy,
         decimated records; on full records SRIVC is already at the minimum).
+    effects : list of str or dict, optional
+        Physical effects from the catalogue (:data:`gbo_envs.physics.EFFECT_NAMES`)
+        added to the linear part: names, or ``{name: {parameter: value}}`` with
+        initial values. ``fit`` then estimates the linear part and the effect
+        parameters together by minimising the simulation error
+        (:func:`agents.twin.workbench.fit_twin_effects`) and sets ``effects_``
+        (the fitted blocks, used by :class:`agents.twin.TwinEnv`) and
+        ``effect_params_``; ``predict`` and ``rmse`` simulate with them.
 
     Attributes
     ----------
@@ -145,6 +153,7 @@ class TwinEstimator(BaseEstimator):
         output: str = "speed",
         warm_start: bool = False,
         polish: bool = False,
+        effects=None,
     ) -> None:
         self.n_poles = n_poles
         self.n_zeros = n_zeros
@@ -163,6 +172,7 @@ class TwinEstimator(BaseEstimator):
         self.output = output
         self.warm_start = warm_start
         self.polish = polish
+        self.effects = effects
 
     # -- fitting ---------------------------------------------------------------------------------
     def fit(self, records, y=None) -> TwinEstimator:
@@ -179,6 +189,11 @@ class TwinEstimator(BaseEstimator):
         -------
         self
         """
+        if self.effects:  # grey-box: linear part and effect parameters by simulation error
+            from agents.twin.workbench import fit_twin_effects
+
+            return fit_twin_effects(self, records)
+        self.__dict__.pop("effects_", None)
         with threadpool_limits(limits=1, user_api="blas"):  # tiny matrices: BLAS threads only contend
             return self._fit(records)
 
@@ -277,6 +292,10 @@ class TwinEstimator(BaseEstimator):
             ``y_sim`` in the units of ``y`` at the (decimated) sample times.
         """
         self._check_fitted()
+        if self.effects and hasattr(self, "effects_"):
+            from agents.twin.workbench import predict_twin_effects
+
+            return predict_twin_effects(self, records)
         orders = self._check_params()
         data, batches, signals = self._prepare(records, orders)
         out: list[np.ndarray | None] = [None] * len(data)
@@ -289,6 +308,10 @@ class TwinEstimator(BaseEstimator):
     def rmse(self, records, normalize: bool = True) -> float:
         """Eq. (RMSE) of the fitted plant on ``records`` (normalised by the step height by default)."""
         self._check_fitted()
+        if self.effects and hasattr(self, "effects_"):
+            from agents.twin.workbench import rmse_twin_effects
+
+            return rmse_twin_effects(self, records, normalize)
         orders = self._check_params()
         signals = self._prepare(records, orders)[2]
         rmse, rmse_abs = self._rmse(orders, self._theta(orders), self.delay_, signals)[:2]

@@ -1,0 +1,197 @@
+"""One GP per performance metric, combined into the cost posterior (paper, abstract and eq. (J_used)).
+
+The paper's objective "consists of performance metrics modeled by Gaussian
+processes": ``J = sum_i w_i f_i / n_i`` (eq. (J_used)). :class:`MetricSurrogate`
+fits one :class:`agents.surrogate.GPSurrogate` per metric on the normalised
+values ``f_i / n_i`` and returns a :class:`CompositeSurrogate`, whose
+``predict(X) -> (mean, std)`` is the posterior of ``J_hat``; acquisition
+functions (:mod:`agents.acquisition`) use it exactly like a single GP.
+
+Modelling assumptions
+---------------------
+* The metric GPs are **independent** a posteriori (no cross-covariance is
+  modelled), so with ``c_i = w_i / n_i`` and ``g_i = f_i / n_i``::
+
+      mean(J_hat) = sum_i w_i mu_i          (mu_i: posterior mean of g_i)
+      var(J_hat)  = sum_i w_i^2 sigma_i^2   (sigma_i: posterior std of g_i)
+
+  i.e. ``sum c_i mean(f_i)`` and ``sum c_i^2 var(f_i)``. Independence ignores
+  the (mostly positive) correlation between e.g. rise time and ITAE, so the
+  variance is, if anything, underestimated; EI only needs it up to a scale.
+* **Noise.** The env's cost noise ``epsilon`` is additive on ``J`` (``J = J_hat
+  + epsilon``), not on the metrics, which are computed from the measured
+  response (noise-free when the env has no sensor noise). Each metric GP
+  learns its own (white) noise level, which is the noise *of the metric*; the
+  cost-level noise the metric GPs never see is estimated from the residual
+  ``J - sum_i w_i f_i / n_i`` of the training points (:attr:`CompositeSurrogate.cost_noise_std_`).
+  :meth:`CompositeSurrogate.predict` returns the posterior of the noise-free
+  ``J_hat`` (as :meth:`GPSurrogate.predict` does: white noise excluded); the
+  noise std of one measured cost is ``sqrt(cost_noise_std_^2 + sum_i w_i^2
+  s_i^2)`` with ``s_i`` the metric GPs' learned noise (:attr:`CompositeSurrogate.noise_std_`).
+  Because the metrics are not corrupted by ``epsilon``, the composite mean at a
+  training point reproduces ``J_hat`` rather than the noisy ``J``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agents.surrogate import GPSurrogate, OutputTransform
+
+__all__ = ["CompositeSurrogate", "MetricSurrogate"]
+
+
+class CompositeSurrogate:
+    """Posterior of ``J_hat = sum_i w_i g_i`` from independent GPs on the normalised metrics ``g_i``.
+
+    Parameters
+    ----------
+    models : sequence of fitted surrogates
+        Anything with ``predict(X) -> (mean, std)``, one per metric, on the normalised metric ``f_i / n_i``.
+    weights : array_like of shape (n_metrics,)
+        ``w_i`` of eq. (J_used).
+    cost_noise_std : float, default 0
+        Std of the cost-level noise the metric models do not see (see the module doc).
+
+    Attributes
+    ----------
+    transform_ : OutputTransform
+        The identity (``"none"``): the composite is already in cost units, so the
+        BO code that handles a GP's output transform needs no special case.
+    """
+
+    def __init__(self, models, weights, cost_noise_std: float = 0.0) -> None:
+        self.models = list(models)
+        self.weights = np.asarray(weights, dtype=float).ravel()
+        if self.weights.size != len(self.models):
+            raise ValueError(f"weights: need one per model ({len(self.models)}), got {self.weights.size}")
+        self.cost_noise_std_ = float(cost_noise_std)
+        self.transform_ = OutputTransform("none", np.zeros(1))
+
+    def predict_metrics(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior means and stds of every normalised metric, each of shape (m, n_metrics)."""
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        parts = [model.predict(X) for model in self.models]
+        return np.column_stack([p[0] for p in parts]), np.column_stack([p[1] for p in parts])
+
+    def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean ``sum w_i mu_i`` and std ``sqrt(sum w_i^2 sigma_i^2)`` of ``J_hat`` (independent GPs), (m,) each."""
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        mean = np.zeros(X.shape[0])
+        var = np.zeros(X.shape[0])
+        for weight, model in zip(self.weights, self.models):
+            mu, sigma = model.predict(X)
+            mean += weight * mu
+            var += weight**2 * sigma**2
+        return mean, np.sqrt(var)
+
+    predict_latent = predict
+
+    @property
+    def noise_std_(self) -> float:
+        """Noise std of one measured cost: cost-level noise and the metric GPs' noise, independent."""
+        metric = sum(w**2 * getattr(m, "noise_std_", 0.0) ** 2 for w, m in zip(self.weights, self.models))
+        return float(np.sqrt(self.cost_noise_std_**2 + metric))
+
+    @property
+    def length_scales_(self) -> np.ndarray:
+        """ARD length scales of every metric GP, shape (n_metrics, d)."""
+        return np.vstack([m.length_scales_ for m in self.models])
+
+
+class MetricSurrogate:
+    """Fits one :class:`GPSurrogate` per normalised metric ``f_i / n_i`` and combines them (eq. (J_used)).
+
+    Parameters
+    ----------
+    weights, normalizers : array_like of shape (n_metrics,)
+        ``w`` and ``n`` of ``J = sum_i w_i f_i / n_i`` (the env's ``weights`` and ``normalizers``).
+    log_metrics : sequence of int, default ()
+        Indices of metrics modelled as ``log(f_i / n_i + 1e-3)``; the combination then
+        uses the log-normal mean and variance of each (see :class:`_LogNormal`).
+    optimize_every : int, default 1
+        Fit the metric GPs' hyperparameters (log marginal likelihood) only on every
+        ``optimize_every``-th call of :meth:`fit` (and the first ones below ``min_fit_points``);
+        in between, each GP is only conditioned on the new data with its previous
+        hyperparameters (one Cholesky factorisation): four GPs cost about one.
+    **gp_kwargs
+        Passed to every metric's :class:`GPSurrogate` (length-scale bounds, warm start, ...).
+
+    Attributes
+    ----------
+    models : list of GPSurrogate
+        One per metric; warm-started from their own previous fits.
+    """
+
+    def __init__(self, weights, normalizers, log_metrics=(), optimize_every: int = 1, **gp_kwargs) -> None:
+        self.weights = np.asarray(weights, dtype=float).ravel()
+        self.normalizers = np.asarray(normalizers, dtype=float).ravel()
+        if self.weights.shape != self.normalizers.shape or np.any(self.normalizers <= 0):
+            raise ValueError("weights, normalizers: need the same length, normalizers > 0")
+        self.log_metrics = tuple(int(i) for i in log_metrics)
+        self.optimize_every = max(1, int(optimize_every))
+        self._n_fits = 0
+        self.models = [GPSurrogate(**gp_kwargs) for _ in self.weights]
+
+    def reconstruct(self, metrics: np.ndarray) -> np.ndarray:
+        """``sum_i w_i f_i / n_i`` for metrics of shape (n, n_metrics): ``J_hat`` of the measured metrics."""
+        return np.asarray(metrics, dtype=float) @ (self.weights / self.normalizers)
+
+    def fit(self, X: np.ndarray, metrics: np.ndarray, costs: np.ndarray | None = None,
+            seed: int | None = None, optimize: bool = True) -> CompositeSurrogate:
+        """Fit every metric GP on ``(X, f_i / n_i)`` and return their combination.
+
+        Parameters
+        ----------
+        X : ndarray of shape (n, d)
+            Unit-box inputs.
+        metrics : ndarray of shape (n, n_metrics)
+            Raw metric values ``f_i``, finite.
+        costs : ndarray of shape (n,), optional
+            Measured costs ``J``: the cost-level noise is the RMS of ``J - sum w f / n``.
+        seed : int, optional
+            Seeds the metric GPs' restarts (metric ``i`` gets ``seed + i``).
+        optimize : bool, default True
+            ``False`` keeps every GP's hyperparameters (see :meth:`GPSurrogate.fit`).
+        """
+        metrics = np.atleast_2d(np.asarray(metrics, dtype=float))
+        if metrics.shape != (np.shape(X)[0], self.weights.size) or not np.all(np.isfinite(metrics)):
+            raise ValueError(f"metrics: need finite values of shape ({np.shape(X)[0]}, {self.weights.size})")
+        scaled = metrics / self.normalizers
+        if optimize:  # hyperparameters only every optimize_every-th fit (warm GPs are conditioned otherwise)
+            optimize = self._n_fits % self.optimize_every == 0
+            self._n_fits += 1
+        models = []
+        for i, model in enumerate(self.models):
+            target = np.log(scaled[:, i] + _LOG_OFFSET) if i in self.log_metrics else scaled[:, i]
+            model.fit(X, target, seed=None if seed is None else int(seed) + i, optimize=optimize)
+            models.append(_LogNormal(model) if i in self.log_metrics else model)
+        noise = 0.0
+        if costs is not None and np.size(costs) > 1:
+            residual = np.asarray(costs, dtype=float) - self.reconstruct(metrics)
+            noise = float(np.sqrt(np.mean(residual**2)))
+        return CompositeSurrogate(models, self.weights, cost_noise_std=noise)
+
+
+_LOG_OFFSET = 1e-3
+
+
+class _LogNormal:
+    """A GP on ``z = log(g + c)`` seen as a model of ``g``: log-normal mean and std, minus ``c``."""
+
+    def __init__(self, model: GPSurrogate) -> None:
+        self.model = model
+
+    def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        mu, sigma = self.model.predict(X)
+        var = sigma**2
+        mean = np.exp(mu + 0.5 * var)
+        return mean - _LOG_OFFSET, mean * np.sqrt(np.expm1(var))
+
+    @property
+    def noise_std_(self) -> float:
+        return 0.0
+
+    @property
+    def length_scales_(self) -> np.ndarray:
+        return self.model.length_scales_
