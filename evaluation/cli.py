@@ -14,7 +14,7 @@ from pathlib import Path
 __all__ = ["main"]
 
 #: Modules that contribute sub-commands through ``add_parser(subparsers)``.
-SUBCOMMAND_MODULES: tuple[str, ...] = ("evaluation.bench_cli", "evaluation.tune_cli")
+SUBCOMMAND_MODULES: tuple[str, ...] = ("evaluation.bench_cli", "evaluation.tune_cli", "evaluation.twin_cli")
 
 
 def _demo(args: argparse.Namespace) -> int:

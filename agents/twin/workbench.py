@@ -921,7 +921,7 @@ def _evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit) -> str:
 @_single_thread
 def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
              current: GreyFit | None = None, n_folds: int = 4, bic_margin: float = 10.0, min_gain: float = 0.02,
-             max_iter: int = 20) -> Diagnosis:
+             max_iter: int = 20, _restarts: int = 0) -> Diagnosis:
     """Try every catalogued effect as an addition to the model and rank them on held-out experiments.
 
     Parameters
@@ -943,7 +943,11 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         less than it (and whose held-out RMSE differ by less than 1 %) are
         reported as indistinguishable.
     min_gain : float, default 0.02
-        ``best`` also needs its held-out RMSE ``min_gain`` below the current model's.
+        ``best`` also needs its held-out RMSE ``min_gain`` below the current model's,
+        and the effect itself must matter: switching it off (magnitude at zero)
+        must change the output by at least a fifth of the RMS it explains
+        (``effect_rms``), so that no effect is credited with a refit of the
+        other parameters.
     max_iter : int, default 20
         Levenberg-Marquardt iterations of the full-data fits.
 
@@ -957,7 +961,11 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     residual sum of squares over all ``n`` samples (cross-validation over
     experiments, :func:`heldout_rss`) and ``k`` the global parameters;
     ``delta_bic`` is a candidate's BIC minus the current model's, so ``k``
-    counts the extra parameters. With one experiment there is nothing to hold
+    counts the extra parameters. The current model is refitted with the same
+    iteration budget as the candidates, and if a candidate's fit with its new
+    effect switched off beats it (a better minimum of the current parameters),
+    the diagnosis restarts from that fit, so that no effect is credited with a
+    better fit of parameters the model already has. With one experiment there is nothing to hold
     out: the training RSS is used and ``validation`` says so.
     """
     base = None
@@ -980,6 +988,10 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         mine = [p for p in problems if p.tag == name and np.isfinite(p.cost)]
         if mine:
             fits[name] = refine_grid_parameters(data, GreyFit.from_problem(data, min(mine, key=lambda p: p.cost)))
+    restart = _without_new_effect(data, current, fits)
+    if restart is not None and _restarts < 1:  # a candidate found better values of the current parameters
+        return diagnose(data, candidates=candidates, current=restart, n_folds=n_folds, bic_margin=bic_margin,
+                        min_gain=min_gain, max_iter=max_iter, _restarts=_restarts + 1)
     order = list(fits)
     models = [current] + [fits[name] for name in order]
     n = data.n_samples
@@ -997,13 +1009,17 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         entry = {"effect": name, "rmse": float(np.sqrt(rss[i] / n)), "delta_bic": float(bic[i] - bic[0]),
                  "params": _jsonable(fit.effect_params.get(name, {})) if name in fit.effect_params else {},
                  "evidence": _evidence(name, data, current, fit), "train_rmse": float(fit.rmse),
-                 "extra_params": int(fit.n_params - current.n_params)}
+                 "extra_params": int(fit.n_params - current.n_params),
+                 "effect_rms": _effect_size(data, fit)}
         if name in notes:
             entry["note"] = notes[name]
         cands.append(entry)
     cands.sort(key=lambda c: c["delta_bic"])
     cur_rmse = float(np.sqrt(rss[0] / n))
-    good = [c for c in cands if c["delta_bic"] < -bic_margin and c["rmse"] < (1.0 - min_gain) * cur_rmse]
+    # an improvement counts if it passes BIC, lowers the held-out error by min_gain, and comes from the
+    # effect itself: switching the effect off must move the output by a fifth of what the effect explains
+    good = [c for c in cands if c["delta_bic"] < -bic_margin and c["rmse"] < (1.0 - min_gain) * cur_rmse
+            and c["effect_rms"] >= 0.2 * np.sqrt(max(current.rmse**2 - c["train_rmse"] ** 2, 0.0))]
     best = good[0]["effect"] if good else None
     pairs = []
     for i, a in enumerate(good):
@@ -1017,6 +1033,49 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
 
 
 @_single_thread
+def _effect_size(data: GreyData, fit: GreyFit) -> float:
+    """RMS change of the output when the last effect of ``fit`` is switched off (its magnitude at zero).
+
+    The plant output before the sensor blocks, or the measurement for a sensor effect.
+    """
+    name = fit.spec.effect_names[-1]
+    theta0 = fit.theta.copy()
+    pos = fit.spec.n_linear + 1 + _effect_offset(fit.spec, name) if fit.spec.effect_names.count(name) == 1 else \
+        fit.theta.size - len(FITTED_PARAMETERS[name])
+    cls = EFFECTS[name]
+    for j, (pname, _) in enumerate(FITTED_PARAMETERS[name]):
+        if pname == cls.magnitude_param:
+            theta0[pos + j] = next(p.zero for p in cls.parameters if p.name == pname)
+    rows = np.arange(data.n_records)
+    sims = simulate_sets(data, [(fit.spec, np.concatenate([th, fit.y0, fit.bias]), rows) for th in (fit.theta, theta0)],
+                         true_output=cls.side != "sensor")  # a sensor effect only shows in the measurement
+    diff = np.where(data.mask, sims[0] - sims[1], 0.0)
+    return float(np.sqrt(np.sum(diff**2) / data.n_samples)) if np.all(np.isfinite(diff)) else 0.0
+
+
+def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit | None:
+    """The best candidate fit with its new effect switched off, if that beats the current model.
+
+    A candidate starts from its own profile fit of the linear part, which can
+    land in a better minimum than the current model's (quantized outputs make
+    the error surface rough); whatever of that gain survives switching the
+    effect off belongs to the current model.
+    """
+    best = None
+    for fit in fits.values():
+        if fit.rmse >= current.rmse * (1.0 - 1e-3):
+            continue
+        n_old = current.theta.size
+        theta = fit.theta[:n_old].copy()
+        problem = _problem(data, current.spec, theta, fit.y0, fit.bias, np.arange(data.n_records), free_global=False)
+        problem.free[:] = False
+        fit_problems(data, [problem], max_iter=0)
+        reduced = GreyFit.from_problem(data, problem)
+        if reduced.rmse < current.rmse * (1.0 - 1e-3) and (best is None or reduced.rmse < best.rmse):
+            best = reduced
+    return best
+
+
 def error_ladder(data: GreyData, effects=None, spec: ModelSpec | None = None, max_steps: int = 3,
                  **kwargs) -> tuple[list[dict], list[Diagnosis]]:
     """RMSE of the linear model, then with the best effect added, then the next, until nothing helps.

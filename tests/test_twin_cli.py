@@ -1,0 +1,77 @@
+"""``gbo twin``: compare, resid, diagnose --json and report on a CSV with a hidden saturation."""
+
+from __future__ import annotations
+
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import gbo_envs  # noqa: F401  (registers the envs)
+from agents.twin.csvio import records_from_loop, write_csv
+from evaluation.cli import main
+
+
+@pytest.fixture(scope="module")
+def csv_path(tmp_path_factory):
+    env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 150.0}}, output_noise_std=0.1)
+    loop = env.unwrapped.loop.replace(duration=1.5)
+    gains = np.array([[0.3, 1.0], [0.9, 1.2], [1.05, 2.0]])
+    records = records_from_loop(loop, gains, rng=np.random.default_rng(0), start_index=4)
+    return write_csv(records, tmp_path_factory.mktemp("twin") / "sat.csv")
+
+
+def test_diagnose_json_is_exactly_one_object(csv_path, capsys):
+    assert main(["twin", "diagnose", str(csv_path), "--json"]) == 0
+    out = capsys.readouterr().out
+    payload = json.loads(out)  # the whole stdout is one JSON object
+    assert set(payload) >= {"model", "rmse", "fit_percent", "noise_rmse", "best", "candidates"}
+    assert isinstance(payload["model"], str) and isinstance(payload["rmse"], float)
+    assert isinstance(payload["fit_percent"], float) and isinstance(payload["noise_rmse"], float)
+    assert payload["best"] == "saturation"
+    first = payload["candidates"][0]
+    assert set(first) >= {"effect", "rmse", "delta_bic", "params", "evidence"}
+    assert first["params"]["limit"] == pytest.approx(150.0, rel=0.02)
+    assert [c["delta_bic"] for c in payload["candidates"]] == sorted(c["delta_bic"] for c in payload["candidates"])
+
+
+def test_compare_with_effects_and_plots(csv_path, tmp_path, capsys):
+    assert main(["twin", "compare", str(csv_path), "--json"]) == 0
+    linear = json.loads(capsys.readouterr().out)
+    assert main(["twin", "compare", str(csv_path), "--effects", "saturation", "--json", "--out", str(tmp_path)]) == 0
+    sat = json.loads(capsys.readouterr().out)
+    assert [e["experiment"] for e in sat["experiments"]] == [4, 5, 6]
+    assert sat["rmse"] < 0.5 * linear["rmse"] and sat["fit_percent"] > linear["fit_percent"]
+    assert sat["model"] == "linear(2p0z)+saturation"
+    assert (tmp_path / "compare.png").stat().st_size > 1000
+    assert main(["twin", "compare", str(csv_path)]) == 0
+    assert "fit" in capsys.readouterr().out
+
+
+def test_resid_reports_whiteness_and_worst_segments(csv_path, tmp_path, capsys):
+    assert main(["twin", "resid", str(csv_path), "--json", "--out", str(tmp_path)]) == 0
+    payload = json.loads(capsys.readouterr().out)
+    assert payload["white"] is False and len(payload["worst"]) == 5
+    assert set(payload["bins"]) == {"time", "experiment", "input", "output", "velocity_sign"}
+    assert (tmp_path / "residuals.png").exists()
+    assert main(["twin", "resid", str(csv_path)]) == 0
+    assert "worst segments" in capsys.readouterr().out
+
+
+def test_report_is_one_self_contained_page(csv_path, tmp_path, capsys):
+    assert main(["twin", "report", str(csv_path), "--out", str(tmp_path), "--max-steps", "1"]) == 0
+    page = (tmp_path / "index.html").read_text()
+    assert page.count("data:image/png;base64,") >= 4
+    assert "error ladder" in page and "saturation" in page
+    assert "src=\"http" not in page
+    assert list(tmp_path.iterdir()) == [tmp_path / "index.html"]
+
+
+def test_bad_csv_exits_with_a_message(tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("experiment,t,r,u,y\n0,0,1,2,3\n0,0.1,1,x,3\n0,0.2,1,2,3\n")
+    assert main(["twin", "diagnose", str(bad), "--json"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert "row 3, column 'u'" in captured.err
