@@ -99,7 +99,9 @@ class RLTuner(Tuner):
         physical effects (a rig env) needs ``model_env`` given explicitly: its
         own id would hand the policy the effects it is not meant to know.
     model_kwargs : dict, optional
-        Keyword arguments for ``gym.make`` when ``model_env`` is an id.
+        Keyword arguments for ``gym.make`` when ``model_env`` is an id (the plant's
+        cost ``normalizers`` are passed too unless given here, so that model and
+        plant costs share one scale).
     pretrain_steps : int, default 2000
         ``mode="twin"``: model experiments before deployment.
     pretrain_gradient_steps : int, default 1
@@ -252,7 +254,12 @@ class RLTuner(Tuner):
                       **self.model_kwargs}
             return gym.make(spec.id, **kwargs)
         if isinstance(model_env, str):
-            return gym.make(model_env, **self.model_kwargs)
+            # the model's costs on the plant's scale: reuse the plant's cost normalisers unless told otherwise
+            normalizers = getattr(self.env.unwrapped, "normalizers", None)
+            kwargs = dict(self.model_kwargs)
+            if normalizers is not None and "normalizers" not in kwargs:
+                kwargs["normalizers"] = normalizers
+            return gym.make(model_env, **kwargs)
         if isinstance(model_env, gym.Env):
             return model_env
         if callable(model_env):
