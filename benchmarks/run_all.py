@@ -14,6 +14,14 @@ import sys
 from pathlib import Path
 
 
+def _last_json(stdout: str):
+    """The JSON object a benchmark printed: the whole output, or else its last line."""
+    try:
+        return json.loads(stdout)
+    except json.JSONDecodeError:
+        return json.loads(stdout.strip().splitlines()[-1])
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the JSON files")
@@ -31,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
             print(done.stderr, file=sys.stderr)
             failed.append(script.stem)
             continue
-        result = json.loads(done.stdout.strip().splitlines()[-1])
+        result = _last_json(done.stdout)
         (args.out / f"{script.stem}.json").write_text(json.dumps(result, indent=2))
         summary[script.stem] = result
         print(json.dumps(result, indent=2), flush=True)

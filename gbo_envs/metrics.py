@@ -67,9 +67,9 @@ def step_metrics(t: np.ndarray, y: np.ndarray, r1: float, r2: float) -> np.ndarr
 
     # rise time 10 % -> 60 % of the way (progress measured along the step direction)
     progress = (y - r1) / dr
-    crossings = [_first_crossing(t, progress, level) for level in RISE_LEVELS]
+    start, end = _first_crossings(t, progress, np.asarray(RISE_LEVELS))
     with np.errstate(invalid="ignore"):
-        rise = np.where(np.isfinite(crossings[1]), crossings[1] - crossings[0], t_final)
+        rise = np.where(np.isfinite(end), end - start, t_final)
 
     # eq. (ITAE), trapezoidal rule on the (uniform or not) time grid
     weighted = t * error
@@ -79,16 +79,19 @@ def step_metrics(t: np.ndarray, y: np.ndarray, r1: float, r2: float) -> np.ndarr
     return out[0] if single else out
 
 
-def _first_crossing(t: np.ndarray, progress: np.ndarray, level: float) -> np.ndarray:
-    """Linearly interpolated first time ``progress`` reaches ``level`` (``inf`` if never)."""
-    above = progress >= level
-    reached = above.any(axis=1)
-    idx = np.argmax(above, axis=1)
+def _first_crossings(t: np.ndarray, progress: np.ndarray, levels: np.ndarray) -> np.ndarray:
+    """Linearly interpolated first times ``progress`` reaches each level (``inf`` if never).
+
+    Returns an array of shape (n_levels, batch); all levels in one vectorised pass.
+    """
+    above = progress[None, :, :] >= levels[:, None, None]  # (levels, batch, n_steps)
+    reached = above.any(axis=2)
+    idx = np.argmax(above, axis=2)
     prev = np.maximum(idx - 1, 0)
-    rows = np.arange(progress.shape[0])
+    rows = np.arange(progress.shape[0])[None, :]
     p0, p1 = progress[rows, prev], progress[rows, idx]
     with np.errstate(divide="ignore", invalid="ignore"):
-        frac = np.where(p1 > p0, (level - p0) / (p1 - p0), 0.0)
+        frac = np.where(p1 > p0, (levels[:, None] - p0) / (p1 - p0), 0.0)
     frac = np.where(idx == 0, 0.0, np.clip(frac, 0.0, 1.0))
     times = t[prev] + frac * (t[idx] - t[prev])
     return np.where(reached, times, np.inf)
