@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.signal import lfilter, ss2tf
+from scipy.signal import lfilter
 
 from gbo_envs.controllers import Controller
 from gbo_envs.metrics import step_metrics
@@ -113,7 +113,7 @@ class ClosedLoop:
         if self.output_noise_std < 0.0:
             raise ValueError(f"output_noise_std: must be >= 0, got {self.output_noise_std}")
         object.__setattr__(self, "_discrete", self.current_plant.discretize(self.dt))
-        num_p, den_p = self._plant_polynomials
+        num_p, den_p = self._discrete.transfer_function()
         _, u0 = self._discrete.equilibrium(self.r1)
         width = max(den_p.size, num_p.size) + 1
         object.__setattr__(self, "_linear_parts", (num_p, den_p, float(u0[0]), width))
@@ -208,18 +208,6 @@ class ClosedLoop:
             du[i] = lfilter(num_u[i], den[i], drive)
         y = self.r1 + dy if noise is None else self.r1 + dy + noise
         return u0 + du, y, np.full(batch, u0)
-
-    @property
-    def _plant_polynomials(self) -> tuple[np.ndarray, np.ndarray]:
-        """Sampled plant ``P(z) = z^-d c (zI - Phi)^-1 (Gamma0 + Gamma1 z^-1)`` as ``(num, den)`` in ``z^-1``."""
-        plant = self._discrete
-        n0, den = ss2tf(plant.phi, plant.gamma0[:, None], plant.c[None, :], np.zeros((1, 1)))
-        n1, _ = ss2tf(plant.phi, plant.gamma1[:, None], plant.c[None, :], np.zeros((1, 1)))
-        d = plant.delay_steps
-        num = np.zeros(d + 2 + n0.shape[1])
-        num[d : d + n0.shape[1]] += n0[0]
-        num[d + 1 : d + 1 + n1.shape[1]] += n1[0]
-        return np.trim_zeros(num, "b"), den
 
     def _simulate_stepping(self, gains, noise, rng):
         """Sample-by-sample simulation through the effect blocks, vectorised over the batch.

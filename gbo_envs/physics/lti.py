@@ -9,11 +9,12 @@ integration error enters the closed-loop simulation.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import expm
-from scipy.signal import tf2ss
+from scipy.signal import BadCoefficients, ss2tf, tf2ss
 
 __all__ = ["ContinuousPlant", "DiscretePlant"]
 
@@ -172,6 +173,26 @@ class DiscretePlant:
         rhs[n] = y_level
         sol = np.linalg.lstsq(m, rhs, rcond=None)[0]
         return sol[:n], sol[n]
+
+    def transfer_function(self) -> tuple[np.ndarray, np.ndarray]:
+        """Sampled plant ``P(z) = z^-d c (zI - Phi)^-1 (Gamma0 + Gamma1 z^-1)`` as ``(num, den)`` in ``z^-1``.
+
+        Returns
+        -------
+        num : ndarray
+            Numerator coefficients of ``z^0, z^-1, ...`` (the delay shows as leading zeros).
+        den : ndarray of shape (order + 1,)
+            Denominator coefficients of ``z^0, z^-1, ...``.
+        """
+        with warnings.catch_warnings():  # a zero leading numerator coefficient is expected (strictly proper)
+            warnings.simplefilter("ignore", BadCoefficients)
+            n0, den = ss2tf(self.phi, self.gamma0[:, None], self.c[None, :], np.zeros((1, 1)))
+            n1, _ = ss2tf(self.phi, self.gamma1[:, None], self.c[None, :], np.zeros((1, 1)))
+        d = self.delay_steps
+        num = np.zeros(d + 2 + n0.shape[1])
+        num[d : d + n0.shape[1]] += n0[0]
+        num[d + 1 : d + 1 + n1.shape[1]] += n1[0]
+        return np.trim_zeros(num, "b"), np.ravel(den)
 
     def velocity_row(self) -> np.ndarray:
         """Row ``c A`` such that ``dy/dt = (c A) x`` (valid for relative degree >= 2)."""

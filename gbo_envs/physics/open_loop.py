@@ -33,17 +33,16 @@ one that holds it, ``command_for`` of the actuator blocks applied to
 from __future__ import annotations
 
 import copy
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import BadCoefficients, lfilter, ss2tf
+from scipy.signal import lfilter
 
 from gbo_envs.physics.block import EffectBlock
 from gbo_envs.physics.lti import ContinuousPlant, DiscretePlant
 
-__all__ = ["MEMORYLESS_EFFECTS", "OpenLoopResult", "discrete_transfer_function", "simulate_open_loop"]
+__all__ = ["MEMORYLESS_EFFECTS", "OpenLoopResult", "simulate_open_loop"]
 
 #: Catalogue effects that are static maps ignoring the speed (no state): rows whose actuator and
 #: sensor blocks are all of these are simulated without a loop over time (the whole record is
@@ -170,19 +169,6 @@ def simulate_open_loop(
     return OpenLoopResult(**out)
 
 
-def discrete_transfer_function(plant: DiscretePlant) -> tuple[np.ndarray, np.ndarray]:
-    """Sampled plant ``P(z) = z^-d c (zI - Phi)^-1 (Gamma0 + Gamma1 z^-1)`` as ``(num, den)`` in ``z^-1``."""
-    with warnings.catch_warnings():  # a zero leading numerator coefficient is expected (strictly proper)
-        warnings.simplefilter("ignore", BadCoefficients)
-        n0, den = ss2tf(plant.phi, plant.gamma0[:, None], plant.c[None, :], np.zeros((1, 1)))
-        n1, _ = ss2tf(plant.phi, plant.gamma1[:, None], plant.c[None, :], np.zeros((1, 1)))
-    d = plant.delay_steps
-    num = np.zeros(d + 2 + n0.shape[1])
-    num[d : d + n0.shape[1]] += n0[0]
-    num[d + 1 : d + 1 + n1.shape[1]] += n1[0]
-    return num, den[0] if den.ndim > 1 else den
-
-
 def _row_chains(effects, batch: int) -> list[tuple[EffectBlock, ...]]:
     effects = tuple(effects) if effects is not None else ()
     if all(isinstance(b, EffectBlock) for b in effects):
@@ -253,7 +239,7 @@ def _direct(continuous, discrete, chains, u, y0, bias) -> OpenLoopResult:
     for row in range(batch):
         key = id(discrete[row])
         if key not in tf_cache:
-            num, den = discrete_transfer_function(discrete[row])
+            num, den = discrete[row].transfer_function()
             tf_cache[key] = (num[lags[row]:], den)  # the whole-sample delay is already in v
         num, den = tf_cache[key]
         y_true[row] = y_true0[row] + lfilter(num, den, v[row] - v_rest[row])
