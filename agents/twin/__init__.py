@@ -8,11 +8,14 @@
 
 from __future__ import annotations
 
+from agents.twin.compare import compare
 from agents.twin.csvio import read_csv, write_csv
+from agents.twin.diagnose import diagnose, error_ladder
 from agents.twin.env import TwinEnv, make_twin_env
 from agents.twin.estimator import TwinEstimator
+from agents.twin.fitting import fit_model
 from agents.twin.greybox import GreyData, GreyFit, ModelSpec
-from agents.twin.workbench import compare, diagnose, error_ladder, fit_model, residuals
+from agents.twin.residuals import residuals
 
 __all__ = ["TwinEnv", "TwinEstimator", "make_twin_env"]
 __all__ += ["GreyData", "GreyFit", "ModelSpec", "compare", "diagnose", "error_ladder", "fit_model", "read_csv",

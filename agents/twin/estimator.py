@@ -89,7 +89,7 @@ class TwinEstimator(BaseEstimator):
         added to the linear part: names, or ``{name: {parameter: value}}`` with
         initial values. ``fit`` then estimates the linear part and the effect
         parameters together by minimising the simulation error
-        (:func:`agents.twin.workbench.fit_twin_effects`) and sets ``effects_``
+        (:func:`agents.twin.effect_estimator.fit_twin_effects`) and sets ``effects_``
         (the fitted blocks, used by :class:`agents.twin.TwinEnv`) and
         ``effect_params_``; ``predict`` and ``rmse`` simulate with them.
 
@@ -190,7 +190,7 @@ class TwinEstimator(BaseEstimator):
         self
         """
         if self.effects:  # grey-box: linear part and effect parameters by simulation error
-            from agents.twin.workbench import fit_twin_effects
+            from agents.twin.effect_estimator import fit_twin_effects
 
             return fit_twin_effects(self, records)
         self.__dict__.pop("effects_", None)
@@ -293,7 +293,7 @@ class TwinEstimator(BaseEstimator):
         """
         self._check_fitted()
         if self.effects and hasattr(self, "effects_"):
-            from agents.twin.workbench import predict_twin_effects
+            from agents.twin.effect_estimator import predict_twin_effects
 
             return predict_twin_effects(self, records)
         orders = self._check_params()
@@ -309,7 +309,7 @@ class TwinEstimator(BaseEstimator):
         """Eq. (RMSE) of the fitted plant on ``records`` (normalised by the step height by default)."""
         self._check_fitted()
         if self.effects and hasattr(self, "effects_"):
-            from agents.twin.workbench import rmse_twin_effects
+            from agents.twin.effect_estimator import rmse_twin_effects
 
             return rmse_twin_effects(self, records, normalize)
         orders = self._check_params()

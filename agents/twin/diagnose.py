@@ -1,0 +1,313 @@
+"""Diagnose the missing effect: every catalogued effect tried as an addition, ranked on held-out experiments.
+
+* :func:`diagnose`: the ranking (held-out RMSE, delta BIC), evidence and indistinguishable pairs;
+* :func:`heldout_rss`: cross-validation over experiments;
+* :func:`error_ladder`: add the best effect, diagnose again, until nothing helps.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from agents.twin.compare import compare
+from agents.twin.evidence import _evidence, _excitation, separating_experiment
+from agents.twin.fitting import (
+    _current_effect_bounds,
+    _effect_offset,
+    _problem,
+    _single_thread,
+    candidate_problems,
+    fit_model,
+    linear_fit,
+    refine_grid_parameters,
+)
+from agents.twin.greybox import FITTED_PARAMETERS, GreyData, GreyFit, ModelSpec, Problem, fit_problems, simulate_sets
+from agents.twin.noise import noise_floor
+from gbo_envs.physics.effects import EFFECT_NAMES, EFFECTS
+
+__all__ = ["Diagnosis", "diagnose", "error_ladder", "heldout_rss"]
+
+
+@dataclass(frozen=True, eq=False)
+class Diagnosis:
+    """Ranking of the catalogued effects as additions to a model; see :func:`diagnose`.
+
+    ``fits`` maps each effect to the fitted model with it added; ``current`` is the model diagnosed.
+    """
+
+    current: GreyFit
+    fits: dict
+    candidates: list
+    best: str | None
+    noise_rmse: float | None
+    fit_percent: float
+    heldout_rmse: float
+    validation: str
+    indistinguishable: list
+    suggested_experiment: str | None
+
+    def to_dict(self) -> dict:
+        """The ``diagnose --json`` object."""
+        return {"model": self.current.spec.label, "rmse": float(self.current.rmse),
+                "fit_percent": float(self.fit_percent), "noise_rmse": self.noise_rmse, "best": self.best,
+                "candidates": self.candidates, "heldout_rmse": float(self.heldout_rmse),
+                "validation": self.validation, "indistinguishable": self.indistinguishable,
+                "suggested_experiment": self.suggested_experiment,
+                "current_params": _jsonable(self.current.effect_params)}
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def _variants(name: str, spec: ModelSpec) -> list[dict]:
+    if name == "drift":
+        dens = [f"den{i}" for i in range(1, spec.n_poles - spec.n_integrators + 1)]
+        return [{"parameter": p} for p in ["gain", *dens]]
+    return [{}]
+
+
+def _folds(data: GreyData, n_folds: int) -> list[np.ndarray]:
+    order = np.argsort(data.index, kind="stable")
+    k = min(n_folds, data.n_records)
+    return [order[i::k] for i in range(k)]
+
+
+def _refit_problem(data: GreyData, fit: GreyFit, rows: np.ndarray, free_global: bool, theta=None, y0=None,
+                   bias=None, tag=None) -> Problem:
+    rows = np.asarray(rows, dtype=int)
+    n_eff = fit.theta.size - fit.spec.n_linear - 1
+    lower, upper, scale = _current_effect_bounds(data, fit, np.full(n_eff, -np.inf), np.full(n_eff, np.inf),
+                                                 np.ones(n_eff))
+    return _problem(data, fit.spec, fit.theta if theta is None else theta,
+                    fit.y0[rows] if y0 is None else y0, fit.bias[rows] if bias is None else bias, rows,
+                    lower, upper, scale, free_global=free_global, tag=tag)
+
+
+def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_iter: int = 6) -> np.ndarray:
+    """Held-out residual sum of squares of each model, cross-validated over experiments.
+
+    Each fold's experiments are left out, every model is refitted on the others
+    (from its full-data fit), and its global parameters are then applied to the
+    left-out experiments with only their rest levels and biases fitted.
+
+    Returns
+    -------
+    ndarray of shape (n_models,)
+    """
+    folds = _folds(data, n_folds)
+    train = []
+    for m, fit in enumerate(fits):
+        for f, test in enumerate(folds):
+            rows = np.setdiff1d(np.arange(data.n_records), test)
+            train.append(_refit_problem(data, fit, rows, True, tag=(m, f)))
+    fit_problems(data, train, max_iter=max_iter)
+    tests = []
+    for p in train:
+        m, f = p.tag
+        test = folds[f]
+        fit = fits[m]
+        tests.append(_refit_problem(data, fit, test, False, theta=p.theta[: p.n_global], tag=(m, f)))
+    fit_problems(data, tests, max_iter=4)
+    rss = np.zeros(len(fits))
+    for p in tests:
+        rss[p.tag[0]] += p.cost
+    return rss
+
+
+
+
+
+@_single_thread
+def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
+             current: GreyFit | None = None, n_folds: int = 4, bic_margin: float = 10.0, min_gain: float = 0.02,
+             max_iter: int = 20, _restarts: int = 0) -> Diagnosis:
+    """Try every catalogued effect as an addition to the model and rank them on held-out experiments.
+
+    Parameters
+    ----------
+    data : GreyData
+    effects : names or ``{name: {parameter: value}}``, optional
+        Effects of the current model (default: the linear model alone).
+    candidates : sequence of str, optional
+        Effects to try (default: the whole catalogue minus the current effects).
+    spec : ModelSpec, optional
+        Orders and output kind of the linear part.
+    current : GreyFit, optional
+        An already fitted current model (skips its fit).
+    n_folds : int, default 4
+        Folds of the cross-validation over experiments (at most one per experiment).
+    bic_margin : float, default 10.0
+        ``best`` needs ``delta_bic < -bic_margin`` ("very strong" evidence on the
+        Kass-Raftery scale); two improving effects whose ``delta_bic`` differ by
+        less than it (and whose held-out RMSE differ by less than 1 %) are
+        reported as indistinguishable.
+    min_gain : float, default 0.02
+        ``best`` also needs its held-out RMSE ``min_gain`` below the current model's,
+        and the effect itself must matter: switching it off (magnitude at zero)
+        must change the output by at least a fifth of the RMS it explains
+        (``effect_rms``), so that no effect is credited with a refit of the
+        other parameters.
+    max_iter : int, default 20
+        Levenberg-Marquardt iterations of the full-data fits.
+
+    Returns
+    -------
+    Diagnosis
+
+    Notes
+    -----
+    Ranking: ``BIC = n log(RSS_cv / n) + k log n`` with ``RSS_cv`` the held-out
+    residual sum of squares over all ``n`` samples (cross-validation over
+    experiments, :func:`heldout_rss`) and ``k`` the global parameters;
+    ``delta_bic`` is a candidate's BIC minus the current model's, so ``k``
+    counts the extra parameters. The current model is refitted with the same
+    iteration budget as the candidates, and if a candidate's fit with its new
+    effect switched off beats it (a better minimum of the current parameters),
+    the diagnosis restarts from that fit, so that no effect is credited with a
+    better fit of parameters the model already has. With one experiment there is nothing to hold
+    out: the training RSS is used and ``validation`` says so.
+    """
+    base = None
+    if current is None:
+        base = linear_fit(data, spec)
+        current = fit_model(data, effects, base=base, max_iter=max_iter)
+    names = [n for n in (candidates or EFFECT_NAMES) if n not in current.spec.effect_names]
+    # the current model gets the same iteration budget as the candidates, so that no candidate wins by
+    # merely polishing parameters the current model already has
+    problems = [_refit_problem(data, current, np.arange(data.n_records), True, tag="__current__")]
+    for name in names:
+        for options in _variants(name, current.spec):
+            problems += candidate_problems(data, current, name, options, tag=name)
+    fit_problems(data, problems, max_iter=max_iter)
+    polished = GreyFit.from_problem(data, problems[0])
+    if polished.rmse < current.rmse:
+        current = refine_grid_parameters(data, polished)
+    fits: dict[str, GreyFit] = {}
+    for name in names:
+        mine = [p for p in problems if p.tag == name and np.isfinite(p.cost)]
+        if mine:
+            fits[name] = refine_grid_parameters(data, GreyFit.from_problem(data, min(mine, key=lambda p: p.cost)))
+    restart = _without_new_effect(data, current, fits)
+    if restart is not None and _restarts < 1:  # a candidate found better values of the current parameters
+        return diagnose(data, candidates=candidates, current=restart, n_folds=n_folds, bic_margin=bic_margin,
+                        min_gain=min_gain, max_iter=max_iter, _restarts=_restarts + 1)
+    order = list(fits)
+    models = [current] + [fits[name] for name in order]
+    n = data.n_samples
+    if data.n_records >= 2:
+        rss = heldout_rss(data, models, n_folds=n_folds)
+        validation = f"held-out: {min(n_folds, data.n_records)}-fold cross-validation over experiments"
+    else:
+        rss = np.array([m.rmse**2 * n for m in models])
+        validation = "training error (one experiment: nothing to hold out)"
+    bic = n * np.log(np.maximum(rss, 1e-300) / n) + np.array([m.n_params for m in models]) * np.log(n)
+    notes = _excitation(data, current.spec.output)
+    cands = []
+    for i, name in enumerate(order, start=1):
+        fit = fits[name]
+        entry = {"effect": name, "rmse": float(np.sqrt(rss[i] / n)), "delta_bic": float(bic[i] - bic[0]),
+                 "params": _jsonable(fit.effect_params.get(name, {})) if name in fit.effect_params else {},
+                 "evidence": _evidence(name, data, current, fit), "train_rmse": float(fit.rmse),
+                 "extra_params": int(fit.n_params - current.n_params),
+                 "effect_rms": _effect_size(data, fit)}
+        if name in notes:
+            entry["note"] = notes[name]
+        cands.append(entry)
+    cands.sort(key=lambda c: c["delta_bic"])
+    cur_rmse = float(np.sqrt(rss[0] / n))
+    # an improvement counts if it passes BIC, lowers the held-out error by min_gain, and comes from the
+    # effect itself: switching the effect off must move the output by a fifth of what the effect explains
+    good = [c for c in cands if c["delta_bic"] < -bic_margin and c["rmse"] < (1.0 - min_gain) * cur_rmse
+            and c["effect_rms"] >= 0.2 * np.sqrt(max(current.rmse**2 - c["train_rmse"] ** 2, 0.0))]
+    best = good[0]["effect"] if good else None
+    pairs = []
+    for i, a in enumerate(good):
+        for b in good[i + 1 :]:
+            if abs(a["delta_bic"] - b["delta_bic"]) < max(bic_margin, 0.002 * abs(a["delta_bic"])) and \
+                    abs(a["rmse"] - b["rmse"]) < 0.01 * a["rmse"]:
+                pairs.append([a["effect"], b["effect"]])
+    suggestion = separating_experiment(*pairs[0]) if pairs else None
+    return Diagnosis(current, fits, cands, best, noise_floor(data), compare(data, current).fit_percent_all, cur_rmse,
+                     validation, pairs, suggestion)
+
+
+@_single_thread
+def _effect_size(data: GreyData, fit: GreyFit) -> float:
+    """RMS change of the output when the last effect of ``fit`` is switched off (its magnitude at zero).
+
+    The plant output before the sensor blocks, or the measurement for a sensor effect.
+    """
+    name = fit.spec.effect_names[-1]
+    theta0 = fit.theta.copy()
+    pos = fit.spec.n_linear + 1 + _effect_offset(fit.spec, name) if fit.spec.effect_names.count(name) == 1 else \
+        fit.theta.size - len(FITTED_PARAMETERS[name])
+    cls = EFFECTS[name]
+    for j, (pname, _) in enumerate(FITTED_PARAMETERS[name]):
+        if pname == cls.magnitude_param:
+            theta0[pos + j] = next(p.zero for p in cls.parameters if p.name == pname)
+    rows = np.arange(data.n_records)
+    sims = simulate_sets(data, [(fit.spec, np.concatenate([th, fit.y0, fit.bias]), rows) for th in (fit.theta, theta0)],
+                         true_output=cls.side != "sensor")  # a sensor effect only shows in the measurement
+    diff = np.where(data.mask, sims[0] - sims[1], 0.0)
+    return float(np.sqrt(np.sum(diff**2) / data.n_samples)) if np.all(np.isfinite(diff)) else 0.0
+
+
+def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit | None:
+    """The best candidate fit with its new effect switched off, if that beats the current model.
+
+    A candidate starts from its own profile fit of the linear part, which can
+    land in a better minimum than the current model's (quantized outputs make
+    the error surface rough); whatever of that gain survives switching the
+    effect off belongs to the current model.
+    """
+    best = None
+    for fit in fits.values():
+        if fit.rmse >= current.rmse * (1.0 - 1e-3):
+            continue
+        n_old = current.theta.size
+        theta = fit.theta[:n_old].copy()
+        problem = _problem(data, current.spec, theta, fit.y0, fit.bias, np.arange(data.n_records), free_global=False)
+        problem.free[:] = False
+        fit_problems(data, [problem], max_iter=0)
+        reduced = GreyFit.from_problem(data, problem)
+        if reduced.rmse < current.rmse * (1.0 - 1e-3) and (best is None or reduced.rmse < best.rmse):
+            best = reduced
+    return best
+
+
+def error_ladder(data: GreyData, effects=None, spec: ModelSpec | None = None, max_steps: int = 3,
+                 **kwargs) -> tuple[list[dict], list[Diagnosis]]:
+    """RMSE of the linear model, then with the best effect added, then the next, until nothing helps.
+
+    Returns
+    -------
+    rungs : list of dict
+        ``{"model", "added", "rmse", "fit_percent", "heldout_rmse", "params"}`` per rung.
+    diagnoses : list of Diagnosis
+        The diagnosis made at each rung.
+    """
+    current = fit_model(data, effects, base=linear_fit(data, spec))
+    rungs, diagnoses = [], []
+    added = None
+    for _ in range(max_steps + 1):
+        d = diagnose(data, current=current, **kwargs)
+        diagnoses.append(d)
+        rungs.append({"model": current.spec.label, "added": added, "rmse": float(current.rmse),
+                      "fit_percent": float(d.fit_percent), "heldout_rmse": float(d.heldout_rmse),
+                      "params": _jsonable(current.effect_params)})
+        if d.best is None or len(rungs) > max_steps:
+            break
+        added, current = d.best, d.fits[d.best]
+    return rungs, diagnoses

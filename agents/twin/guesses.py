@@ -1,0 +1,148 @@
+"""Data-based starting values, bounds and scales of the effect parameters (scales of the data, search grids)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agents.twin.greybox import GreyData, GreyFit
+from agents.twin.noise import quantization_step
+from gbo_envs.physics.effects import EFFECT_NAMES
+
+__all__ = ["data_scales", "effect_starts"]
+
+
+def data_scales(data: GreyData, output: str = "speed") -> dict[str, float]:
+    """Magnitudes read from the data: input, output, speed and time scales (for guesses and bounds)."""
+    u = data.u[data.mask]
+    y = data.y[data.mask]
+    speed = data.y if output != "position" else np.gradient(data.y, data.dt, axis=1)
+    return {
+        "u_max": float(np.max(np.abs(u))) or 1.0,
+        "u_scale": float(np.percentile(np.abs(u), 95)) or float(np.max(np.abs(u))) or 1.0,
+        "y_span": float(np.ptp(y)) or 1.0,
+        "speed": float(np.max(np.abs(speed[data.mask]))) or 1.0,
+        "horizon": float(data.mask.sum(axis=1).min() * data.dt),
+    }
+
+
+def effect_starts(name: str, data: GreyData, base: GreyFit, with_starts: bool = True) -> tuple[
+        list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
+    """Starting values, bounds and scales of the fitted parameters of effect ``name``, from the data.
+
+    ``with_starts=False`` skips the (for quantization and drift, costlier) starting values.
+
+    Returns
+    -------
+    starts : list of ndarray of shape (n_effect_params,)
+    lower, upper, scale : ndarray of shape (n_effect_params,)
+    """
+    sc = data_scales(data, base.spec.output)
+    u_max, us, speed, horizon, dt = sc["u_max"], sc["u_scale"], sc["speed"], sc["horizon"], data.dt
+    rest = float(np.max(np.abs(_rest_command(base))))
+    fractions = np.array([0.005, 0.015, 0.05, 0.15, 0.4])
+    if name == "time_delay":
+        top = max(min(0.25 * horizon, 60 * dt), 2 * dt)
+        grid = np.unique(np.concatenate([np.arange(1, 6) * dt, np.geomspace(dt, top, 24)]))
+        return [np.array([g]) for g in grid], np.array([0.0]), np.array([top]), np.array([dt])
+    if name == "saturation":
+        q = np.percentile(np.abs(data.u[data.mask]), [50, 70, 80, 90, 95, 98, 99, 99.5, 99.9])
+        grid = np.unique(np.concatenate([q, u_max * np.array([0.6, 0.7, 0.8, 0.9, 0.95, 0.99])]))
+        lo = min(rest * 1.0001, 0.5 * u_max)  # the base model's rest input is only a rough guide
+        grid = grid[(grid > lo) & (grid < u_max)]
+        if grid.size == 0:
+            grid = np.array([0.5 * (lo + u_max)]) if u_max > lo else np.array([1.001 * lo])
+        return [np.array([g]) for g in grid], np.array([lo]), np.array([1.05 * u_max]), np.array([us])
+    if name in ("dead_zone", "backlash"):
+        return [np.array([f * us]) for f in fractions], np.array([0.0]), np.array([2 * us]), np.array([us])
+    if name == "coulomb_friction":
+        return [np.array([f * us]) for f in fractions[:-1]], np.array([0.0]), np.array([us]), np.array([us])
+    if name == "viscous_friction":
+        c = us / speed
+        return [np.array([f * c]) for f in (0.01, 0.05, 0.2)], np.array([0.0]), np.array([2 * c]), np.array([c])
+    if name == "stiction":
+        starts = [np.array([f * us, g * speed]) for f in (0.01, 0.05, 0.2) for g in (0.002, 0.02)]
+        return starts, np.array([0.0, 0.0]), np.array([us, 0.2 * speed]), np.array([us, 0.05 * speed])
+    if name == "quantization":
+        q, _ = quantization_step(data.y, data.mask)
+        grid = _quantization_scan(data, base, sc["y_span"]) if with_starts else []
+        if q is not None:
+            grid = [q] + grid
+        grid = grid or [0.01 * sc["y_span"]]
+        return [np.array([g]) for g in grid], np.array([0.0]), np.array([0.2 * sc["y_span"]]), \
+            np.array([sc["y_span"] * 0.01])
+    if name == "drift":
+        k = max(int(np.ptp(data.index)), 1)
+        slope = _gain_trend(data, base) if with_starts else 0.0
+        total = np.array([0.003, 0.01, 0.03, 0.1, 0.3])  # relative change over the session
+        grid = sorted({float(np.clip(slope, -0.9 / k, 1.0 / k)), *(total / k), *(-total / k)})
+        return [np.array([g]) for g in grid], np.array([-0.9 / k]), np.array([1.0 / k]), np.array([0.01 / k])
+    if name == "offset":
+        return [np.array([f * us]) for f in (-0.05, 0.05)], np.array([-us]), np.array([us]), np.array([us])
+    if name == "cogging":
+        travel = float(np.median(np.sum(np.abs(data.y if base.spec.output != "position" else np.gradient(
+            data.y, dt, axis=1)) * data.mask, axis=1) * dt))
+        periods = np.geomspace(max(speed * 4 * dt, travel / 2000), max(travel / 4, speed * 8 * dt), 12)
+        starts = [np.array([0.02 * us, p, ph]) for p in periods[::2] for ph in (0.0, np.pi / 2)]
+        return starts, np.array([0.0, periods[0] / 2, -2 * np.pi]), np.array([us, 2 * periods[-1], 2 * np.pi]), \
+            np.array([us, periods[0], 1.0])
+    raise ValueError(f"unknown effect {name!r}; the catalogue is {EFFECT_NAMES}")
+
+
+def _quantization_scan(data: GreyData, base: GreyFit, span: float, n_best: int = 3,
+                       y_true: np.ndarray | None = None) -> list[float]:
+    """Quantization steps ``q`` that make ``Q_q(y_true)`` of the base model match ``y``, best first.
+
+    The error of a quantized measurement is a sawtooth of period ``q`` in the
+    true output: the periodogram ``|sum_t e(t) exp(-2 pi i y_sim(t) / q)|`` of
+    the base model's residual against its output peaks at ``q`` (steps between
+    ``1e-3`` and ``0.1`` of the output span). Each peak is then refined on a
+    fine grid (+-5 %, 401 points) of the rounding error itself, which is
+    sharp because the levels are whole multiples of ``q``.
+    """
+    rng = np.random.default_rng(0)
+    idx = np.flatnonzero(data.mask.ravel())
+    idx = rng.choice(idx, size=min(idx.size, 2000), replace=False)
+    ys = (base.y_sim if y_true is None else y_true).ravel()[idx]
+    y = data.y.ravel()[idx]
+    e = y - ys
+    freqs = np.arange(10.0 / span, 1000.0 / span, 0.4 / span)
+    power = np.empty(freqs.size)
+    for start in range(0, freqs.size, 500):
+        f = freqs[start : start + 500, None]
+        power[start : start + 500] = np.abs(np.exp(-2j * np.pi * f * ys[None, :]) @ e)
+    peaks = [i for i in np.argsort(power)[::-1][:200]]
+    coarse: list[float] = []
+    for i in peaks:
+        q = 1.0 / freqs[i]
+        if all(abs(q / c - 1.0) > 0.05 for c in coarse):
+            coarse.append(q)
+        if len(coarse) == n_best:
+            break
+    found = []
+    for q0 in coarse:
+        steps = q0 * np.linspace(0.95, 1.05, 401)
+        cost = np.mean((y[None, :] - steps[:, None] * np.round(ys[None, :] / steps[:, None])) ** 2, axis=1)
+        i = int(np.argmin(cost))
+        found.append((float(cost[i]), float(steps[i])))
+    return [q for _, q in sorted(found)]
+
+
+def _rest_command(fit: GreyFit) -> np.ndarray:
+    """Plant input that holds each record at rest (before the actuator blocks), shape (n_records,)."""
+    d = fit.plant.discretize(1.0)
+    return d.equilibrium(fit.y0)[1] - fit.bias
+
+
+def _gain_trend(data: GreyData, base: GreyFit) -> float:
+    """Relative change per experiment of a per-record gain fitted to the base model's response."""
+    if data.n_records < 2:
+        return 0.0
+    dev_sim = base.y_sim - base.y0[:, None]
+    dev = data.y - base.y0[:, None]
+    num = np.sum(np.where(data.mask, dev * dev_sim, 0.0), axis=1)
+    den = np.sum(np.where(data.mask, dev_sim**2, 0.0), axis=1)
+    gains = num / np.maximum(den, 1e-300)
+    if np.ptp(data.index) == 0:
+        return 0.0
+    slope = np.polyfit(data.index, gains, 1)[0]
+    return float(slope / max(np.mean(gains), 1e-12))

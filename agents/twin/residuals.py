@@ -1,0 +1,142 @@
+"""Residual analysis of a fitted twin: whiteness, input cross-correlation and where the model fails."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from agents.twin.greybox import GreyData, GreyFit
+
+__all__ = ["ResidualAnalysis", "residuals"]
+
+Z99 = 2.58  # two-sided 99 % quantile of the standard normal
+
+
+
+
+
+@dataclass(frozen=True, eq=False)
+class ResidualAnalysis:
+    """Where and how a model fails.
+
+    Attributes
+    ----------
+    lags : ndarray of int, shape (n_lags,)
+        ``0..L`` for the autocorrelation.
+    acf : ndarray of shape (n_lags,)
+        Normalised residual autocorrelation, pooled over records.
+    ccf_lags : ndarray of int, shape (2 L + 1,)
+    ccf : ndarray of shape (2 L + 1,)
+        Normalised residual-input cross-correlation ``corr(e(t), u(t - lag))``.
+    band : float
+        99 % band ``2.58 / sqrt(N)`` of both under whiteness and independence.
+    white, independent : bool
+        Whether the acf (lags >= 1) and ccf stay inside the band (a 1 % excess allowed).
+    bins : dict
+        ``{"time" | "experiment" | "input" | "output" | "velocity_sign": {"centers", "rms", "mean", "count"}}``.
+    worst : list of dict
+        Worst segments: experiment, ``t_start``, ``t_end`` (s), rms and mean residual.
+    """
+
+    lags: np.ndarray
+    acf: np.ndarray
+    ccf_lags: np.ndarray
+    ccf: np.ndarray
+    band: float
+    white: bool
+    independent: bool
+    bins: dict
+    worst: list
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict."""
+        return {"band": self.band, "white": self.white, "independent": self.independent,
+                "acf": self.acf.tolist(), "ccf_lags": self.ccf_lags.tolist(), "ccf": self.ccf.tolist(),
+                "bins": {k: {kk: np.asarray(vv).tolist() for kk, vv in v.items()} for k, v in self.bins.items()},
+                "worst": self.worst}
+
+
+def residuals(data: GreyData, fit: GreyFit, max_lag: int | None = None, n_bins: int = 10,
+              n_worst: int = 5) -> ResidualAnalysis:
+    """Residual whiteness, residual-input correlation and the residual's distribution over the operating range."""
+    e = np.where(data.mask, data.y - fit.y_sim, 0.0)
+    n_min = int(data.mask.sum(axis=1).min())
+    lag_max = int(max_lag if max_lag is not None else min(50, max(n_min // 4, 1)))
+    means = np.sum(e, axis=1) / data.mask.sum(axis=1)
+    ec = np.where(data.mask, e - means[:, None], 0.0)
+    u_mean = np.sum(np.where(data.mask, data.u, 0.0), axis=1) / data.mask.sum(axis=1)
+    uc = np.where(data.mask, data.u - u_mean[:, None], 0.0)
+    n_total = data.n_samples
+    ee, uu = float(np.sum(ec**2)), float(np.sum(uc**2))
+    acf = np.array([np.sum(ec[:, lag:] * ec[:, : ec.shape[1] - lag]) for lag in range(lag_max + 1)])
+    acf = acf / max(ee, 1e-300)
+    lags = np.arange(-lag_max, lag_max + 1)
+    ccf = np.array([np.sum(ec[:, lag:] * uc[:, : uc.shape[1] - lag]) if lag >= 0 else
+                    np.sum(ec[:, : ec.shape[1] + lag] * uc[:, -lag:]) for lag in lags])
+    ccf = ccf / max(np.sqrt(ee * uu), 1e-300)
+    band = Z99 / np.sqrt(n_total)
+    white = bool(np.mean(np.abs(acf[1:]) > band) <= 0.01)
+    independent = bool(np.mean(np.abs(ccf) > band) <= 0.01)
+    m = data.mask
+    speed = data.y if fit.spec.output != "position" else np.gradient(data.y, data.dt, axis=1)
+    velocity = np.gradient(speed, data.dt, axis=1) if fit.spec.output != "position" else speed
+    if fit.spec.output != "position":  # a speed loop: the sign of the speed itself
+        velocity = speed
+    t_rel = data.t - data.t[:, :1]
+    bins = {
+        "time": _binned(t_rel[m], e[m], n_bins),
+        "experiment": _grouped(np.broadcast_to(data.index[:, None], e.shape)[m], e[m]),
+        "input": _binned(data.u[m], e[m], n_bins, quantiles=True),
+        "output": _binned(data.y[m], e[m], n_bins, quantiles=True),
+        "velocity_sign": _grouped(np.sign(np.round(velocity[m], 12)), e[m]),
+    }
+    return ResidualAnalysis(np.arange(lag_max + 1), acf, lags, ccf, float(band), white, independent, bins,
+                            _worst_segments(data, e, n_worst))
+
+
+def _binned(x: np.ndarray, e: np.ndarray, n_bins: int, quantiles: bool = False) -> dict:
+    edges = np.unique(np.percentile(x, np.linspace(0, 100, n_bins + 1))) if quantiles else \
+        np.linspace(x.min(), x.max(), n_bins + 1)
+    if edges.size < 2:
+        edges = np.array([x.min(), x.max() + 1e-12])
+    which = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, edges.size - 2)
+    centers = 0.5 * (edges[:-1] + edges[1:])
+    count = np.bincount(which, minlength=centers.size)
+    total = np.bincount(which, weights=e, minlength=centers.size)
+    sq = np.bincount(which, weights=e**2, minlength=centers.size)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return {"centers": centers, "rms": np.sqrt(sq / count), "mean": total / count, "count": count}
+
+
+def _grouped(x: np.ndarray, e: np.ndarray) -> dict:
+    keys, which = np.unique(x, return_inverse=True)
+    count = np.bincount(which)
+    return {"centers": keys.astype(float), "rms": np.sqrt(np.bincount(which, weights=e**2) / count),
+            "mean": np.bincount(which, weights=e) / count, "count": count}
+
+
+def _worst_segments(data: GreyData, e: np.ndarray, n_worst: int) -> list[dict]:
+    n_min = int(data.mask.sum(axis=1).min())
+    width = max(5, n_min // 20)
+    kernel = np.ones(width) / width
+    found = []
+    for k in range(data.n_records):
+        n = int(data.mask[k].sum())
+        power = np.convolve(e[k, :n] ** 2, kernel, mode="valid")
+        taken = np.zeros(power.size, dtype=bool)
+        for _ in range(n_worst):
+            cand = np.where(taken, -np.inf, power)
+            i = int(np.argmax(cand))
+            if not np.isfinite(cand[i]):
+                break
+            taken[max(0, i - width + 1) : i + width] = True
+            found.append((float(power[i]), k, i))
+    found.sort(reverse=True)
+    out = []
+    for power, k, i in found[:n_worst]:
+        seg = e[k, i : i + width]
+        out.append({"experiment": int(data.index[k]), "t_start": float(data.t[k, i]),
+                    "t_end": float(data.t[k, i + width - 1]), "rms": float(np.sqrt(power)),
+                    "mean": float(np.mean(seg))})
+    return out
