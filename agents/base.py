@@ -16,6 +16,7 @@ import numpy as np
 
 from agents.result import METRIC_COLUMNS, TuningResult
 from agents.space import GainSpace
+from agents.utils import env_id, progress_bar
 
 __all__ = ["Tuner", "TuningInterrupted"]
 
@@ -164,12 +165,12 @@ class Tuner(abc.ABC):
         space = GainSpace.from_env(env)
         self.setup(space, seed=seed, env=env)
         env.reset(seed=seed)
-        env_id = env.spec.id if getattr(env, "spec", None) is not None else type(env.unwrapped).__name__
-        result = TuningResult(tuner=self.name, env_id=env_id, gain_names=space.names, seed=seed,
+        name = env_id(env)
+        result = TuningResult(tuner=self.name, env_id=name, gain_names=space.names, seed=seed,
                               info={"params": self.get_params()})
         start = time.perf_counter()
         best = np.inf
-        bar = _progress_bar(budget, f"{self.name} on {env_id}", progress)
+        bar = progress_bar(budget, f"{self.name} on {name}", progress)
         try:
             for experiment in range(1, budget + 1):
                 gains = self.ask()
@@ -219,19 +220,3 @@ def _row(experiment, source, space, gains, cost, best, metrics, wall_time, extra
         if key not in ("gains", "cost", "metrics"):
             row[key] = value
     return row
-
-
-class _NoBar:
-    def update(self, n: int) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
-def _progress_bar(total: int, desc: str, enabled: bool):
-    if not enabled:
-        return _NoBar()
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, unit="exp")

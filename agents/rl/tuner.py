@@ -11,6 +11,7 @@ import numpy as np
 from agents.base import Tuner
 from agents.rl.learners import IsolatedRNG, make_driver
 from agents.rl.mdp import TuningMDPEnv, TuningObserver, default_horizon, rescaled
+from agents.utils import env_id, progress_bar
 
 __all__ = ["RLTuner", "ALGORITHMS", "MODES"]
 
@@ -273,7 +274,7 @@ class RLTuner(Tuner):
         plant_gradient_steps = getattr(self._driver, "gradient_steps", None)
         if plant_gradient_steps is not None:
             self._driver.gradient_steps = self.pretrain_gradient_steps
-        bar = _bar(self.pretrain_steps, f"rl pre-training on {_env_name(model_env)}", self.progress)
+        bar = progress_bar(self.pretrain_steps, f"rl pre-training on {env_id(model_env)}", self.progress)
         observation, _ = mdp.reset(seed=self._sb3_seed)
         try:
             for step in range(self.pretrain_steps):
@@ -335,24 +336,3 @@ class RLTuner(Tuner):
             "pretrain_time_s": round(self._pretrain_time, 3),
             "sb3_seed": self._sb3_seed,
         }
-
-
-def _env_name(env: gym.Env) -> str:
-    spec = getattr(env, "spec", None)
-    return spec.id if spec is not None else type(env.unwrapped).__name__
-
-
-class _NoBar:
-    def update(self, n: int) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
-def _bar(total: int, desc: str, enabled: bool):
-    if not enabled:
-        return _NoBar()
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, unit="exp")

@@ -39,6 +39,8 @@ from typing import Any
 import numpy as np
 
 from agents.space import GainSpace
+from agents.utils import env_id as env_name
+from agents.utils import progress_bar
 from evaluation.sessions.store import SessionStore, to_json
 from gbo_envs.envs.external import ExperimentFailed
 
@@ -126,9 +128,8 @@ class TuningSession:
         if isinstance(env, str):
             self.env_id, self.env = env, gym.make(env, **self.env_kwargs)
         else:
-            spec = getattr(env, "spec", None)
             self.env = env
-            self.env_id = env_id or (spec.id if spec is not None else type(env.unwrapped).__name__)
+            self.env_id = env_id or env_name(env)
         if isinstance(tuner, str):
             self.tuner_name, self.tuner = tuner, agents.make(tuner, **self.tuner_kwargs)
             if "budget" not in self.tuner_kwargs and "budget" in inspect.signature(type(self.tuner)).parameters:
@@ -239,7 +240,7 @@ class TuningSession:
 
     # -- the loop ------------------------------------------------------------------------------------
     def _loop(self, store: SessionStore, sid: int, told: int, skips: int, progress: bool) -> None:
-        bar = _progress_bar(self.budget, told, f"{self.tuner_name} on {self.env_id}", progress)
+        bar = progress_bar(self.budget, f"{self.tuner_name} on {self.env_id}", progress, initial=told)
         try:
             while told < self.budget:
                 if skips >= self.max_consecutive_skips:
@@ -286,21 +287,6 @@ class TuningSession:
             bar.close()
 
 
-class _NoBar:
-    def update(self, n: int) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
-def _progress_bar(total: int, initial: int, desc: str, enabled: bool):
-    """A tqdm bar on stderr (not created at all when disabled: tqdm allocates a multiprocessing lock)."""
-    if not enabled:
-        return _NoBar()
-    from tqdm import tqdm
-
-    return tqdm(total=total, initial=initial, desc=desc, unit="exp")
 
 
 def env_state(env) -> dict[str, Any]:
