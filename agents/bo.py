@@ -18,7 +18,7 @@ from agents.acquisition import ExpectedImprovement, maximize_on_grid
 from agents.base import Tuner
 from agents.metric_surrogate import CompositeSurrogate, MetricSurrogate
 from agents.result import METRIC_COLUMNS
-from agents.surrogate import OUTPUT_TRANSFORMS, PRIOR_MEANS, GPSurrogate
+from agents.surrogate import OUTPUT_TRANSFORMS, PRIOR_MEANS, GPSurrogate, single_threaded_blas
 
 __all__ = ["BayesianOptimization", "INCUMBENTS", "MODELS"]
 
@@ -110,29 +110,32 @@ class BayesianOptimization(Tuner):
         ``1' K^-1 y / 1' K^-1 1`` profiled out of the likelihood, or the largest training
         cost (pessimistic: unexplored regions are predicted bad, which curbs EI's corner
         and edge sampling).
-    model : {"cost", "metrics"}, default "cost"
-        What is modelled. ``"cost"``: one GP on the measured costs ``J``. ``"metrics"``: the
-        paper's "performance metrics modeled by Gaussian processes" -- one GP per metric of
-        ``record["metrics"]`` (:data:`agents.result.METRIC_COLUMNS`), each on ``f_i / n_i``
-        with the env's normalizers, combined into the posterior of ``J_hat = sum_i w_i f_i / n_i``
-        (eq. (J_used)) as independent GPs: mean ``sum w_i mu_i``, variance ``sum w_i^2 sigma_i^2``
-        (:mod:`agents.metric_surrogate`, which documents the noise model). EI is computed on
-        that mean and std by the same acquisition code; the ``"observed"`` incumbent is the
-        lowest ``sum w f / n`` of the measured metrics (the additive cost noise is not in
-        them). Needs ``env.unwrapped.weights`` and ``.normalizers`` at :meth:`setup`; falls
-        back to the cost GP for any fit where a training point has no finite metrics (no
-        record, an unstable experiment, or extra data added without ``metrics=``, e.g. guided
-        BO's twin costs).
-    log_metrics : tuple of str, default ()
+    model : {"cost", "metrics"}, default "metrics"
+        What is modelled. ``"metrics"``: the paper's "performance metrics modeled by Gaussian
+        processes" -- one GP per metric of ``record["metrics"]`` (:data:`agents.result.METRIC_COLUMNS`),
+        each on ``f_i / n_i`` with the env's normalizers, combined into the posterior of
+        ``J_hat = sum_i w_i f_i / n_i`` (eq. (J_used)) as independent GPs: mean ``sum w_i mu_i``,
+        variance ``sum w_i^2 sigma_i^2`` (:mod:`agents.metric_surrogate`, which documents the
+        noise model). EI is computed on that mean and std by the same acquisition code; the
+        ``"observed"`` incumbent is the lowest ``sum w f / n`` of the measured metrics (the
+        additive cost noise is not in them). Needs ``env.unwrapped.weights`` and
+        ``.normalizers`` (four metrics) at :meth:`setup`; without them, and for any fit where a
+        training point has no finite metrics (no record, an unstable experiment, or extra data
+        added without ``metrics=``), the cost GP is used. ``"cost"``: one GP on the measured
+        costs ``J`` (what guided BO uses, since its twin points carry only costs).
+    log_metrics : tuple of str, default ("settling_time", "rise_time", "itae")
         With ``model="metrics"``: metrics whose GP models ``log(f_i / n_i + 1e-3)``; the
-        combination uses their log-normal mean and std. ``("settling_time",)`` helped on
-        DCMotor-v0 (see Notes): the settling time jumps where the response touches the 2 %
-        band, and the log makes the jump relatively smaller than the valley.
+        combination uses their log-normal mean and std. The settling time jumps where the
+        response touches the 2 % band, and the log makes the jump relatively smaller than
+        the valley; rise time and ITAE grow like ``1 / gain`` towards small gains, which a
+        GP extrapolates better in logs. Overshoot is not logged: it is 0 on a large region,
+        and its log makes that flat region dominate the fit (see Notes).
     metric_optimize_every : int, default 1
         With ``model="metrics"``: the metric GPs' hyperparameters are fitted on every
         ``metric_optimize_every``-th fit only (conditioned with the previous ones in between),
-        to make ``ask()`` faster (3 cut the CPU time from 182 to 145 ms but needed 18.7 instead of 16.3
-        experiments to 1.1 on seeds 0-29, so the default is 1).
+        to make ``ask()`` faster (2 needed 17.4 instead of 15.7 experiments to ratio 1.1 on
+        seeds 0-59, so the default is 1; ``ask()`` with 50 observations takes about 40 ms
+        with 1, see benchmarks/bench_bo_ask.py).
 
     Attributes
     ----------
@@ -144,19 +147,21 @@ class BayesianOptimization(Tuner):
 
     Notes
     -----
-    Measured on DCMotor-v0 (benchmarks/data_efficiency.py, 30 seeds, N0 = 1, 35
-    experiments; mean experiments to optimality ratio 1.1, never-reached counted as 36):
-    the defaults give about 22; the options above (output transforms, MAP length-scale
-    and noise priors, ML or pessimistic constant mean, trust-region steps, tighter noise
-    and length-scale bounds) gave 20.6-30.6 -- none was a reliable gain over the
-    seed-to-seed spread (standard error about 1.3), so the defaults are the paper's
-    method. See the report of issue 4 for the table.
+    Measured on DCMotor-v0 (benchmarks/data_efficiency.py, N0 = 1, 35 experiments; mean
+    experiments to optimality ratio 1.1, never-reached counted as 36; random search needs
+    34.2 on seeds 0-59, as expected for a target region of 0.35 % of the box):
 
-    ``model="metrics"`` (one GP per metric) on the same benchmark, random search reaching 1.1
-    after 33.9 (seeds 0-29) and 34.5 (seeds 30-59) experiments: 18.2 / 18.5 with plain
-    metrics, 16.3 / 17.9 with ``log_metrics=("settling_time",)``, against 21.8 / 20.7 for
-    ``model="cost"`` (to 1.05: 19.5 / 22.1 against about 25). Ratio to random search 0.48 /
-    0.52, so the default stays ``"cost"`` until it is below 0.5 on both seed ranges.
+    * ``model="cost"`` with the options above (output transforms, MAP length-scale and noise
+      priors, ML or pessimistic constant mean, trust-region steps, tighter bounds): 20.6-30.6,
+      about 22 with the defaults, on seeds 0-29.
+    * ``model="metrics"``, seeds 0-59: plain metrics 18.4; ``log_metrics=("settling_time",)``
+      17.1; all four logged 29.6; settling time, rise time and ITAE logged (the default)
+      **15.7**, confirmed on the unseen seeds 60-179 with **16.3** (to 1.05: 25.2 and 22.5,
+      against 20.8 and 20.6 with only the settling time logged). Other variants on seeds
+      0-59: pessimistic prior mean 16.4-18.3, GLS mean 16.9, length-scale prior 17.9,
+      trust-region steps 19.0, ``metric_optimize_every=2`` 17.2-17.4.
+    * With the true settling time in place of its GP (an oracle, 20 seeds) the same BO needs
+      7.7: the settling-time jump is what the remaining experiments are spent on.
 
     Extension points for guided BO: :meth:`add_data` / :meth:`remove_data` /
     :meth:`extra_data` put twin evaluations in the GP's training set and take
@@ -175,7 +180,8 @@ class BayesianOptimization(Tuner):
                  local_points: int = 41, output_transform: str = "none",
                  length_scale_prior: tuple[float, float] | None = None,
                  noise_prior: tuple[float, float] | None = None, min_fit_points: int = 5,
-                 prior_mean: str = "sample", model: str = "cost", log_metrics: tuple[str, ...] = (),
+                 prior_mean: str = "sample", model: str = "metrics",
+                 log_metrics: tuple[str, ...] = ("settling_time", "rise_time", "itae"),
                  metric_optimize_every: int = 1) -> None:
         if model not in MODELS:
             raise ValueError(f"model: must be one of {MODELS}, got {model!r}")
@@ -287,9 +293,10 @@ class BayesianOptimization(Tuner):
         if n < self.n_initial:
             self.last_ei_ = self.last_std_ = self.last_mean_ = float("nan")
             return self.space.from_unit(self._initial[n])
-        gains, ei, std = self.propose()
+        with single_threaded_blas():  # small matrices: BLAS threads would only contend (and spin)
+            gains, ei, std = self.propose()
+            self.last_mean_ = float(self.posterior(gains[None, :])[0][0])
         self.last_ei_, self.last_std_ = ei, std
-        self.last_mean_ = float(self.posterior(gains[None, :])[0][0])
         return gains
 
     def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:

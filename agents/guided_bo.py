@@ -141,7 +141,9 @@ class GuidedBO(BayesianOptimization):
         iteration (when ``twin_hyperparameters="refit"``).
     **bo_kwargs
         Passed to :class:`~agents.bo.BayesianOptimization` (``n_initial``,
-        ``grid_points``, ``polish``, ``incumbent``, ...).
+        ``grid_points``, ``polish``, ``incumbent``, ...). ``model`` defaults to ``"cost"``
+        here (one GP on the cost, as in the paper's Algorithm 1), not to the metrics model of
+        plain BO.
 
     Attributes
     ----------
@@ -165,7 +167,8 @@ class GuidedBO(BayesianOptimization):
                  twin_incumbent: str | None = "posterior_mean", twin_polish: bool | None = True,
                  twin_refit_every: int = 5,
                  **bo_kwargs) -> None:
-        super().__init__(noise_std=noise_std, **bo_kwargs)
+        # one GP on the cost: the twin's points enter D as costs (Algorithm 1, line D_in_DT)
+        super().__init__(noise_std=noise_std, **{"model": "cost", **bo_kwargs})
         for name, value in (("eta1", eta1), ("eta3", eta3), ("delta", delta)):
             if not (value >= 0):
                 raise ValueError(f"{name}: must be >= 0, got {value}")

@@ -2,8 +2,10 @@
 
 The tuner is fed 50 experiments on DCMotor-v0 (random gains, measured costs),
 then ``ask()`` is timed ``--repeats`` times, each after telling one more
-experiment (so every timed ask refits the GP, as in a tuning run: warm-started
-hyperparameters, then EI on the precomputed 100 x 100 unit grid). Wall time
+experiment (so every timed ask refits the GPs, as in a tuning run: warm-started
+hyperparameters, then EI on the precomputed 100 x 100 unit grid). The default
+tuner models the four metrics (four GPs); ``--bo-kwargs '{"model": "cost"}'``
+times the single cost GP. Wall time
 is the figure of merit; ``median_cpu_ms`` (process CPU time) is reported too,
 because on a shared machine wall time also counts other processes.
 

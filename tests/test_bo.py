@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.stats import norm
+from sklearn.gaussian_process import GaussianProcessRegressor
 
 import agents
 from agents.acquisition import (
@@ -55,7 +56,9 @@ def test_surrogate_matches_sklearn_posterior_and_uses_a_constant_mean():
     assert gp.y_mean_ == pytest.approx(y.mean()) and gp.y_scale_ == pytest.approx(y.std())
     grid = rng.uniform(size=(50, 2))
     mean, std = gp.predict(grid)
-    ref_mean, ref_std = gp.gp_.predict(grid, return_std=True)
+    y_std = (y - gp.y_mean_) / gp.y_scale_
+    reference = GaussianProcessRegressor(gp.kernel_, alpha=1e-8, optimizer=None).fit(X, y_std)
+    ref_mean, ref_std = reference.predict(grid, return_std=True)
     white = gp.kernel_.k2.noise_level
     np.testing.assert_allclose(mean, gp.y_mean_ + gp.y_scale_ * ref_mean, rtol=1e-9)
     np.testing.assert_allclose(std, gp.y_scale_ * np.sqrt(np.maximum(ref_std**2 - white, 1e-18)), rtol=1e-6)
@@ -199,11 +202,27 @@ def test_fast_log_marginal_likelihood_equals_sklearn():
     gp = GPSurrogate(min_fit_points=1).fit(X, y, seed=0)
     y_std = (y - gp.y_mean_) / gp.y_scale_
     pairwise = (X[:, None, :] - X[None, :, :]) ** 2
+    reference = GaussianProcessRegressor(gp.kernel_, alpha=1e-8, optimizer=None).fit(X, y_std)
     for theta in (gp.kernel_.theta, gp.kernel_.theta + 0.3, np.log([2.0, 0.1, 0.4, 0.01])):
-        ref, ref_grad = gp.gp_.log_marginal_likelihood(theta, eval_gradient=True)
+        ref, ref_grad = reference.log_marginal_likelihood(theta, eval_gradient=True)
         value, grad = _neg_log_marginal_likelihood(theta, pairwise, y_std, 1e-8, True)
         assert -value == pytest.approx(ref, rel=1e-9)
         np.testing.assert_allclose(-grad, ref_grad, rtol=1e-7, atol=1e-9)
+
+
+def test_likelihood_maximisation_is_as_good_as_sklearns():
+    # the multi-start L-BFGS-B of GPSurrogate reaches the log marginal likelihood that
+    # scikit-learn's own GaussianProcessRegressor.fit reaches from the same starts
+    rng = np.random.default_rng(3)
+    X = rng.uniform(size=(30, 2))
+    y = np.sin(6 * X[:, 0]) * np.cos(3 * X[:, 1]) + 0.05 * rng.standard_normal(30)
+    gp = GPSurrogate(min_fit_points=1, n_restarts=3, warm_start=False).fit(X, y, seed=7)
+    y_std = (y - gp.y_mean_) / gp.y_scale_
+    reference = GaussianProcessRegressor(gp._prior_kernel(2), alpha=1e-8, n_restarts_optimizer=3,
+                                         random_state=np.random.RandomState(7)).fit(X, y_std)
+    ours = reference.log_marginal_likelihood(gp.kernel_.theta)
+    assert ours >= reference.log_marginal_likelihood_value_ - 1e-6
+    np.testing.assert_allclose(gp.kernel_.theta, reference.kernel_.theta, atol=1e-3)
 
 
 @pytest.mark.parametrize("kind", ["none", "log", "rank"])
@@ -398,6 +417,37 @@ def test_metrics_mode_proposes_in_bounds_and_is_deterministic_per_seed():
     for gains in runs[0][:3]:
         other.tell(gains, _cost(_metrics(gains)), {"metrics": _metrics(gains)})
     assert other.propose()[0].shape == (2,)
+
+
+def test_default_bo_models_the_metrics_of_the_dc_motor_with_logs():
+    import gymnasium as gym
+
+    import gbo_envs  # noqa: F401  (registers the envs)
+    from agents.metric_surrogate import CompositeSurrogate
+
+    bo = agents.BayesianOptimization(grid_points=20)
+    result = bo.run(gym.make("gbo_envs/DCMotor-v0"), budget=7, seed=0)
+    assert bo.model_in_use == "metrics" and isinstance(bo.fit_surrogate(), CompositeSurrogate)
+    assert bo.metric_surrogate.log_metrics == (1, 2, 3)  # settling time, rise time, ITAE
+    assert result.info["model"] == "metrics"
+    # guided BO keeps one GP on the cost, into which its twin costs go
+    assert agents.GuidedBO().model == "cost"
+
+
+def test_blockwise_prediction_equals_sklearn_on_a_large_grid():
+    rng = np.random.default_rng(4)
+    X = rng.uniform(size=(40, 2))
+    y = np.cos(5 * X[:, 0]) + X[:, 1] ** 2
+    gp = GPSurrogate(min_fit_points=1).fit(X, y, seed=0)
+    grid = rng.uniform(size=(2500, 2))  # several blocks and a partial one
+    y_std = (y - gp.y_mean_) / gp.y_scale_
+    reference = GaussianProcessRegressor(gp.kernel_, alpha=1e-8, optimizer=None).fit(X, y_std)
+    ref_mean, ref_std = reference.predict(grid, return_std=True)
+    mean, std = gp.predict(grid)
+    np.testing.assert_allclose(mean, gp.y_mean_ + gp.y_scale_ * ref_mean, rtol=1e-9, atol=1e-12)
+    white = gp.kernel_.k2.noise_level
+    np.testing.assert_allclose(std, gp.y_scale_ * np.sqrt(np.maximum(ref_std**2 - white, 1e-18)), rtol=1e-5,
+                               atol=1e-9)
 
 
 def test_metrics_mode_falls_back_to_the_cost_gp_without_metrics():
