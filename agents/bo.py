@@ -18,12 +18,16 @@ from agents.acquisition import ExpectedImprovement, maximize_on_grid
 from agents.base import Tuner
 from agents.metric_surrogate import CompositeSurrogate, MetricSurrogate
 from agents.result import METRIC_COLUMNS
+from agents.settling import SettlingTimeModel, error_envelope
 from agents.surrogate import OUTPUT_TRANSFORMS, PRIOR_MEANS, GPSurrogate, single_threaded_blas
 
-__all__ = ["BayesianOptimization", "INCUMBENTS", "MODELS"]
+__all__ = ["BayesianOptimization", "INCUMBENTS", "MODELS", "SETTLING_MODELS"]
 
 #: What the GP models: the cost ``J`` (one GP) or every performance metric (one GP each).
 MODELS = ("cost", "metrics")
+
+#: How ``model="metrics"`` models the settling time: by a GP of its own, or from the error envelope.
+SETTLING_MODELS = ("gp", "envelope")
 
 #: Choices of the incumbent ``J+`` of EI.
 INCUMBENTS = ("observed", "posterior_mean")
@@ -130,6 +134,16 @@ class BayesianOptimization(Tuner):
         the valley; rise time and ITAE grow like ``1 / gain`` towards small gains, which a
         GP extrapolates better in logs. Overshoot is not logged: it is 0 on a large region,
         and its log makes that flat region dominate the fit (see Notes).
+    settling_model : {"gp", "envelope"}, default "gp"
+        With ``model="metrics"``: how the settling time is modelled. ``"gp"``: a GP of its own,
+        like the other metrics. ``"envelope"``: from GPs on the error envelope of the response
+        (:mod:`agents.settling`: the settling time as a composite of smooth functions, which
+        keeps its jump where the response touches the 2 % band); needs the env's step
+        (``env.unwrapped.loop.r1``, ``.r2``, ``.duration``) and the records' ``t`` and ``y``,
+        else the GP is used. It needs fewer experiments but makes ``ask()`` slower (see Notes).
+    settling_times : int, default 100
+        With ``settling_model="envelope"``: the times, evenly spaced over the record, at which
+        the envelope is modelled (the settling time's resolution is the record length over this).
     metric_optimize_every : int, default 1
         With ``model="metrics"``: the metric GPs' hyperparameters are fitted on every
         ``metric_optimize_every``-th fit only (conditioned with the previous ones in between),
@@ -162,6 +176,12 @@ class BayesianOptimization(Tuner):
       trust-region steps 19.0, ``metric_optimize_every=2`` 17.2-17.4.
     * With the true settling time in place of its GP (an oracle, 20 seeds) the same BO needs
       7.7: the settling-time jump is what the remaining experiments are spent on.
+    * ``settling_model="envelope"`` (the settling time from GPs on the error envelope,
+      100 times): **14.7** on seeds 0-59 and 15.0 on seeds 60-179 (to 1.05: 18.2 and 18.1),
+      but ``ask()`` with 50 observations takes about 60 ms instead of 40 (its distribution
+      is evaluated at 100 times for every grid point), over the 50 ms budget, so it is an
+      option, not the default. With 30 or 50 times it needed 16.8 and 17.8 (seeds 0-59),
+      with ``metric_optimize_every=2`` 15.7.
 
     Extension points for guided BO: :meth:`add_data` / :meth:`remove_data` /
     :meth:`extra_data` put twin evaluations in the GP's training set and take
@@ -182,12 +202,17 @@ class BayesianOptimization(Tuner):
                  noise_prior: tuple[float, float] | None = None, min_fit_points: int = 5,
                  prior_mean: str = "sample", model: str = "metrics",
                  log_metrics: tuple[str, ...] = ("settling_time", "rise_time", "itae"),
-                 metric_optimize_every: int = 1) -> None:
+                 metric_optimize_every: int = 1, settling_model: str = "gp",
+                 settling_times: int = 100) -> None:
         if model not in MODELS:
             raise ValueError(f"model: must be one of {MODELS}, got {model!r}")
         unknown = [name for name in log_metrics if name not in METRIC_COLUMNS]
         if unknown:
             raise ValueError(f"log_metrics: unknown metrics {unknown}; choose from {METRIC_COLUMNS}")
+        if settling_model not in SETTLING_MODELS:
+            raise ValueError(f"settling_model: must be one of {SETTLING_MODELS}, got {settling_model!r}")
+        if int(settling_times) < 2:
+            raise ValueError(f"settling_times: must be >= 2, got {settling_times}")
         if int(n_initial) < 1:
             raise ValueError(f"n_initial: must be >= 1, got {n_initial}")
         if int(grid_points) < 2:
@@ -233,6 +258,8 @@ class BayesianOptimization(Tuner):
         self.model = model
         self.log_metrics = tuple(log_metrics)
         self.metric_optimize_every = max(1, int(metric_optimize_every))
+        self.settling_model = settling_model
+        self.settling_times = int(settling_times)
         self._params = {"n_initial": self.n_initial, "grid_points": self.grid_points, "polish": self.polish,
                         "incumbent": incumbent, "xi": self.xi, "noise_std": noise_std,
                         "n_restarts": self.n_restarts, "length_scale_bounds": self.length_scale_bounds,
@@ -242,7 +269,8 @@ class BayesianOptimization(Tuner):
                         "output_transform": output_transform, "length_scale_prior": self.length_scale_prior,
                         "noise_prior": self.noise_prior, "min_fit_points": self.min_fit_points,
                         "prior_mean": prior_mean, "model": model, "log_metrics": self.log_metrics,
-                        "metric_optimize_every": self.metric_optimize_every}
+                        "metric_optimize_every": self.metric_optimize_every,
+                        "settling_model": settling_model, "settling_times": self.settling_times}
 
     # -- Tuner hooks ---------------------------------------------------------------------------------
     def _setup(self) -> None:
@@ -274,11 +302,14 @@ class BayesianOptimization(Tuner):
                     noise_bounds=self.noise_bounds, warm_start=self.warm_start,
                     restart_every=self.restart_every, length_scale_prior=self.length_scale_prior,
                     noise_prior=self.noise_prior, min_fit_points=self.min_fit_points,
-                    prior_mean=self.prior_mean, optimize_every=self.metric_optimize_every)
+                    prior_mean=self.prior_mean, optimize_every=self.metric_optimize_every,
+                    settling=self._settling_model(env, normalizers[METRIC_COLUMNS.index("settling_time")]),
+                    settling_index=METRIC_COLUMNS.index("settling_time"))
         self._model_in_use = "cost"
         self._plant_X: list[np.ndarray] = []  # unit box
         self._plant_y: list[float] = []
         self._plant_F: list[np.ndarray | None] = []  # raw metrics f_i (None: not measured / unusable)
+        self._plant_E: list[np.ndarray | None] = []  # error envelopes at the settling model's times
         self._extra_X: list[np.ndarray] = []
         self._extra_y: list[float] = []
         self._extra_F: list[np.ndarray | None] = []
@@ -304,6 +335,7 @@ class BayesianOptimization(Tuner):
         self._plant_X.append(self.space.to_unit(gains))
         self._plant_y.append(cost)
         self._plant_F.append(_record_metrics(record))
+        self._plant_E.append(self._record_envelope(record))
         self._version += 1
 
     def run_summary(self) -> dict[str, Any]:
@@ -354,6 +386,38 @@ class BayesianOptimization(Tuner):
         X, y = self.training_set()
         return X, np.vstack(features), y
 
+    def envelope_training_set(self) -> np.ndarray | None:
+        """Error envelopes (n, k) of the plant experiments for the settling-time model, or ``None``.
+
+        ``None`` (the settling time then gets a GP like the other metrics) unless
+        ``settling_model="envelope"`` applies to the env and every training point is a plant
+        experiment whose record has its ``t`` and ``y`` trajectories.
+        """
+        if self._extra_X or not self._plant_E or any(e is None for e in self._plant_E):
+            return None
+        return np.vstack(self._plant_E)
+
+    def _settling_model(self, env, normalizer: float) -> SettlingTimeModel | None:
+        """The envelope model of the settling time, if asked for and the env says where the step is."""
+        loop = getattr(env, "loop", None)
+        if self.settling_model != "envelope" or not all(hasattr(loop, a) for a in ("r1", "r2", "duration")):
+            return None
+        self._step = (float(loop.r1), float(loop.r2))
+        times = np.linspace(loop.duration / self.settling_times, loop.duration, self.settling_times)
+        return SettlingTimeModel(times, normalizer=normalizer, n_restarts=self.n_restarts,
+                                 length_scale_bounds=self.length_scale_bounds, noise_bounds=self.noise_bounds,
+                                 warm_start=self.warm_start, restart_every=self.restart_every,
+                                 min_fit_points=self.min_fit_points)
+
+    def _record_envelope(self, record: dict | None) -> np.ndarray | None:
+        """:func:`agents.settling.error_envelope` of a record, or None (no settling model, no trajectories)."""
+        settling = None if self.metric_surrogate is None else self.metric_surrogate.settling
+        if settling is None or not record or record.get("unstable", False) or "t" not in record \
+                or "y" not in record:
+            return None
+        envelope = error_envelope(record["t"], record["y"], *self._step, settling.times)
+        return envelope if np.all(np.isfinite(envelope)) else None
+
     @property
     def model_in_use(self) -> str:
         """``"metrics"`` or ``"cost"``: the model of the last :meth:`fit_surrogate`."""
@@ -375,7 +439,8 @@ class BayesianOptimization(Tuner):
             data = self.metric_training_set()
             if data is not None:
                 self._model = self.metric_surrogate.fit(data[0], data[1], data[2], seed=seed,
-                                                        optimize=self._optimize_hyperparameters)
+                                                        optimize=self._optimize_hyperparameters,
+                                                        envelopes=self.envelope_training_set())
                 self._model_in_use = "metrics"
             else:
                 self._model = self.surrogate.fit(X, y, seed=seed, optimize=self._optimize_hyperparameters)

@@ -38,7 +38,7 @@ import numpy as np
 
 from agents.surrogate import GPSurrogate, OutputTransform
 
-__all__ = ["CompositeSurrogate", "MetricSurrogate"]
+__all__ = ["CompositeSurrogate", "GPDerivedMetric", "MetricSurrogate"]
 
 
 class CompositeSurrogate:
@@ -109,6 +109,12 @@ class MetricSurrogate:
     log_metrics : sequence of int, default ()
         Indices of metrics modelled as ``log(f_i / n_i + 1e-3)``; the combination then
         uses the log-normal mean and variance of each (see :class:`_LogNormal`).
+    settling : agents.settling.SettlingTimeModel, optional
+        Model of the metric ``settling_index`` from the error envelopes (see
+        :mod:`agents.settling`), used instead of a GP on that metric whenever :meth:`fit`
+        gets ``envelopes``.
+    settling_index : int, default 1
+        Which metric ``settling`` models (the settling time in :data:`agents.result.METRIC_COLUMNS`).
     optimize_every : int, default 1
         Fit the metric GPs' hyperparameters (log marginal likelihood) only on every
         ``optimize_every``-th call of :meth:`fit` (and the first ones below ``min_fit_points``);
@@ -123,7 +129,8 @@ class MetricSurrogate:
         One per metric; warm-started from their own previous fits.
     """
 
-    def __init__(self, weights, normalizers, log_metrics=(), optimize_every: int = 1, **gp_kwargs) -> None:
+    def __init__(self, weights, normalizers, log_metrics=(), optimize_every: int = 1, settling=None,
+                 settling_index: int = 1, **gp_kwargs) -> None:
         self.weights = np.asarray(weights, dtype=float).ravel()
         self.normalizers = np.asarray(normalizers, dtype=float).ravel()
         if self.weights.shape != self.normalizers.shape or np.any(self.normalizers <= 0):
@@ -132,13 +139,15 @@ class MetricSurrogate:
         self.optimize_every = max(1, int(optimize_every))
         self._n_fits = 0
         self.models = [GPSurrogate(**gp_kwargs) for _ in self.weights]
+        self.settling = settling
+        self.settling_index = int(settling_index)
 
     def reconstruct(self, metrics: np.ndarray) -> np.ndarray:
         """``sum_i w_i f_i / n_i`` for metrics of shape (n, n_metrics): ``J_hat`` of the measured metrics."""
         return np.asarray(metrics, dtype=float) @ (self.weights / self.normalizers)
 
     def fit(self, X: np.ndarray, metrics: np.ndarray, costs: np.ndarray | None = None,
-            seed: int | None = None, optimize: bool = True) -> CompositeSurrogate:
+            seed: int | None = None, optimize: bool = True, envelopes: np.ndarray | None = None) -> CompositeSurrogate:
         """Fit every metric GP on ``(X, f_i / n_i)`` and return their combination.
 
         Parameters
@@ -153,6 +162,9 @@ class MetricSurrogate:
             Seeds the metric GPs' restarts (metric ``i`` gets ``seed + i``).
         optimize : bool, default True
             ``False`` keeps every GP's hyperparameters (see :meth:`GPSurrogate.fit`).
+        envelopes : ndarray of shape (n, k), optional
+            Error envelopes of the responses (:func:`agents.settling.error_envelope`); with a
+            ``settling`` model, the settling time is modelled from them instead of by a GP.
         """
         metrics = np.atleast_2d(np.asarray(metrics, dtype=float))
         if metrics.shape != (np.shape(X)[0], self.weights.size) or not np.all(np.isfinite(metrics)):
@@ -163,6 +175,10 @@ class MetricSurrogate:
             self._n_fits += 1
         models = []
         for i, model in enumerate(self.models):
+            if i == self.settling_index and self.settling is not None and envelopes is not None:
+                seed_i = None if seed is None else int(seed) + i
+                models.append(self.settling.fit(X, envelopes, seed=seed_i, optimize=optimize))
+                continue
             target = np.log(scaled[:, i] + _LOG_OFFSET) if i in self.log_metrics else scaled[:, i]
             model.fit(X, target, seed=None if seed is None else int(seed) + i, optimize=optimize)
             models.append(_LogNormal(model) if i in self.log_metrics else model)
@@ -176,22 +192,34 @@ class MetricSurrogate:
 _LOG_OFFSET = 1e-3
 
 
-class _LogNormal:
-    """A GP on ``z = log(g + c)`` seen as a model of ``g``: log-normal mean and std, minus ``c``."""
+class GPDerivedMetric:
+    """Base of metric models computed from a GP (attribute ``gp``) rather than being one.
 
-    def __init__(self, model: GPSurrogate) -> None:
-        self.model = model
+    Such a model has no noise of its own (its GP's noise is part of what it computes) and
+    reports its GP's length scales.
+    """
 
-    def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        mu, sigma = self.model.predict(X)
-        var = sigma**2
-        mean = np.exp(mu + 0.5 * var)
-        return mean - _LOG_OFFSET, mean * np.sqrt(np.expm1(var))
+    gp: GPSurrogate
 
     @property
     def noise_std_(self) -> float:
+        """0: the GP's learned noise is not noise of the metric."""
         return 0.0
 
     @property
     def length_scales_(self) -> np.ndarray:
-        return self.model.length_scales_
+        """The GP's ARD length scales, shape (d,)."""
+        return self.gp.length_scales_
+
+
+class _LogNormal(GPDerivedMetric):
+    """A GP on ``z = log(g + c)`` seen as a model of ``g``: log-normal mean and std, minus ``c``."""
+
+    def __init__(self, model: GPSurrogate) -> None:
+        self.gp = model
+
+    def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        mu, sigma = self.gp.predict(X)
+        var = sigma**2
+        mean = np.exp(mu + 0.5 * var)
+        return mean - _LOG_OFFSET, mean * np.sqrt(np.expm1(var))

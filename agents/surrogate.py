@@ -248,8 +248,12 @@ class GPSurrogate:
         Parameters
         ----------
         X : ndarray of shape (n, d)
-        y : ndarray of shape (n,)
-            Costs ``J`` (cost units), finite.
+        y : ndarray of shape (n,) or (n, k)
+            Costs ``J`` (cost units), finite. A 2-D ``y`` fits ``k`` outputs with one shared
+            kernel (the same correlation, each output standardised on its own; the likelihood
+            is the sum over the outputs); it needs ``output_transform="none"``,
+            ``prior_mean="sample"`` and a learned noise, and :meth:`predict` then returns
+            arrays of shape (m, k).
         seed : int, optional
             Seeds the random restarts of the likelihood optimiser.
         optimize : bool, default True
@@ -263,7 +267,10 @@ class GPSurrogate:
             ``self``.
         """
         X = np.atleast_2d(np.asarray(X, dtype=float))
-        y = np.asarray(y, dtype=float).ravel()
+        y = np.asarray(y, dtype=float)
+        if y.ndim == 2:
+            return self._fit_outputs(X, y, seed, optimize)
+        y = y.ravel()
         if X.shape[0] != y.shape[0] or X.shape[0] == 0:
             raise ValueError(f"X, y: need the same number (>= 1) of rows, got {X.shape} and {y.shape}")
         if not (np.all(np.isfinite(X)) and np.all(np.isfinite(y))):
@@ -278,6 +285,25 @@ class GPSurrogate:
         # Fixed noise: sigma_eps^2 I of eq. (gpr_mio1), in standardised units; else a small jitter.
         noise = None if self.noise_std is None else self.noise_std * self.transform_.slope_
         alpha = 1e-8 if noise is None else max((noise / self.y_scale_) ** 2, 1e-8)
+        return self._fit_standardised(X, y, y_std, alpha, seed, optimize)
+
+    def _fit_outputs(self, X: np.ndarray, y: np.ndarray, seed: int | None, optimize: bool) -> GPSurrogate:
+        """:meth:`fit` of several outputs, ``y`` of shape (n, k), with one shared kernel."""
+        if X.shape[0] != y.shape[0] or X.shape[0] == 0 or y.shape[1] == 0:
+            raise ValueError(f"X, y: need the same number (>= 1) of rows, got {X.shape} and {y.shape}")
+        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(y))):
+            raise ValueError("X, y: must be finite")
+        if self.output_transform != "none" or self.prior_mean != "sample" or self.noise_std is not None:
+            raise ValueError("y: several outputs (2-D y) need output_transform='none', prior_mean='sample' "
+                             "and noise_std=None")
+        self.transform_ = OutputTransform("none", y[:, 0])
+        self.y_mean_ = y.mean(axis=0)
+        scale = y.std(axis=0) if y.shape[0] > 1 else np.zeros(y.shape[1])
+        self.y_scale_ = np.where(scale > 1e-12, scale, 1.0)
+        return self._fit_standardised(X, y, (y - self.y_mean_) / self.y_scale_, 1e-8, seed, optimize)
+
+    def _fit_standardised(self, X: np.ndarray, y: np.ndarray, y_std: np.ndarray, alpha: float,
+                          seed: int | None, optimize: bool) -> GPSurrogate:
         few = X.shape[0] < self.min_fit_points
         kernel = self._prior_kernel(X.shape[1]) if few else self._initial_kernel(X.shape[1])
         warm = kernel is self._previous_kernel
@@ -404,21 +430,31 @@ class GPSurrogate:
             white noise is excluded), in transformed-cost units ``z = T(J)``
             (cost units when ``output_transform="none"``).
         """
+        mean, std = self.predict_standardised(X)
+        if mean.ndim == 2:  # several outputs: one correlation, each output's own scale
+            std = std[:, None]
+        return self.y_mean_ + self.y_scale_ * mean, self.y_scale_ * std
+
+    def predict_standardised(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior of the standardised outputs ``(z - y_mean_) / y_scale_`` at unit-box inputs (m, d).
+
+        Returns the mean, of shape (m,) or (m, k) for a GP fitted on a 2-D ``y``, and the std of
+        shape (m,), shared by the outputs (one kernel); the white noise is excluded.
+        """
         if not hasattr(self, "gp_"):
             raise RuntimeError("GPSurrogate: call fit(X, y) first")
         X = np.atleast_2d(np.asarray(X, dtype=float))
         with single_threaded_blas():
-            return self._predict(X)
+            return self._predict_standardised(X)
 
-    def _predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _predict_standardised(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         # Blocks of _PREDICT_BLOCK rows keep the (rows, n) work arrays in cache and reuse their memory.
-        mean, var = np.empty(X.shape[0]), np.empty(X.shape[0])
+        mean, var = np.empty((X.shape[0],) + self._scaled_alpha.shape[1:]), np.empty(X.shape[0])
         scaled = X * self._input_scale
         for start in range(0, X.shape[0], _PREDICT_BLOCK):
             rows = slice(start, start + _PREDICT_BLOCK)
             mean[rows], var[rows] = self._predict_block(scaled[rows])
-        std = np.sqrt(np.maximum(var, 1e-18))
-        return self.y_mean_ + self.y_scale_ * mean, self.y_scale_ * std
+        return mean, np.sqrt(np.maximum(var, 1e-18))
 
     def _predict_block(self, scaled: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         # k_n(theta) of eq. (gpr_mio1): Matern 5/2, k = s^2 (1 + r + r^2 / 3) exp(-r), r = sqrt5 |x - x'|_l
@@ -490,7 +526,8 @@ def _neg_log_marginal_likelihood(theta: np.ndarray, pairwise: np.ndarray, y: np.
 
     ``log p = -1/2 y^T K^-1 y - 1/2 log|K| - n/2 log(2 pi)``; ``d log p / d theta_i
     = 1/2 tr((a a^T - K^-1) dK/d theta_i)`` with ``a = K^-1 y`` (Rasmussen & Williams, eq. 5.9).
-    ``theta = log([s^2, l_1, ..., l_d, sigma_n^2])`` (the last entry only if ``white``).
+    ``theta = log([s^2, l_1, ..., l_d, sigma_n^2])`` (the last entry only if ``white``). For ``y`` of
+    shape (n, k) (k outputs, one kernel): the sum of the k log likelihoods, ``inner = A A^T - k K^-1``.
     """
     n, _, dim = pairwise.shape
     amplitude = np.exp(theta[0])
@@ -510,8 +547,13 @@ def _neg_log_marginal_likelihood(theta: np.ndarray, pairwise: np.ndarray, y: np.
         row = K_inv.sum(axis=0)
         y = y - float(row @ y / row.sum())
     a = K_inv @ y
-    lml = -0.5 * y @ a - np.log(np.diag(factor[0])).sum() - 0.5 * n * np.log(2.0 * np.pi)
-    inner = np.outer(a, a) - K_inv
+    if y.ndim == 1:
+        lml = -0.5 * y @ a - np.log(np.diag(factor[0])).sum() - 0.5 * n * np.log(2.0 * np.pi)
+        inner = np.outer(a, a) - K_inv
+    else:  # k outputs sharing the kernel: the sum of their log likelihoods
+        outputs = y.shape[1]
+        lml = -0.5 * np.sum(y * a) - outputs * (np.log(np.diag(factor[0])).sum() + 0.5 * n * np.log(2.0 * np.pi))
+        inner = a @ a.T - outputs * K_inv
     grad = np.empty_like(theta)
     grad[0] = 0.5 * np.sum(inner * (amplitude * matern))  # dK/d log s^2 = s^2 M
     # dM/d log l_j = 5/3 (1 + sqrt5 r) exp(-sqrt5 r) d_j^2 / l_j^2
