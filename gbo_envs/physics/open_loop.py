@@ -204,6 +204,48 @@ def _rest(continuous: list[ContinuousPlant], discrete: list[DiscretePlant], y_tr
     return x, v_rest, speed
 
 
+@dataclass(frozen=True, eq=False)
+class _Rest:
+    """Rows sorted by :func:`_sorted_rows` (``inverse`` undoes it), their block stages and rest state."""
+
+    continuous: list
+    discrete: list
+    groups: list
+    inverse: np.ndarray
+    bias: np.ndarray
+    y_true0: np.ndarray  # true rest output (sensors inverted)
+    x0: np.ndarray  # plant state at rest, (batch, order)
+    v_rest: np.ndarray  # plant input at rest
+    u_rest: np.ndarray  # command that holds the rest (actuators inverted)
+    u_delayed: np.ndarray  # u[k - d] with u_rest before the record, (batch, n)
+
+
+def _prepare_rest(continuous, discrete, chains, u, y0, bias, dt: float, column: bool) -> _Rest:
+    """Sort the rows, then go from the measured ``y0`` to the rest state and the delayed commands.
+
+    Measured ``y0`` -> true output (sensors inverted) -> plant equilibrium -> holding
+    command (actuators inverted). ``column``: the blocks take column parameters (the
+    direct path) rather than one value per row (the stepping path).
+    """
+    perm, inverse = _sorted_rows(chains)
+    continuous, discrete, chains = [continuous[r] for r in perm], [discrete[r] for r in perm], [chains[r] for r in perm]
+    u, y0, bias = u[perm], y0[perm], bias[perm]
+    groups = _groups(chains, column=column)
+    y_true0 = y0.copy()
+    for sl, sensors, _ in groups:
+        for stage in reversed(sensors):
+            for block, part in stage.parts:
+                idx = _global(sl, part)
+                y_true0[idx] = _flat(block.level_for, y_true0[idx]) if column else block.level_for(y_true0[idx])
+    x0, v_rest, speed0 = _rest(continuous, discrete, y_true0)
+    u_rest = _holding_command(groups, v_rest - bias, speed0, dt, column)
+    lags = np.array([d.delay_steps for d in discrete])
+    k = np.arange(u.shape[1])[None, :] - lags[:, None]
+    u_delayed = np.where(k >= 0, np.take_along_axis(u, np.maximum(k, 0), axis=1), u_rest[:, None])
+    return _Rest(continuous=continuous, discrete=discrete, groups=groups, inverse=inverse, bias=bias,
+                 y_true0=y_true0, x0=x0, v_rest=v_rest, u_rest=u_rest, u_delayed=u_delayed)
+
+
 def _direct(continuous, discrete, chains, u, y0, bias) -> OpenLoopResult:
     """Rows whose blocks are static maps: ``y = S(y_rest + P(z) (A(u_delayed) + bias - v_rest))``.
 
@@ -213,21 +255,9 @@ def _direct(continuous, discrete, chains, u, y0, bias) -> OpenLoopResult:
     from rest with ``scipy.signal.lfilter``.
     """
     batch, n = u.shape
-    perm, inverse = _sorted_rows(chains)
-    continuous, discrete, chains = [continuous[r] for r in perm], [discrete[r] for r in perm], [chains[r] for r in perm]
-    u, y0, bias = u[perm], y0[perm], bias[perm]
-    groups = _groups(chains, column=True)
-    y_true0 = y0.copy()
-    for sl, sensors, _ in groups:
-        for stage in reversed(sensors):
-            for block, part in stage.parts:
-                idx = _global(sl, part)
-                y_true0[idx] = _flat(block.level_for, y_true0[idx])
-    x0, v_rest, speed0 = _rest(continuous, discrete, y_true0)
-    u_rest = _holding_command(groups, v_rest - bias, speed0, 1.0, True)
-    lags = np.array([d.delay_steps for d in discrete])
-    k = np.arange(n)[None, :] - lags[:, None]
-    v = np.where(k >= 0, np.take_along_axis(u, np.maximum(k, 0), axis=1), u_rest[:, None])
+    rest = _prepare_rest(continuous, discrete, chains, u, y0, bias, 1.0, column=True)
+    discrete, groups, bias, v_rest, inverse = rest.discrete, rest.groups, rest.bias, rest.v_rest, rest.inverse
+    v = rest.u_delayed
     for sl, _, actuators in groups:
         for stage in actuators:
             for block, part in stage.parts:
@@ -240,16 +270,16 @@ def _direct(continuous, discrete, chains, u, y0, bias) -> OpenLoopResult:
         key = id(discrete[row])
         if key not in tf_cache:
             num, den = discrete[row].transfer_function()
-            tf_cache[key] = (num[lags[row]:], den)  # the whole-sample delay is already in v
+            tf_cache[key] = (num[discrete[row].delay_steps:], den)  # the whole-sample delay is already in v
         num, den = tf_cache[key]
-        y_true[row] = y_true0[row] + lfilter(num, den, v[row] - v_rest[row])
+        y_true[row] = rest.y_true0[row] + lfilter(num, den, v[row] - v_rest[row])
     y = y_true.copy()
     for sl, sensors, _ in groups:
         for stage in sensors:
             for block, part in stage.parts:
                 idx = _global(sl, part)
                 y[idx] = block.measure(y[idx])
-    return OpenLoopResult(y=y[inverse], y_true=y_true[inverse], v=v[inverse], u_rest=u_rest[inverse],
+    return OpenLoopResult(y=y[inverse], y_true=y_true[inverse], v=v[inverse], u_rest=rest.u_rest[inverse],
                           v_rest=v_rest[inverse])
 
 
@@ -378,26 +408,10 @@ def _stepping(continuous, discrete, chains, u, dt, y0, bias) -> OpenLoopResult:
     order = discrete[0].order
     if any(d.order != order for d in discrete):
         raise ValueError("plant: every row must have the same number of poles")
-    perm, inverse = _sorted_rows(chains)
-    continuous, discrete, chains = [continuous[r] for r in perm], [discrete[r] for r in perm], [chains[r] for r in perm]
-    u, y0, bias = u[perm], y0[perm], bias[perm]
-    groups = _groups(chains, column=False)
-
-    # rest: measured y0 -> true output (sensors inverted) -> equilibrium -> holding command
-    y_true0 = y0.copy()
-    for sl, sensors, _ in groups:
-        for stage in reversed(sensors):
-            for block, part in stage.parts:
-                idx = _global(sl, part)
-                y_true0[idx] = block.level_for(y_true0[idx])
-    x, v_rest, speed0 = _rest(continuous, discrete, y_true0)
-    u_rest = _holding_command(groups, v_rest - bias, speed0, dt, False)
-
-    # delayed commands: u[k - d] with the rest command before the record
-    lags = np.array([d.delay_steps for d in discrete])
-    k = np.arange(n)[None, :] - lags[:, None]
-    u_delayed = np.where(k >= 0, np.take_along_axis(u, np.maximum(k, 0), axis=1), u_rest[:, None])
-    u_delayed = np.ascontiguousarray(u_delayed.T)  # (n, batch)
+    rest = _prepare_rest(continuous, discrete, chains, u, y0, bias, dt, column=False)
+    continuous, discrete, groups, bias = rest.continuous, rest.discrete, rest.groups, rest.bias
+    x, v_rest, inverse = rest.x0, rest.v_rest, rest.inverse
+    u_delayed = np.ascontiguousarray(rest.u_delayed.T)  # (n, batch)
 
     transition = np.empty((batch, order, order + 2))
     c_rows = np.empty((batch, order))
@@ -442,7 +456,7 @@ def _stepping(continuous, discrete, chains, u, dt, y0, bias) -> OpenLoopResult:
     if not sensor_ops:
         y_rec = yt_rec
     return OpenLoopResult(y=y_rec.T[inverse], y_true=yt_rec.T[inverse], v=v_rec.T[inverse],
-                          u_rest=u_rest[inverse], v_rest=v_rest[inverse])
+                          u_rest=rest.u_rest[inverse], v_rest=v_rest[inverse])
 
 
 def _global(group: slice, part):
