@@ -32,6 +32,9 @@ SETTLING_MODELS = ("gp", "envelope")
 #: Choices of the incumbent ``J+`` of EI.
 INCUMBENTS = ("observed", "posterior_mean")
 
+#: Column of the settling time in the metric arrays.
+_SETTLING = METRIC_COLUMNS.index("settling_time")
+
 #: Candidate sets larger than this (``grid_points ** n_gains``) are replaced by a Sobol set of this size.
 _MAX_GRID = 2**16
 
@@ -303,8 +306,7 @@ class BayesianOptimization(Tuner):
                     restart_every=self.restart_every, length_scale_prior=self.length_scale_prior,
                     noise_prior=self.noise_prior, min_fit_points=self.min_fit_points,
                     prior_mean=self.prior_mean, optimize_every=self.metric_optimize_every,
-                    settling=self._settling_model(env, normalizers[METRIC_COLUMNS.index("settling_time")]),
-                    settling_index=METRIC_COLUMNS.index("settling_time"))
+                    settling=self._settling_model(env, normalizers[_SETTLING]), settling_index=_SETTLING)
         self._model_in_use = "cost"
         self._plant_X: list[np.ndarray] = []  # unit box
         self._plant_y: list[float] = []
@@ -402,7 +404,6 @@ class BayesianOptimization(Tuner):
         loop = getattr(env, "loop", None)
         if self.settling_model != "envelope" or not all(hasattr(loop, a) for a in ("r1", "r2", "duration")):
             return None
-        self._step = (float(loop.r1), float(loop.r2))
         times = np.linspace(loop.duration / self.settling_times, loop.duration, self.settling_times)
         return SettlingTimeModel(times, normalizer=normalizer, n_restarts=self.n_restarts,
                                  length_scale_bounds=self.length_scale_bounds, noise_bounds=self.noise_bounds,
@@ -415,7 +416,8 @@ class BayesianOptimization(Tuner):
         if settling is None or not record or record.get("unstable", False) or "t" not in record \
                 or "y" not in record:
             return None
-        envelope = error_envelope(record["t"], record["y"], *self._step, settling.times)
+        loop = getattr(self.env, "unwrapped", self.env).loop  # the step r1 -> r2 (checked in _settling_model)
+        envelope = error_envelope(record["t"], record["y"], loop.r1, loop.r2, settling.times)
         return envelope if np.all(np.isfinite(envelope)) else None
 
     @property

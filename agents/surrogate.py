@@ -249,11 +249,11 @@ class GPSurrogate:
         ----------
         X : ndarray of shape (n, d)
         y : ndarray of shape (n,) or (n, k)
-            Costs ``J`` (cost units), finite. A 2-D ``y`` fits ``k`` outputs with one shared
-            kernel (the same correlation, each output standardised on its own; the likelihood
-            is the sum over the outputs); it needs ``output_transform="none"``,
-            ``prior_mean="sample"`` and a learned noise, and :meth:`predict` then returns
-            arrays of shape (m, k).
+            Costs ``J`` (cost units), finite. A 2-D ``y`` with ``k > 1`` columns fits ``k``
+            outputs with one shared kernel (the same correlation, each output standardised on
+            its own; the likelihood is the sum over the outputs); it needs
+            ``output_transform="none"``, ``prior_mean="sample"`` and a learned noise, and
+            :meth:`predict` then returns arrays of shape (m, k). One column is one output.
         seed : int, optional
             Seeds the random restarts of the likelihood optimiser.
         optimize : bool, default True
@@ -268,13 +268,14 @@ class GPSurrogate:
         """
         X = np.atleast_2d(np.asarray(X, dtype=float))
         y = np.asarray(y, dtype=float)
-        if y.ndim == 2:
-            return self._fit_outputs(X, y, seed, optimize)
-        y = y.ravel()
+        outputs = y.ndim == 2 and y.shape[1] > 1
+        y = y if outputs else y.ravel()
         if X.shape[0] != y.shape[0] or X.shape[0] == 0:
             raise ValueError(f"X, y: need the same number (>= 1) of rows, got {X.shape} and {y.shape}")
         if not (np.all(np.isfinite(X)) and np.all(np.isfinite(y))):
             raise ValueError("X, y: must be finite")
+        if outputs:
+            return self._fit_outputs(X, y, seed, optimize)
         self.transform_ = OutputTransform(self.output_transform, y)
         z = self.transform_(y)
         # Constant mean by standardisation: mu = mean(z) (paper, subsec. BO, constant prior mean).
@@ -288,11 +289,7 @@ class GPSurrogate:
         return self._fit_standardised(X, y, y_std, alpha, seed, optimize)
 
     def _fit_outputs(self, X: np.ndarray, y: np.ndarray, seed: int | None, optimize: bool) -> GPSurrogate:
-        """:meth:`fit` of several outputs, ``y`` of shape (n, k), with one shared kernel."""
-        if X.shape[0] != y.shape[0] or X.shape[0] == 0 or y.shape[1] == 0:
-            raise ValueError(f"X, y: need the same number (>= 1) of rows, got {X.shape} and {y.shape}")
-        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(y))):
-            raise ValueError("X, y: must be finite")
+        """:meth:`fit` of several outputs, ``y`` of shape (n, k > 1), with one shared kernel."""
         if self.output_transform != "none" or self.prior_mean != "sample" or self.noise_std is not None:
             raise ValueError("y: several outputs (2-D y) need output_transform='none', prior_mean='sample' "
                              "and noise_std=None")
@@ -334,15 +331,18 @@ class GPSurrogate:
         ``GaussianProcessRegressor.fit``, same draws for the same seed), without the
         estimator's per-call overhead.
         """
-        self._fit_data = (X, y_std, alpha)
         bounds = kernel.bounds
         draws = np.random.RandomState(None if seed is None else int(seed) % (2**32))
         starts = [kernel.theta] + [draws.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(restarts)]
-        pairwise = (X[:, None, :] - X[None, :, :]) ** 2  # (n, n, d) squared differences per input
+        # theta = log([s^2, l_1..l_d, sigma_n^2]) (sklearn's order); the objective is scikit-learn's
+        # log_marginal_likelihood, evaluated by _neg_log_marginal_likelihood (about 5x faster here)
+        objective = functools.partial(_neg_log_marginal_likelihood, pairwise=(X[:, None, :] - X[None, :, :]) ** 2,
+                                      y=y_std, alpha=alpha, white=self.noise_std is None,
+                                      priors=self._log_priors(X.shape[1]), profile_mean=self.prior_mean == "ml")
         with single_threaded_blas():
-            optima = [self._local_optimum(start, bounds, pairwise) for start in starts]
-        theta = min(optima, key=lambda optimum: optimum[1])[0]
-        return kernel.clone_with_theta(theta)
+            optima = [minimize(objective, start, jac=True, method="L-BFGS-B", bounds=bounds,
+                               options={"maxiter": self.max_iter}) for start in starts]
+        return kernel.clone_with_theta(min(optima, key=lambda optimum: optimum.fun).x)
 
     def _condition(self, kernel, X: np.ndarray, y: np.ndarray, y_std: np.ndarray, alpha: float) -> GPSurrogate:
         """Posterior on ``(X, y)`` with fixed hyperparameters: ``L = chol(K + alpha I)``, ``a = K^-1 y_s``.
@@ -376,27 +376,14 @@ class GPSurrogate:
         self.X_train_ = X
         self.y_train_ = y
 
-    def _local_optimum(self, initial_theta: np.ndarray, bounds: np.ndarray, pairwise: np.ndarray):
-        # Maximise the log marginal likelihood over theta = log([s^2, l_1..l_d, sigma_n^2]) (sklearn's
-        # order). The objective is scikit-learn's log_marginal_likelihood, evaluated by
-        # _neg_log_marginal_likelihood (about 5x faster for the small data sets of BO).
-        _, y, alpha = self._fit_data
-        objective = functools.partial(_neg_log_marginal_likelihood, pairwise=pairwise, y=y, alpha=alpha,
-                                      white=self.noise_std is None, priors=self._log_priors(),
-                                      profile_mean=self.prior_mean == "ml")
-        result = minimize(objective, initial_theta, jac=True, method="L-BFGS-B", bounds=bounds,
-                          options={"maxiter": self.max_iter})
-        return result.x, result.fun
-
-    def _log_priors(self) -> tuple[np.ndarray, np.ndarray] | None:
+    def _log_priors(self, dim: int) -> tuple[np.ndarray, np.ndarray] | None:
         """Normal priors on ``theta = log([s^2, l_1..l_d, sigma_n^2])`` as (means, stds); inf std = flat."""
         if self.length_scale_prior is None and self.noise_prior is None:
             return None
-        X = self._fit_data[0]
-        size = 1 + X.shape[1] + (1 if self.noise_std is None else 0)
+        size = 1 + dim + (1 if self.noise_std is None else 0)
         means, stds = np.zeros(size), np.full(size, np.inf)
         if self.length_scale_prior is not None:
-            means[1:1 + X.shape[1]], stds[1:1 + X.shape[1]] = self.length_scale_prior
+            means[1:1 + dim], stds[1:1 + dim] = self.length_scale_prior
         if self.noise_prior is not None and self.noise_std is None:
             means[-1], stds[-1] = self.noise_prior
         return means, stds
