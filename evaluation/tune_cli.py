@@ -106,15 +106,25 @@ def _tune(args: argparse.Namespace) -> int:
     return 0
 
 
-def _sessions(args: argparse.Namespace) -> int:
+def _existing_store(db: str, command: str):
+    """The session store in ``db``, or None (with a message on stderr) if the file does not exist."""
     from pathlib import Path
 
-    from evaluation.sessions import SessionStore, sessions_table
+    from evaluation.sessions import SessionStore
 
-    if not Path(args.db).exists():
-        print(f"gbo sessions: {args.db} does not exist", file=sys.stderr)
+    if not Path(db).exists():
+        print(f"gbo {command}: {db} does not exist", file=sys.stderr)
+        return None
+    return SessionStore(db)
+
+
+def _sessions(args: argparse.Namespace) -> int:
+    from evaluation.sessions import sessions_table
+
+    store = _existing_store(args.db, "sessions")
+    if store is None:
         return 1
-    with SessionStore(args.db) as store:
+    with store:
         sessions = store.sessions()
     if args.json:
         print(json.dumps([{"id": s.id, "env": s.env_id, "tuner": s.tuner, "seed": s.seed, "budget": s.budget,
@@ -127,14 +137,12 @@ def _sessions(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from pathlib import Path
+    from evaluation.sessions import export_csv
 
-    from evaluation.sessions import SessionStore, export_csv
-
-    if not Path(args.db).exists():
-        print(f"gbo export: {args.db} does not exist", file=sys.stderr)
+    store = _existing_store(args.db, "export")
+    if store is None:
         return 1
-    with SessionStore(args.db) as store:
+    with store:
         try:
             info, count = export_csv(store, args.csv, session_id=args.session, include_twin=args.include_twin,
                                      include_failed=args.include_failed)
