@@ -137,8 +137,13 @@ class ClosedLoop:
         """``r2 - r1`` in output units."""
         return self.r2 - self.r1
 
+    @property
+    def stochastic(self) -> bool:
+        """Whether the measurement is noisy (sensor noise or a block with measurement noise)."""
+        return self.output_noise_std > 0.0 or any(block.stochastic for block in self.effects)
+
     def simulate(self, gains: np.ndarray, rng: np.random.Generator | None = None,
-                 method: str = "auto") -> StepResponse:
+                 method: str = "auto", draws=None) -> StepResponse:
         """Run the step experiment for every row of ``gains``.
 
         Parameters
@@ -153,6 +158,10 @@ class ClosedLoop:
             actuator and sensor effects); ``"stepping"``: sample by sample
             through the effect blocks; ``"auto"``: linear when there are no
             actuator or sensor effects, else stepping.
+        draws : array_like of int, shape (batch,), optional
+            Draw index of each row: rows with the same index see the same
+            measurement noise (common random numbers, see
+            :class:`~gbo_envs.physics.block.RowNoise`). ``None``: independent rows.
 
         Returns
         -------
@@ -165,14 +174,17 @@ class ClosedLoop:
         if method == "linear" and nonlinear:
             raise ValueError("method: 'linear' needs a loop without actuator or sensor effects, "
                              f"this one has {self.actuator_effects + self.sensor_effects}")
-        if self.output_noise_std > 0.0 and rng is None:
-            raise ValueError("rng: a numpy Generator is required when output_noise_std > 0")
+        if self.stochastic and rng is None:
+            raise ValueError("rng: a numpy Generator is required for a loop with measurement noise")
         noise = None
         if self.output_noise_std > 0.0:
-            noise = self.output_noise_std * rng.standard_normal((gains.shape[0], self.n_steps))
+            rows = gains.shape[0] if draws is None else int(np.max(draws)) + 1
+            noise = self.output_noise_std * rng.standard_normal((rows, self.n_steps))
+            if draws is not None:
+                noise = noise[np.asarray(draws, dtype=np.intp)]
         with np.errstate(over="ignore", invalid="ignore"):
             if method == "stepping" or (method == "auto" and nonlinear):
-                u_out, y_out, u_start = self._simulate_stepping(gains, noise, rng)
+                u_out, y_out, u_start = self._simulate_stepping(gains, noise, rng, draws)
             else:
                 u_out, y_out, u_start = self._simulate_linear(gains, noise)
         return self._finish(u_out, y_out, u_start)
@@ -209,7 +221,7 @@ class ClosedLoop:
         y = self.r1 + dy if noise is None else self.r1 + dy + noise
         return u0 + du, y, np.full(batch, u0)
 
-    def _simulate_stepping(self, gains, noise, rng):
+    def _simulate_stepping(self, gains, noise, rng, draws=None):
         """Sample-by-sample simulation through the effect blocks, vectorised over the batch.
 
         At sample ``k``: the sensor blocks (and the noise) turn the plant output
@@ -236,7 +248,7 @@ class ClosedLoop:
         speed_is_output = self.current_plant.output != "position"
         speed_row = plant.c if speed_is_output else plant.velocity_row()
         for block in self.effects:
-            block.reset(batch, rng, dt)
+            block.reset(batch, rng, dt, draws)
         speed0 = speed_row @ x
         u_prev = v_prev.copy()
         for block in reversed(actuators):

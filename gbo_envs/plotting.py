@@ -80,12 +80,13 @@ def cost_surface(truth, ax=None, points=None, levels: int = 30):
         _, ax = plt.subplots(figsize=(6, 5))
     x, y = truth.axes
     contour = ax.contourf(x, y, truth.costs.T, levels=levels, cmap="viridis")
-    ax.figure.colorbar(contour, ax=ax, label="noise-free cost J")
+    ax.figure.colorbar(contour, ax=ax, label="expected cost J (dimensionless)")
     ax.plot(*truth.gains, "r*", ms=14, label=f"optimum J* = {truth.cost:.3f}")
     for label, gains in (points or {}).items():
         gains = np.atleast_2d(gains)
         ax.plot(gains[:, 0], gains[:, 1], "o", mfc="none", label=label)
-    ax.set_xlabel(truth.gain_names[0])
-    ax.set_ylabel(truth.gain_names[1])
+    units = tuple(truth.gain_units) or ("", "")
+    ax.set_xlabel(f"{truth.gain_names[0]} ({units[0]})" if units[0] else truth.gain_names[0])
+    ax.set_ylabel(f"{truth.gain_names[1]} ({units[1]})" if units[1] else truth.gain_names[1])
     ax.legend(loc="upper right", fontsize=8)
     return ax

@@ -16,7 +16,7 @@ from gymnasium import spaces
 from gbo_envs.closed_loop import ClosedLoop, StepResponse
 from gbo_envs.metrics import METRIC_NAMES, weighted_cost
 
-__all__ = ["ControllerTuningEnv", "OUT_OF_BOUNDS_POLICIES"]
+__all__ = ["ControllerTuningEnv", "OUT_OF_BOUNDS_POLICIES", "expected_outcome"]
 
 #: What :meth:`ControllerTuningEnv.step` does with gains outside the feasible set.
 OUT_OF_BOUNDS_POLICIES = ("raise", "clip", "allow")
@@ -50,6 +50,17 @@ class ControllerTuningEnv(gym.Env):
         Finite cost reported for a diverging experiment (``info["unstable"]``).
     render_mode : {None, "rgb_array"}
         ``"rgb_array"`` renders the last step response.
+    noise : bool, default True
+        ``False``: :meth:`step` reports the ground truth ``J(theta)``, the
+        expected cost over the measurement noise (see :meth:`evaluate`),
+        instead of one noisy experiment.
+    expectation_draws : int, default 16
+        Number ``K`` of fixed noise draws over which :meth:`evaluate` averages
+        the cost of a loop with measurement noise, ``>= 1`` (unused for a
+        noise-free loop, whose simulation already is the expectation).
+    expectation_seed : int, default 0
+        Seed of those draws (common random numbers: every gain sees the same
+        ``K`` noise realisations), ``>= 0``.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 1}
@@ -67,8 +78,14 @@ class ControllerTuningEnv(gym.Env):
         out_of_bounds: str = "raise",
         unstable_cost: float = 10.0,
         render_mode: str | None = None,
+        noise: bool = True,
+        expectation_draws: int = 16,
+        expectation_seed: int = 0,
     ) -> None:
         self.loop = loop
+        self.noise = bool(noise)
+        self.expectation_draws = _validated_count("expectation_draws", expectation_draws, low=1)
+        self.expectation_seed = _validated_count("expectation_seed", expectation_seed, low=0)
         self.gain_names = tuple(loop.controller.gain_names)
         self.gain_units = tuple(loop.controller.gain_units)
         low = np.asarray(gain_low, dtype=np.float64)
@@ -86,8 +103,8 @@ class ControllerTuningEnv(gym.Env):
         self.weights = _validated_vector("weights", weights, len(METRIC_NAMES), positive=True)
         if normalizers is None:
             reference = np.atleast_2d(np.asarray(reference_gains, dtype=float))
-            clean = loop.replace(output_noise_std=0.0)
-            normalizers = clean.metrics(clean.simulate(reference, rng=np.random.default_rng(0))).mean(axis=0)
+            normalizers = expected_outcome(loop, reference, self.expectation_draws, self.expectation_seed,
+                                           cost=None)[0].mean(axis=0)
         self.normalizers = _validated_vector("normalizers", normalizers, len(METRIC_NAMES), positive=True,
                                              floor=1e-9)
         if not np.isfinite(cost_noise_std) or cost_noise_std < 0.0:
@@ -125,16 +142,18 @@ class ControllerTuningEnv(gym.Env):
         """Run one closed-loop step experiment at the gains ``action``."""
         gains = self.validate_gains(action)
         loop = self.loop_for_experiment(self.experiment_index)
-        response = loop.simulate(gains[None, :], rng=self.np_random)
-        metrics = loop.metrics(response)[0]
-        unstable = bool(response.unstable[0])
-        clean_cost = float(self.cost(metrics))
-        if unstable:
-            cost = self.unstable_cost
-        else:
-            noise = self.cost_noise_std * self.np_random.standard_normal() if self.cost_noise_std else 0.0
-            cost = clean_cost + noise
-        true_cost = float(self.evaluate(gains[None, :], experiment_index=self.experiment_index)[1][0])
+        expected_metrics, expected_cost, response = self._expected(loop, gains[None, :])
+        true_cost = float(expected_cost[0])
+        if self.noise or not loop.stochastic:
+            if loop.stochastic:  # one experiment: one realisation of the measurement noise
+                response = loop.simulate(gains[None, :], rng=self.np_random)
+            metrics = loop.metrics(response)[0]
+            unstable = bool(response.unstable[0])
+            cost = self.unstable_cost if unstable else float(self.cost(metrics))
+            if not unstable and self.cost_noise_std:
+                cost += self.cost_noise_std * self.np_random.standard_normal()
+        else:  # noise=False on a noisy loop: the expectation, with the record of draw 0
+            metrics, cost, unstable = expected_metrics[0], true_cost, bool(response.unstable[0])
         self._best_cost = min(self._best_cost, cost)
         self._last_response = response
         info = {
@@ -198,7 +217,15 @@ class ControllerTuningEnv(gym.Env):
         return weighted_cost(metrics, self.weights, self.normalizers)
 
     def evaluate(self, gains: np.ndarray, experiment_index: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Noise-free metrics and cost for a batch of gains, without counting an experiment.
+        """Ground truth: expected metrics and cost for a batch of gains, without counting an experiment.
+
+        ``J(theta) = E_nu[J(theta, nu)]`` over the measurement noise ``nu``
+        (the additive cost noise ``epsilon`` has zero mean and drops out). A
+        noise-free loop is simulated once. A loop with measurement noise is
+        averaged over ``K = expectation_draws`` fixed draws ``nu_1 .. nu_K``
+        (seed ``expectation_seed``), the same for every gain (common random
+        numbers), so ``J`` is a deterministic function of the gains and
+        differences between gains carry little Monte Carlo error.
 
         Parameters
         ----------
@@ -210,25 +237,21 @@ class ControllerTuningEnv(gym.Env):
         Returns
         -------
         metrics : ndarray of shape (batch, 4)
+            Mean metrics over the draws.
         cost : ndarray of shape (batch,)
-            ``unstable_cost`` where the loop diverges.
+            ``J(theta)``; a diverging draw counts as ``unstable_cost``.
         """
         index = self.experiment_index if experiment_index is None else experiment_index
-        loop = self._noise_free(self.loop_for_experiment(index))
-        response = loop.simulate(np.atleast_2d(gains), rng=np.random.default_rng(0))
-        metrics = loop.metrics(response)
-        cost = np.where(response.unstable, self.unstable_cost, self.cost(metrics))
+        metrics, cost, _ = self._expected(self.loop_for_experiment(index), np.atleast_2d(gains))
         return metrics, cost
 
-    def _noise_free(self, loop: ClosedLoop) -> ClosedLoop:
-        """``loop`` without sensor noise; the copy is cached, since it re-discretises the plant."""
-        if loop.output_noise_std == 0.0:
-            return loop
-        cached = self.__dict__.get("_noise_free_cache")
-        if cached is None or cached[0] is not loop:
-            cached = (loop, loop.replace(output_noise_std=0.0))
-            self._noise_free_cache = cached
-        return cached[1]
+    def _expected(self, loop: ClosedLoop, gains: np.ndarray):
+        """:func:`expected_outcome` of this env's cost on ``loop``."""
+        return expected_outcome(loop, gains, self.expectation_draws, self.expectation_seed,
+                                cost=self._cost_or_unstable)
+
+    def _cost_or_unstable(self, metrics: np.ndarray, unstable: np.ndarray) -> np.ndarray:
+        return np.where(unstable, self.unstable_cost, self.cost(metrics))
 
     def loop_for_experiment(self, index: int) -> ClosedLoop:
         """The loop as it is at experiment ``index``.
@@ -251,6 +274,58 @@ class ControllerTuningEnv(gym.Env):
         best = self._best_cost
         done = self.experiment_index / self.max_experiments
         return np.concatenate([gains, metrics / self.normalizers, [cost, best, done]]).astype(np.float64)
+
+
+def expected_outcome(loop: ClosedLoop, gains: np.ndarray, draws: int, seed: int, cost=None,
+                     max_rows: int = 4096):
+    """Metrics and cost of ``loop`` at ``gains``, averaged over ``draws`` fixed noise draws if the loop is noisy.
+
+    Row ``(i, j)`` runs gains ``i`` with noise draw ``j`` of ``default_rng(seed)``
+    (:class:`~gbo_envs.physics.block.RowNoise`); draws ``0..K-1`` are the same
+    for every gain. At most ``max_rows`` rows are simulated at once.
+
+    Parameters
+    ----------
+    loop : ClosedLoop
+    gains : ndarray of shape (batch, n_gains)
+    draws : int
+        ``K``, used only when ``loop.stochastic``.
+    seed : int
+    cost : callable ``(metrics, unstable) -> cost``, optional
+        Cost of each row; ``None`` skips it.
+
+    Returns
+    -------
+    metrics : ndarray of shape (batch, 4)
+    cost : ndarray of shape (batch,) or None
+    response : StepResponse
+        The record of draw 0 of every gain.
+    """
+    gains = np.atleast_2d(np.asarray(gains, dtype=float))
+    k = int(draws) if loop.stochastic else 1
+    per_chunk = max(1, max_rows // k)
+    metrics, costs, responses = [], [], []
+    for start in range(0, gains.shape[0], per_chunk):
+        part = gains[start : start + per_chunk]
+        rows = np.repeat(part, k, axis=0)
+        response = loop.simulate(rows, rng=np.random.default_rng(seed), draws=np.tile(np.arange(k), part.shape[0]))
+        row_metrics = loop.metrics(response)
+        metrics.append(row_metrics.reshape(part.shape[0], k, -1).mean(axis=1))
+        if cost is not None:
+            costs.append(cost(row_metrics, response.unstable).reshape(part.shape[0], k).mean(axis=1))
+        first = slice(None, None, k)
+        responses.append(StepResponse(t=response.t, r=response.r, u=response.u[first], y=response.y[first],
+                                      unstable=response.unstable[first]))
+    record = responses[0] if len(responses) == 1 else StepResponse(
+        t=responses[0].t, r=responses[0].r, u=np.concatenate([r.u for r in responses]),
+        y=np.concatenate([r.y for r in responses]), unstable=np.concatenate([r.unstable for r in responses]))
+    return np.concatenate(metrics), (np.concatenate(costs) if cost is not None else None), record
+
+
+def _validated_count(name: str, value, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"{name}: must be an integer >= {low}, got {value!r}")
+    return int(value)
 
 
 def _validated_vector(name: str, values, size: int, positive: bool = False, floor: float | None = None) -> np.ndarray:

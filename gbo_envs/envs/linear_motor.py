@@ -189,6 +189,8 @@ class LinearMotorEnv(ControllerTuningEnv):
         unstable_cost: float = 10.0,
         render_mode: str | None = None,
         normalizers=None,
+        expectation_draws: int = 16,
+        expectation_seed: int = 0,
     ) -> None:
         cost_noise_std = LINEAR_MOTOR["cost_noise_std"] if cost_noise_std is None else cost_noise_std
         output_noise_std = LINEAR_MOTOR["output_noise_std"] if output_noise_std is None else output_noise_std
@@ -220,6 +222,9 @@ class LinearMotorEnv(ControllerTuningEnv):
             out_of_bounds=out_of_bounds,
             unstable_cost=unstable_cost,
             render_mode=render_mode,
+            noise=noise,
+            expectation_draws=expectation_draws,
+            expectation_seed=expectation_seed,
         )
 
 

@@ -111,7 +111,7 @@ class Backlash(EffectBlock):
         self._set_params(width=width)
         self._state = np.zeros(0)
 
-    def reset(self, batch, rng, dt):
+    def reset(self, batch, rng, dt, draws=None):
         self._state = np.zeros(batch)
 
     def command_for(self, u_applied, speed):
@@ -215,7 +215,7 @@ class Cogging(EffectBlock):
         self._angle = np.zeros(0)
         self._dt = 0.0
 
-    def reset(self, batch, rng, dt):
+    def reset(self, batch, rng, dt, draws=None):
         self._angle = np.zeros(batch)
         self._dt = float(dt)
 

@@ -14,10 +14,14 @@ An effect block sits on one side of the sampled-data loop of
 
 Every array argument is of shape (batch,): one entry per gain vector of the
 batch being simulated. Blocks are vectorised over the batch and keep their
-per-row state (if any) between calls; ``reset(batch, rng, dt)`` starts a new
-simulation. To start the experiment at rest, the simulator inverts the static
-maps: ``level_for(y_measured)`` (sensor) gives the true output whose
-measurement is ``y_measured``, and ``command_for(u_applied, speed)``
+per-row state (if any) between calls; ``reset(batch, rng, dt, draws)`` starts a new
+simulation. A block with measurement noise (``stochastic = True``) takes its
+random numbers from a :class:`RowNoise` built there, so that rows given the
+same draw index (``draws``) see the same noise: the common random numbers over
+which :meth:`gbo_envs.ControllerTuningEnv.evaluate` averages the cost.
+To start the experiment at rest, the simulator inverts the static maps:
+``level_for(y_measured)`` (sensor) gives the true output whose measurement is
+``y_measured``, and ``command_for(u_applied, speed)``
 (actuator) gives the commanded input that produces ``u_applied`` at rest; a
 stateful block also sets its state to that rest condition there.
 
@@ -36,7 +40,7 @@ import numpy as np
 
 from gbo_envs.physics.lti import ContinuousPlant
 
-__all__ = ["EffectBlock", "EffectParameter", "SIDES"]
+__all__ = ["EffectBlock", "EffectParameter", "RowNoise", "SIDES"]
 
 #: Where a block acts in the loop.
 SIDES = ("actuator", "sensor", "plant")
@@ -86,6 +90,45 @@ class EffectParameter:
         return value
 
 
+class RowNoise:
+    """Random numbers for a batch of simulated loops: one value per row and call.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Source of the numbers.
+    batch : int
+        Rows of the batch.
+    draws : array_like of int, shape (batch,), optional
+        Draw index ``j`` of each row (common random numbers). Rows with the
+        same index get the same values, and the values of draw ``j`` depend
+        only on ``rng``'s seed and the number of draws ``K = max(draws) + 1``,
+        not on the gains or on which rows are in the batch, so a cost
+        averaged over draws ``0..K-1`` is the same function of the gains
+        wherever it is evaluated. ``None``: every row is an independent
+        experiment.
+    """
+
+    def __init__(self, rng: np.random.Generator | None, batch: int, draws=None) -> None:
+        if rng is None:
+            raise ValueError("rng: a numpy Generator is required for a loop with measurement noise")
+        self._rng = rng
+        self._draws = None if draws is None else np.asarray(draws, dtype=np.intp)
+        if self._draws is not None and self._draws.shape != (batch,):
+            raise ValueError(f"draws: expected one draw index per row, shape ({batch},), got {self._draws.shape}")
+        self._size = batch if self._draws is None else int(self._draws.max(initial=-1)) + 1
+
+    def standard_normal(self, size: int | None = None) -> np.ndarray:
+        """N(0, 1) values of shape (batch,), or (size, batch) when ``size`` is given."""
+        values = self._rng.standard_normal(self._size if size is None else (size, self._size))
+        return values if self._draws is None else values[..., self._draws]
+
+    def uniform(self) -> np.ndarray:
+        """Shape (batch,): values uniform in [0, 1)."""
+        values = self._rng.random(self._size)
+        return values if self._draws is None else values[self._draws]
+
+
 class EffectBlock:
     """A physical effect that can be put into any plant loop.
 
@@ -102,6 +145,7 @@ class EffectBlock:
     parameters: ClassVar[tuple[EffectParameter, ...]] = ()
     options: ClassVar[dict[str, tuple]] = {}
     magnitude_param: ClassVar[str] = ""
+    stochastic: ClassVar[bool] = False
     param_names: ClassVar[tuple[str, ...]] = ()
     param_units: ClassVar[tuple[str, ...]] = ()
     param_bounds: ClassVar[tuple[tuple[float, float], ...]] = ()
@@ -179,8 +223,12 @@ class EffectBlock:
         return hash((type(self).__name__, repr(self)))
 
     # -- simulator contract (identity defaults) ---------------------------------------------------
-    def reset(self, batch: int, rng: np.random.Generator | None, dt: float) -> None:
-        """Start a simulation of ``batch`` loops sampled every ``dt`` s (clears any state)."""
+    def reset(self, batch: int, rng: np.random.Generator | None, dt: float, draws=None) -> None:
+        """Start a simulation of ``batch`` loops sampled every ``dt`` s (clears any state).
+
+        ``draws`` (shape (batch,), optional) is the draw index of each row for
+        a stochastic block (see :class:`RowNoise`); other blocks ignore it.
+        """
 
     def command_for(self, u_applied: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Commanded input of shape (batch,) that yields ``u_applied`` at rest at ``speed`` (actuator side)."""

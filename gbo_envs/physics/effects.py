@@ -63,7 +63,8 @@ def build_effects(spec) -> tuple[EffectBlock, ...]:
     ----------
     spec : dict, sequence or None
         ``{name: {parameter: value}}`` (insertion order is the order of
-        application), a sequence whose items are ``(name, {parameter: value})``
+        application; a value may also be a built block, its key then only
+        labels it), a sequence whose items are ``(name, {parameter: value})``
         pairs or built :class:`~gbo_envs.physics.block.EffectBlock` objects (a
         sequence allows the same effect twice), a single block, or ``None``.
 
@@ -81,7 +82,8 @@ def build_effects(spec) -> tuple[EffectBlock, ...]:
     if isinstance(spec, EffectBlock):
         return (spec,)
     if isinstance(spec, Mapping):
-        return tuple(build_effect(name, params) for name, params in spec.items())
+        return tuple(params if isinstance(params, EffectBlock) else build_effect(name, params)
+                     for name, params in spec.items())
     if isinstance(spec, (str, bytes)) or not hasattr(spec, "__iter__"):
         raise ValueError(f"effects: expected a dict {{name: {{parameter: value}}}}, a list of (name, params) "
                          f"pairs or effect blocks, got {spec!r}; the catalogue is {EFFECT_NAMES}")
