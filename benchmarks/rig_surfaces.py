@@ -71,7 +71,7 @@ def heat_map(truth, name: str, path: Path) -> None:
     ax.set_xlabel(f"{truth.gain_names[0]} ({truth.gain_units[0]})")
     ax.set_ylabel(f"{truth.gain_names[1]} ({truth.gain_units[1]})")
     ax.set_title(f"{name} (white line: J = 1.1 J*)")
-    ax.legend(loc="upper right", fontsize=8)
+    ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

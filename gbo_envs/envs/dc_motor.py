@@ -103,6 +103,9 @@ class DCMotorEnv(ControllerTuningEnv):
     * ``gain, tau1, tau2, delay``: plant parameters (delay in s).
     * ``out_of_bounds``: ``"raise"``, ``"clip"`` or ``"allow"``.
     * ``unstable_cost``: finite cost of a diverging experiment.
+    * ``expectation_draws``, ``expectation_seed``: the ``K`` fixed noise draws
+      (and their seed) over which the ground truth averages when the
+      measurement is noisy (``output_noise_std > 0``); unused otherwise.
 
     ## Version History
 

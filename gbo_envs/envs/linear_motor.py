@@ -166,6 +166,9 @@ class LinearMotorEnv(ControllerTuningEnv):
       ``"saturation"`` or ``"quantization"`` replaces the built-in one.
     * ``out_of_bounds``: ``"raise"``, ``"clip"`` or ``"allow"``.
     * ``unstable_cost``: finite cost of a diverging experiment.
+    * ``expectation_draws``, ``expectation_seed``: the ``K`` fixed noise draws
+      (and their seed) over which the ground truth averages when the
+      measurement is noisy (``output_noise_std > 0``); unused otherwise.
     * ``normalizers``: explicit cost normalisers (a digital twin reuses its plant's).
 
     ## Version History
