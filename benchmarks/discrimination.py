@@ -6,7 +6,7 @@ evaluated gains reach an optimality ratio ``J / J*`` of 1.1 and 1.05 (and
 the measurement noise, ``info["true_cost"]``) and ``J*`` its minimum on the
 100 x 100 grid. A run that never reaches a ratio counts as ``budget + 1``
 experiments and as a miss. The 95 % interval of the mean is Student's t. An
-env where the intervals of random and bo overlap at 1.05 is marked "does not
+env and ratio where the intervals of random and bo overlap is marked "does not
 discriminate".
 
 Each finished run is appended to ``benchmarks/results/discrimination_runs.jsonl``
