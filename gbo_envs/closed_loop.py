@@ -23,6 +23,7 @@ from scipy.signal import lfilter
 
 from gbo_envs.controllers import Controller
 from gbo_envs.metrics import step_metrics
+from gbo_envs.physics.block import RowNoise
 from gbo_envs.physics.lti import ContinuousPlant
 
 __all__ = ["ClosedLoop", "SIMULATION_METHODS", "StepResponse", "UNSTABLE_LIMIT"]
@@ -178,10 +179,7 @@ class ClosedLoop:
             raise ValueError("rng: a numpy Generator is required for a loop with measurement noise")
         noise = None
         if self.output_noise_std > 0.0:
-            rows = gains.shape[0] if draws is None else int(np.max(draws)) + 1
-            noise = self.output_noise_std * rng.standard_normal((rows, self.n_steps))
-            if draws is not None:
-                noise = noise[np.asarray(draws, dtype=np.intp)]
+            noise = self.output_noise_std * RowNoise(rng, gains.shape[0], draws).rows(self.n_steps)
         with np.errstate(over="ignore", invalid="ignore"):
             if method == "stepping" or (method == "auto" and nonlinear):
                 u_out, y_out, u_start = self._simulate_stepping(gains, noise, rng, draws)

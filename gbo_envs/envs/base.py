@@ -15,6 +15,7 @@ from gymnasium import spaces
 
 from gbo_envs.closed_loop import ClosedLoop, StepResponse
 from gbo_envs.metrics import METRIC_NAMES, weighted_cost
+from gbo_envs.physics.block import validated_count
 
 __all__ = ["ControllerTuningEnv", "OUT_OF_BOUNDS_POLICIES", "expected_outcome"]
 
@@ -84,8 +85,8 @@ class ControllerTuningEnv(gym.Env):
     ) -> None:
         self.loop = loop
         self.noise = bool(noise)
-        self.expectation_draws = _validated_count("expectation_draws", expectation_draws, low=1)
-        self.expectation_seed = _validated_count("expectation_seed", expectation_seed, low=0)
+        self.expectation_draws = validated_count("expectation_draws", expectation_draws, low=1)
+        self.expectation_seed = validated_count("expectation_seed", expectation_seed, low=0)
         self.gain_names = tuple(loop.controller.gain_names)
         self.gain_units = tuple(loop.controller.gain_units)
         low = np.asarray(gain_low, dtype=np.float64)
@@ -304,7 +305,7 @@ def expected_outcome(loop: ClosedLoop, gains: np.ndarray, draws: int, seed: int,
     gains = np.atleast_2d(np.asarray(gains, dtype=float))
     k = int(draws) if loop.stochastic else 1
     per_chunk = max(1, max_rows // k)
-    metrics, costs, responses = [], [], []
+    metrics, costs, first_draws = [], [], []
     for start in range(0, gains.shape[0], per_chunk):
         part = gains[start : start + per_chunk]
         rows = np.repeat(part, k, axis=0)
@@ -313,19 +314,10 @@ def expected_outcome(loop: ClosedLoop, gains: np.ndarray, draws: int, seed: int,
         metrics.append(row_metrics.reshape(part.shape[0], k, -1).mean(axis=1))
         if cost is not None:
             costs.append(cost(row_metrics, response.unstable).reshape(part.shape[0], k).mean(axis=1))
-        first = slice(None, None, k)
-        responses.append(StepResponse(t=response.t, r=response.r, u=response.u[first], y=response.y[first],
-                                      unstable=response.unstable[first]))
-    record = responses[0] if len(responses) == 1 else StepResponse(
-        t=responses[0].t, r=responses[0].r, u=np.concatenate([r.u for r in responses]),
-        y=np.concatenate([r.y for r in responses]), unstable=np.concatenate([r.unstable for r in responses]))
+        first_draws.append((response.u[::k], response.y[::k], response.unstable[::k]))
+    u, y, unstable = (np.concatenate(parts) for parts in zip(*first_draws))
+    record = StepResponse(t=response.t, r=response.r, u=u, y=y, unstable=unstable)
     return np.concatenate(metrics), (np.concatenate(costs) if cost is not None else None), record
-
-
-def _validated_count(name: str, value, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise ValueError(f"{name}: must be an integer >= {low}, got {value!r}")
-    return int(value)
 
 
 def _validated_vector(name: str, values, size: int, positive: bool = False, floor: float | None = None) -> np.ndarray:

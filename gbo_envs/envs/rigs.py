@@ -16,6 +16,7 @@ import numpy as np
 
 from gbo_envs.envs.dc_motor import DCMotorEnv
 from gbo_envs.envs.linear_motor import LinearMotorEnv
+from gbo_envs.physics.block import validated_count, validated_finite
 from gbo_envs.physics.encoder import PositionEncoder, SpeedEncoder
 
 __all__ = ["DCMotorRigEnv", "LinearMotorRigEnv", "DC_RIG", "LINEAR_RIG"]
@@ -145,13 +146,13 @@ class DCMotorRigEnv(DCMotorEnv):
         effects: dict[str, dict[str, Any]] | None = None,
         **kwargs,
     ) -> None:
-        _check_count("encoder_lines", encoder_lines)
-        _check_count("encoder_window", encoder_window)
-        _check_nonnegative("encoder_jitter", encoder_jitter, "rad")
+        encoder_lines = validated_count("encoder_lines", encoder_lines)
+        encoder_window = validated_count("encoder_window", encoder_window)
+        encoder_jitter = validated_finite("encoder_jitter", encoder_jitter, "rad")
         spec: dict[str, Any] = {
             "saturation": {"limit": command_limit},
             "coulomb_friction": {"torque": friction},
-            "encoder": SpeedEncoder(lines=int(encoder_lines), window=int(encoder_window), jitter=encoder_jitter),
+            "encoder": SpeedEncoder(lines=encoder_lines, window=encoder_window, jitter=encoder_jitter),
         }
         spec.update(_checked_effects(effects))
         super().__init__(effects=spec, expectation_draws=expectation_draws, **kwargs)
@@ -226,8 +227,8 @@ class LinearMotorRigEnv(LinearMotorEnv):
                  sensor_jitter: float = LINEAR_RIG["sensor_jitter"],
                  expectation_draws: int = LINEAR_RIG["expectation_draws"],
                  effects: dict[str, dict[str, Any]] | None = None, **kwargs) -> None:
-        _check_positive("sensor_resolution", sensor_resolution, "m")
-        _check_nonnegative("sensor_jitter", sensor_jitter, "m")
+        sensor_resolution = validated_finite("sensor_resolution", sensor_resolution, "m", positive=True)
+        sensor_jitter = validated_finite("sensor_jitter", sensor_jitter, "m")
         spec: dict[str, Any] = {
             "encoder": PositionEncoder(resolution=sensor_resolution, jitter=sensor_jitter),
             "coulomb_friction": {"torque": friction},
@@ -242,20 +243,3 @@ def _checked_effects(effects) -> dict[str, dict[str, Any]]:
     if not isinstance(effects, dict):
         raise ValueError(f"effects: expected a dict {{name: {{param: value}}}}, got {effects!r}")
     return effects
-
-
-def _check_count(name: str, value) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name}: must be a positive integer, got {value!r}")
-
-
-def _check_nonnegative(name: str, value, unit: str) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
-            or not np.isfinite(value) or value < 0:
-        raise ValueError(f"{name}: must be a finite number >= 0 ({unit}), got {value!r}")
-
-
-def _check_positive(name: str, value, unit: str) -> None:
-    _check_nonnegative(name, value, unit)
-    if value == 0:
-        raise ValueError(f"{name}: must be a finite number > 0 ({unit}), got {value!r}")

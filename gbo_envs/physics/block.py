@@ -40,7 +40,7 @@ import numpy as np
 
 from gbo_envs.physics.lti import ContinuousPlant
 
-__all__ = ["EffectBlock", "EffectParameter", "RowNoise", "SIDES"]
+__all__ = ["EffectBlock", "EffectParameter", "RowNoise", "SIDES", "validated_count", "validated_finite"]
 
 #: Where a block acts in the loop.
 SIDES = ("actuator", "sensor", "plant")
@@ -90,6 +90,26 @@ class EffectParameter:
         return value
 
 
+def _label(name: str, owner: str | None) -> str:
+    return f"{owner}: parameter {name!r}" if owner else name
+
+
+def validated_count(name: str, value: Any, low: int = 1, owner: str | None = None) -> int:
+    """``value`` as an int ``>= low``, else ``ValueError`` naming ``name`` (and ``owner``, e.g. an effect)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
+        raise ValueError(f"{_label(name, owner)} must be an integer >= {low}, got {value!r}")
+    return int(value)
+
+
+def validated_finite(name: str, value: Any, unit: str, positive: bool = False, owner: str | None = None) -> float:
+    """``value`` as a finite float ``>= 0`` (``> 0`` if ``positive``), else ``ValueError`` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not np.isfinite(value) or value < 0 \
+            or (positive and value == 0):
+        raise ValueError(f"{_label(name, owner)} must be a finite number {'> 0' if positive else '>= 0'} ({unit}), "
+                         f"got {value!r}")
+    return float(value)
+
+
 class RowNoise:
     """Random numbers for a batch of simulated loops: one value per row and call.
 
@@ -122,6 +142,11 @@ class RowNoise:
         """N(0, 1) values of shape (batch,), or (size, batch) when ``size`` is given."""
         values = self._rng.standard_normal(self._size if size is None else (size, self._size))
         return values if self._draws is None else values[..., self._draws]
+
+    def rows(self, size: int) -> np.ndarray:
+        """N(0, 1) values of shape (batch, size): a whole noise sequence per row."""
+        values = self._rng.standard_normal((self._size, size))
+        return values if self._draws is None else values[self._draws]
 
     def uniform(self) -> np.ndarray:
         """Shape (batch,): values uniform in [0, 1)."""

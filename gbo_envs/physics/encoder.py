@@ -21,11 +21,9 @@ models their mean behaviour with ``quantization``.
 
 from __future__ import annotations
 
-import numbers
-
 import numpy as np
 
-from gbo_envs.physics.block import EffectBlock, EffectParameter, RowNoise
+from gbo_envs.physics.block import EffectBlock, EffectParameter, RowNoise, validated_count, validated_finite
 
 __all__ = ["PositionEncoder", "SpeedEncoder"]
 
@@ -60,8 +58,8 @@ class PositionEncoder(EffectBlock):
 
     def __init__(self, resolution: float, jitter: float = 0.0) -> None:
         self._set_params(resolution=resolution, jitter=jitter)
-        _check_positive_finite(self.name, "resolution", self.resolution, "output units")
-        _check_positive_finite(self.name, "jitter", self.jitter, "output units", allow_zero=True)
+        validated_finite("resolution", self.resolution, "output units", positive=True, owner=self.name)
+        validated_finite("jitter", self.jitter, "output units", owner=self.name)
         self._noise: RowNoise | None = None
 
     @property
@@ -120,14 +118,12 @@ class SpeedEncoder(EffectBlock):
     magnitude_param = "jitter"
 
     def __init__(self, lines: int, window: int = 1, jitter: float = 0.0) -> None:
-        for name, value in (("lines", lines), ("window", window)):
-            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
-                raise ValueError(f"{self.name}: parameter {name!r} must be an integer >= 1, got {value!r}")
-        self._set_params(lines=int(lines), window=int(window), jitter=jitter)
-        self.lines, self.window = int(lines), int(window)
-        _check_positive_finite(self.name, "jitter", self.jitter, "rad", allow_zero=True)
+        lines = validated_count("lines", lines, owner=self.name)
+        window = validated_count("window", window, owner=self.name)
+        self._set_params(lines=lines, window=window, jitter=jitter)
+        self.lines, self.window = lines, window
+        validated_finite("jitter", self.jitter, "rad", owner=self.name)
         self._noise: RowNoise | None = None
-        self._dt = 0.0
 
     @property
     def increment(self) -> float:
@@ -140,30 +136,29 @@ class SpeedEncoder(EffectBlock):
 
     def reset(self, batch, rng, dt, draws=None):
         self._noise = RowNoise(rng, batch, draws)
-        self._dt = float(dt)
+        self._jitter = self.jitter / self.increment  # in increments
+        self._half_sample = dt / (2.0 * self.increment)  # trapezoid: increments per (rad/s) of y[k] + y[k-1]
+        self._speed_per_count = self.speed_resolution(dt)
         self._angle = None  # in increments; set on the first sample
 
+    def _count(self, angle: np.ndarray, samples: int | None = None) -> np.ndarray:
+        """Whole increments of the jittered angle (stages 2-3)."""
+        if not self._jitter:
+            return np.floor(angle)
+        return np.floor(angle + self._jitter * self._noise.standard_normal(samples))
+
     def measure(self, y):
-        jitter = self.jitter / self.increment  # in increments
         if self._angle is None:
             # at rest at speed y before the step: the last M counts of a constant rotation
-            self._angle = self._noise.uniform() + 0.0 * y
-            self._per_sample = self._dt / (2.0 * self.increment)
-            past = self._angle - (2.0 * self._per_sample) * y * np.arange(self.window, 0, -1)[:, None]
-            self._counts = np.floor(past + jitter * self._noise.standard_normal(self.window))
+            self._angle = self._noise.uniform()
+            past = self._angle - (2.0 * self._half_sample) * y * np.arange(self.window, 0, -1)[:, None]
+            self._counts = self._count(past, self.window)
             self._slot = 0
         else:
-            self._angle = self._angle + self._per_sample * (y + self._last_speed)
+            self._angle = self._angle + self._half_sample * (y + self._last_speed)
         self._last_speed = y
-        count = np.floor(self._angle + jitter * self._noise.standard_normal()) if jitter else np.floor(self._angle)
-        oldest = self._counts[self._slot]
-        speed = (count - oldest) * (self.increment / (self.window * self._dt))
+        count = self._count(self._angle)
+        speed = (count - self._counts[self._slot]) * self._speed_per_count
         self._counts[self._slot] = count
         self._slot = (self._slot + 1) % self.window
         return speed
-
-
-def _check_positive_finite(effect: str, name: str, value: float, unit: str, allow_zero: bool = False) -> None:
-    if not np.isfinite(value) or value < 0.0 or (value == 0.0 and not allow_zero):
-        bound = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"{effect}: parameter {name!r} must be a finite number {bound} ({unit}), got {value!r}")
