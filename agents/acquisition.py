@@ -1,4 +1,4 @@
-"""Acquisition functions for minimisation, and their maximisation over a grid (paper, eqs. (LCB), (EI)).
+"""Expected Improvement for minimisation, and its maximisation over a grid (paper, eqs. (LCB), (EI)).
 
 An acquisition function meets the surrogate only through
 ``model.predict(X) -> (mean, std)``; any object with that method works.
@@ -12,8 +12,7 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import ndtr
 
-__all__ = ["Predictor", "expected_improvement", "lower_confidence_bound", "probability_of_improvement",
-           "ExpectedImprovement", "maximize_on_grid"]
+__all__ = ["Predictor", "expected_improvement", "ExpectedImprovement", "maximize_on_grid"]
 
 _SQRT_2PI = np.sqrt(2.0 * np.pi)
 
@@ -57,20 +56,6 @@ def expected_improvement(mean, std, best: float, xi: float = 0.0) -> np.ndarray:
     z = np.where(positive, improvement / np.where(positive, std, 1.0), 0.0)
     ei = std * (z * ndtr(z) + np.exp(-0.5 * z**2) / _SQRT_2PI)
     return np.where(positive, np.maximum(ei, 0.0), np.maximum(improvement, 0.0))
-
-
-def probability_of_improvement(mean, std, best: float, xi: float = 0.0) -> np.ndarray:
-    """``PI(theta) = Phi((J+ - mu - xi) / sigma)`` for minimisation, shape (m,)."""
-    mean = np.asarray(mean, dtype=float)
-    std = np.asarray(std, dtype=float)
-    positive = std > 1e-12
-    z = np.where(positive, (best - mean - xi) / np.where(positive, std, 1.0), 0.0)
-    return np.where(positive, ndtr(z), (best - mean - xi > 0).astype(float))
-
-
-def lower_confidence_bound(mean, std, beta: float = 2.0) -> np.ndarray:
-    """Negated lower confidence bound ``-(mu - beta sigma)``, shape (m,), to be maximised."""
-    return -(np.asarray(mean, dtype=float) - beta * np.asarray(std, dtype=float))
 
 
 class ExpectedImprovement:

@@ -17,11 +17,12 @@ from scipy.stats import qmc
 from agents.acquisition import ExpectedImprovement, maximize_on_grid
 from agents.base import Tuner
 from agents.metric_surrogate import CompositeSurrogate, MetricSurrogate
+from agents.parameters import Interval, Options, validate_params
 from agents.result import METRIC_COLUMNS
 from agents.settling import SettlingTimeModel, error_envelope
-from agents.surrogate import OUTPUT_TRANSFORMS, PRIOR_MEANS, GPSurrogate, single_threaded_blas
+from agents.surrogate import GPSurrogate, single_threaded_blas
 
-__all__ = ["BayesianOptimization", "INCUMBENTS", "MODELS", "SETTLING_MODELS"]
+__all__ = ["BayesianOptimization", "INCUMBENTS", "LOG_METRICS", "MODELS", "SETTLING_MODELS", "SETTLING_TIMES"]
 
 #: What the GP models: the cost ``J`` (one GP) or every performance metric (one GP each).
 MODELS = ("cost", "metrics")
@@ -29,8 +30,19 @@ MODELS = ("cost", "metrics")
 #: How ``model="metrics"`` models the settling time: by a GP of its own, or from the error envelope.
 SETTLING_MODELS = ("gp", "envelope")
 
-#: Choices of the incumbent ``J+`` of EI.
+#: Choices of the incumbent ``J+`` of EI (attribute ``incumbent_rule``; guided BO switches it on the twin).
 INCUMBENTS = ("observed", "posterior_mean")
+
+#: With ``model="metrics"``: the metrics whose GP models ``log(f_i / n_i + 1e-3)``. The settling time
+#: jumps where the response touches the 2 % band, and the log makes the jump relatively smaller than
+#: the valley; rise time and ITAE grow like ``1 / gain`` towards small gains, which a GP extrapolates
+#: better in logs. Overshoot is not logged: it is 0 on a large region, and its log makes that flat
+#: region dominate the fit (benchmarks/README.md, data_efficiency.py, has the comparison).
+LOG_METRICS = ("settling_time", "rise_time", "itae")
+
+#: With ``settling_model="envelope"``: the times, evenly spaced over the record, at which the error
+#: envelope is modelled (the settling time's resolution is the record length over this).
+SETTLING_TIMES = 100
 
 #: Column of the settling time in the metric arrays.
 _SETTLING = METRIC_COLUMNS.index("settling_time")
@@ -46,9 +58,14 @@ class BayesianOptimization(Tuner):
        (``scipy.stats.qmc.LatinHypercube`` seeded by the tuner's rng).
     2. Then, every experiment: fit the GP (Matern 5/2 ARD, constant mean by
        standardising the costs, noise learned or given, hyperparameters by log
-       marginal likelihood; inputs scaled to the unit box) on the training set
-       ``D`` of eq. (D); query the maximiser of Expected Improvement (eq. (LCB))
-       over a ``grid_points``-per-gain grid of the feasible set (eq. (EI)).
+       marginal likelihood with :class:`~agents.surrogate.GPSurrogate`'s defaults:
+       2 random restarts on every 5th fit, warm starts in between, length scales in
+       ``[0.05, 0.5]`` of the unit box, prior hyperparameters below 5 points; inputs
+       scaled to the unit box) on the training set ``D`` of eq. (D); query the
+       maximiser of Expected Improvement (eq. (LCB), no exploration margin) over a
+       ``grid_points``-per-gain grid of the feasible set (eq. (EI)). The incumbent
+       ``J+`` of EI is the lowest measured cost in ``D`` (the paper's "best-observed
+       performance").
 
     Parameters
     ----------
@@ -58,69 +75,14 @@ class BayesianOptimization(Tuner):
         Grid points per gain for maximising EI (100 x 100 for two gains, the
         paper's dense grid). Above 65536 candidates a scrambled Sobol set of
         65536 points is used instead.
-    polish : bool, default False
-        Refine the best grid point with L-BFGS-B within the bounds.
-    incumbent : {"observed", "posterior_mean"}, default "observed"
-        ``J+`` of EI: the lowest measured cost in the training set (the
-        paper's "best-observed performance") or the lowest posterior mean at
-        the training points (robust to a lucky noisy measurement). On
-        DCMotor-v0 "observed" reached ratio 1.1 in fewer experiments (see
-        benchmarks/data_efficiency.py), so it is the default.
-    xi : float, default 0.0
-        EI exploration margin, cost units.
     noise_std : float, optional
-        Known cost noise ``sigma_eps`` (e.g. from :func:`agents.noise.estimate_noise`);
+        Known cost noise ``sigma_eps``, cost units (e.g. from :func:`agents.noise.estimate_noise`);
         ``None`` learns it by marginal likelihood.
-    n_restarts : int, default 2
-        Random restarts of the likelihood optimiser per fit (seeded by the tuner).
-    length_scale_bounds : (float, float), default (0.05, 0.5)
-        ARD length-scale bounds in unit-box units. The upper bound keeps the
-        GP from explaining a narrow cost valley with one smooth bowl (which
-        makes EI stop exploring); 0.5 was best of 0.2-20 on DCMotor-v0.
-    noise_bounds : (float, float), default (1e-6, 0.5)
-        Bounds of the learned noise variance, in units of the standardised costs.
-    warm_start : bool, default True
-        Start each hyperparameter fit from the previous one.
-    restart_every : int, default 5
-        Random restarts only on every ``restart_every``-th fit (warm start in between).
-    local_every : int, default 0
-        Trust-region steps (TuRBO-like, Eriksson et al., 2019): when ``> 0``, every
-        ``local_every``-th BO iteration maximises EI (eq. (EI)) over a ``local_points``-per-gain
-        grid of the box of half-width ``trust_region`` (unit-box units) around the training
-        point with the lowest cost, instead of the dense grid. ``0`` (default) is the paper's
-        global grid only. On DCMotor-v0 it did not help (see Notes).
-    trust_region : float, default 0.1
-        Half-width of the trust region, unit-box units, in ``(0, 1]``.
-    local_points : int, default 41
-        Grid points per gain in the trust region.
-    output_transform : {"none", "log", "rank"}, default "none"
-        Monotone transform ``z = T(J)`` the GP is fitted on
-        (:class:`agents.surrogate.OutputTransform`). With a transform, EI (eq. (LCB)) is
-        computed in the transformed space: ``mu_n, v_n`` of ``T(J_hat)`` and incumbent
-        ``T(J+_n)`` (``xi`` is scaled by ``T'(J+_n)``); since ``T`` is increasing, an improvement
-        in ``z`` is an improvement in ``J``, but EI's value is in ``z`` units. The ``ei``
-        returned by :meth:`propose` (and ``last_ei_``) is converted back to cost units by the
-        delta method, ``a_EI / T'(J+_n)``; :meth:`posterior` returns the posterior median
-        ``T^-1(mu_z)`` and a delta-method std in cost units.
-    length_scale_prior : (float, float), optional
-        ``(m, s)``: log-normal prior ``log l_j ~ N(m, s^2)`` on every ARD length scale
-        (unit-box units); the hyperparameters are then the MAP estimate (penalised log
-        marginal likelihood). ``None``: maximum likelihood (the paper).
-    noise_prior : (float, float), optional
-        ``(m, s)``: log-normal prior on the learned noise variance (standardised units).
-    min_fit_points : int, default 5
-        Below this many training points the GP keeps its prior hyperparameters
-        (see :class:`agents.surrogate.GPSurrogate`).
-    prior_mean : {"sample", "ml", "max"}, default "sample"
-        The value of the constant prior mean ``mu`` of eq. (gpr_mio1): the sample mean of
-        the (transformed) costs, the marginal-likelihood (GLS) estimate
-        ``1' K^-1 y / 1' K^-1 1`` profiled out of the likelihood, or the largest training
-        cost (pessimistic: unexplored regions are predicted bad, which curbs EI's corner
-        and edge sampling).
     model : {"cost", "metrics"}, default "metrics"
         What is modelled. ``"metrics"``: the paper's "performance metrics modeled by Gaussian
         processes" -- one GP per metric of ``record["metrics"]`` (:data:`agents.result.METRIC_COLUMNS`),
-        each on ``f_i / n_i`` with the env's normalizers, combined into the posterior of
+        each on ``f_i / n_i`` with the env's normalizers (in logs for :data:`LOG_METRICS`, combined
+        by their log-normal mean and std), combined into the posterior of
         ``J_hat = sum_i w_i f_i / n_i`` (eq. (J_used)) as independent GPs: mean ``sum w_i mu_i``,
         variance ``sum w_i^2 sigma_i^2`` (:mod:`agents.metric_surrogate`, which documents the
         noise model). EI is computed on that mean and std by the same acquisition code; the
@@ -130,61 +92,34 @@ class BayesianOptimization(Tuner):
         training point has no finite metrics (no record, an unstable experiment, or extra data
         added without ``metrics=``), the cost GP is used. ``"cost"``: one GP on the measured
         costs ``J`` (what guided BO uses, since its twin points carry only costs).
-    log_metrics : tuple of str, default ("settling_time", "rise_time", "itae")
-        With ``model="metrics"``: metrics whose GP models ``log(f_i / n_i + 1e-3)``; the
-        combination uses their log-normal mean and std. The settling time jumps where the
-        response touches the 2 % band, and the log makes the jump relatively smaller than
-        the valley; rise time and ITAE grow like ``1 / gain`` towards small gains, which a
-        GP extrapolates better in logs. Overshoot is not logged: it is 0 on a large region,
-        and its log makes that flat region dominate the fit (see Notes).
     settling_model : {"gp", "envelope"}, default "gp"
         With ``model="metrics"``: how the settling time is modelled. ``"gp"``: a GP of its own,
         like the other metrics. ``"envelope"``: from GPs on the error envelope of the response
-        (:mod:`agents.settling`: the settling time as a composite of smooth functions, which
-        keeps its jump where the response touches the 2 % band); needs the env's step
-        (``env.unwrapped.loop.r1``, ``.r2``, ``.duration``) and the records' ``t`` and ``y``,
-        else the GP is used. It needs fewer experiments but makes ``ask()`` slower (see Notes).
-    settling_times : int, default 100
-        With ``settling_model="envelope"``: the times, evenly spaced over the record, at which
-        the envelope is modelled (the settling time's resolution is the record length over this).
-    metric_optimize_every : int, default 1
-        With ``model="metrics"``: the metric GPs' hyperparameters are fitted on every
-        ``metric_optimize_every``-th fit only (conditioned with the previous ones in between),
-        to make ``ask()`` faster (2 needed 17.4 instead of 15.7 experiments to ratio 1.1 on
-        seeds 0-59, so the default is 1; ``ask()`` with 50 observations takes about 40 ms
-        with 1, see benchmarks/bench_bo_ask.py).
+        at :data:`SETTLING_TIMES` times (:mod:`agents.settling`: the settling time as a composite
+        of smooth functions, which keeps its jump where the response touches the 2 % band); needs
+        the env's step (``env.unwrapped.loop.r1``, ``.r2``, ``.duration``) and the records' ``t``
+        and ``y``, else the GP is used. It needs fewer experiments but makes ``ask()`` slower
+        (benchmarks/README.md has the figures).
 
     Attributes
     ----------
     surrogate : GPSurrogate
         The GP; :meth:`fit_surrogate` returns it fitted on the current training set.
+    incumbent_rule : {"observed", "posterior_mean"}
+        ``J+`` of EI: ``"observed"`` (above), or the lowest posterior mean at the training
+        points; guided BO uses ``"posterior_mean"`` during its twin iterations.
+    polish : bool
+        Whether the best grid point of EI is refined by L-BFGS-B (``False``; guided BO
+        polishes during its twin iterations).
     last_ei_, last_std_, last_mean_ : float
         EI (cost units), posterior std and mean of ``J_hat`` at the gains of the
         last :meth:`ask` (``nan`` for initial-design gains).
 
     Notes
     -----
-    Measured on DCMotor-v0 (benchmarks/data_efficiency.py, N0 = 1, 35 experiments; mean
-    experiments to optimality ratio 1.1, never-reached counted as 36; random search needs
-    34.2 on seeds 0-59, as expected for a target region of 0.35 % of the box):
-
-    * ``model="cost"`` with the options above (output transforms, MAP length-scale and noise
-      priors, ML or pessimistic constant mean, trust-region steps, tighter bounds): 20.6-30.6,
-      about 22 with the defaults, on seeds 0-29.
-    * ``model="metrics"``, seeds 0-59: plain metrics 18.4; ``log_metrics=("settling_time",)``
-      17.1; all four logged 29.6; settling time, rise time and ITAE logged (the default)
-      **15.7**, confirmed on the unseen seeds 60-179 with **16.3** (to 1.05: 25.2 and 22.5,
-      against 20.8 and 20.6 with only the settling time logged). Other variants on seeds
-      0-59: pessimistic prior mean 16.4-18.3, GLS mean 16.9, length-scale prior 17.9,
-      trust-region steps 19.0, ``metric_optimize_every=2`` 17.2-17.4.
-    * With the true settling time in place of its GP (an oracle, 20 seeds) the same BO needs
-      7.7: the settling-time jump is what the remaining experiments are spent on.
-    * ``settling_model="envelope"`` (the settling time from GPs on the error envelope,
-      100 times): **14.7** on seeds 0-59 and 15.0 on seeds 60-179 (to 1.05: 18.2 and 18.1),
-      but ``ask()`` with 50 observations takes about 60 ms instead of 40 (its distribution
-      is evaluated at 100 times for every grid point), over the 50 ms budget, so it is an
-      option, not the default. With 30 or 50 times it needed 16.8 and 17.8 (seeds 0-59),
-      with ``metric_optimize_every=2`` 15.7.
+    The measured data efficiency of these choices (and of the variants that were
+    tried and removed: output transforms, hyperparameter priors, other constant
+    means, trust-region steps) is in benchmarks/README.md.
 
     Extension points for guided BO: :meth:`add_data` / :meth:`remove_data` /
     :meth:`extra_data` put twin evaluations in the GP's training set and take
@@ -195,85 +130,26 @@ class BayesianOptimization(Tuner):
 
     name = "bo"
 
-    def __init__(self, *, n_initial: int = 1, grid_points: int = 100, polish: bool = False,
-                 incumbent: str = "observed", xi: float = 0.0, noise_std: float | None = None,
-                 n_restarts: int = 2, length_scale_bounds: tuple[float, float] = (0.05, 0.5),
-                 noise_bounds: tuple[float, float] = (1e-6, 0.5), warm_start: bool = True,
-                 restart_every: int = 5, local_every: int = 0, trust_region: float = 0.1,
-                 local_points: int = 41, output_transform: str = "none",
-                 length_scale_prior: tuple[float, float] | None = None,
-                 noise_prior: tuple[float, float] | None = None, min_fit_points: int = 5,
-                 prior_mean: str = "sample", model: str = "metrics",
-                 log_metrics: tuple[str, ...] = ("settling_time", "rise_time", "itae"),
-                 metric_optimize_every: int = 1, settling_model: str = "gp",
-                 settling_times: int = 100) -> None:
-        if model not in MODELS:
-            raise ValueError(f"model: must be one of {MODELS}, got {model!r}")
-        unknown = [name for name in log_metrics if name not in METRIC_COLUMNS]
-        if unknown:
-            raise ValueError(f"log_metrics: unknown metrics {unknown}; choose from {METRIC_COLUMNS}")
-        if settling_model not in SETTLING_MODELS:
-            raise ValueError(f"settling_model: must be one of {SETTLING_MODELS}, got {settling_model!r}")
-        if int(settling_times) < 2:
-            raise ValueError(f"settling_times: must be >= 2, got {settling_times}")
-        if int(n_initial) < 1:
-            raise ValueError(f"n_initial: must be >= 1, got {n_initial}")
-        if int(grid_points) < 2:
-            raise ValueError(f"grid_points: must be >= 2, got {grid_points}")
-        if incumbent not in INCUMBENTS:
-            raise ValueError(f"incumbent: must be one of {INCUMBENTS}, got {incumbent!r}")
-        if not np.isfinite(xi) or xi < 0:
-            raise ValueError(f"xi: must be a finite number >= 0, got {xi}")
-        if noise_std is not None and not (np.isfinite(noise_std) and noise_std > 0):
-            raise ValueError(f"noise_std: must be None or a finite number > 0, got {noise_std}")
-        if output_transform not in OUTPUT_TRANSFORMS:
-            raise ValueError(f"output_transform: must be one of {OUTPUT_TRANSFORMS}, got {output_transform!r}")
-        if prior_mean not in PRIOR_MEANS:
-            raise ValueError(f"prior_mean: must be one of {PRIOR_MEANS}, got {prior_mean!r}")
-        if int(local_every) < 0:
-            raise ValueError(f"local_every: must be >= 0, got {local_every}")
-        if not (np.isfinite(trust_region) and 0 < trust_region <= 1):
-            raise ValueError(f"trust_region: must be in (0, 1], got {trust_region}")
-        if int(local_points) < 2:
-            raise ValueError(f"local_points: must be >= 2, got {local_points}")
-        for label, prior in (("length_scale_prior", length_scale_prior), ("noise_prior", noise_prior)):
-            if prior is not None and (len(prior) != 2 or not np.all(np.isfinite(prior)) or prior[1] <= 0):
-                raise ValueError(f"{label}: must be None or (mean, std > 0) of a log-normal, got {prior}")
-        self.n_initial = int(n_initial)
-        self.grid_points = int(grid_points)
-        self.polish = bool(polish)
-        self.incumbent_rule = incumbent
-        self.xi = float(xi)
-        self.noise_std = noise_std
-        self.n_restarts = int(n_restarts)
-        self.length_scale_bounds = tuple(length_scale_bounds)
-        self.noise_bounds = tuple(noise_bounds)
-        self.warm_start = bool(warm_start)
-        self.restart_every = int(restart_every)
-        self.local_every = int(local_every)
-        self.trust_region = float(trust_region)
-        self.local_points = int(local_points)
-        self.output_transform = output_transform
-        self.length_scale_prior = None if length_scale_prior is None else tuple(length_scale_prior)
-        self.noise_prior = None if noise_prior is None else tuple(noise_prior)
-        self.min_fit_points = int(min_fit_points)
-        self.prior_mean = prior_mean
-        self.model = model
-        self.log_metrics = tuple(log_metrics)
-        self.metric_optimize_every = max(1, int(metric_optimize_every))
-        self.settling_model = settling_model
-        self.settling_times = int(settling_times)
-        self._params = {"n_initial": self.n_initial, "grid_points": self.grid_points, "polish": self.polish,
-                        "incumbent": incumbent, "xi": self.xi, "noise_std": noise_std,
-                        "n_restarts": self.n_restarts, "length_scale_bounds": self.length_scale_bounds,
-                        "noise_bounds": self.noise_bounds, "warm_start": self.warm_start,
-                        "restart_every": self.restart_every, "local_every": self.local_every,
-                        "trust_region": self.trust_region, "local_points": self.local_points,
-                        "output_transform": output_transform, "length_scale_prior": self.length_scale_prior,
-                        "noise_prior": self.noise_prior, "min_fit_points": self.min_fit_points,
-                        "prior_mean": prior_mean, "model": model, "log_metrics": self.log_metrics,
-                        "metric_optimize_every": self.metric_optimize_every,
-                        "settling_model": settling_model, "settling_times": self.settling_times}
+    _parameter_constraints: dict[str, list] = {
+        "n_initial": [Interval(int, 1, None)],
+        "grid_points": [Interval(int, 2, None)],
+        "noise_std": [None, Interval(float, 0.0, None, closed="neither")],
+        "model": [Options(MODELS)],
+        "settling_model": [Options(SETTLING_MODELS)],
+    }
+
+    def __init__(self, *, n_initial: int = 1, grid_points: int = 100, noise_std: float | None = None,
+                 model: str = "metrics", settling_model: str = "gp") -> None:
+        self._params = validate_params(self._parameter_constraints, {
+            "n_initial": n_initial, "grid_points": grid_points, "noise_std": noise_std, "model": model,
+            "settling_model": settling_model})
+        self.n_initial = self._params["n_initial"]
+        self.grid_points = self._params["grid_points"]
+        self.noise_std = self._params["noise_std"]
+        self.model = self._params["model"]
+        self.settling_model = self._params["settling_model"]
+        self.incumbent_rule = "observed"
+        self.polish = False
 
     # -- Tuner hooks ---------------------------------------------------------------------------------
     def _setup(self) -> None:
@@ -281,16 +157,8 @@ class BayesianOptimization(Tuner):
         # Latin hypercube initial set Theta_init of size N0 (paper, subsec. BO), unit box.
         self._initial = qmc.LatinHypercube(d=dim, rng=self.rng).random(self.n_initial)
         self._unit_grid = _unit_candidates(dim, self.grid_points, self.rng)
-        offsets = _unit_candidates(dim, self.local_points, self.rng)
-        self._local_offsets = (2.0 * offsets - 1.0) * self.trust_region
         self._fit_seed = int(self.rng.integers(2**31))
-        self.surrogate = GPSurrogate(n_restarts=self.n_restarts, length_scale_bounds=self.length_scale_bounds,
-                                     noise_std=self.noise_std, noise_bounds=self.noise_bounds,
-                                     warm_start=self.warm_start,
-                                     restart_every=self.restart_every,
-                                     output_transform=self.output_transform,
-                                     length_scale_prior=self.length_scale_prior, noise_prior=self.noise_prior,
-                                     min_fit_points=self.min_fit_points, prior_mean=self.prior_mean)
+        self.surrogate = GPSurrogate(noise_std=self.noise_std)
         self.metric_surrogate: MetricSurrogate | None = None
         if self.model == "metrics":
             env = getattr(self.env, "unwrapped", self.env)
@@ -299,13 +167,7 @@ class BayesianOptimization(Tuner):
                 # the metric GPs: same kernel and fitting options as the cost GP; the metrics are
                 # modelled noise-free-ish (their own learned noise), the cost noise is added at J level
                 self.metric_surrogate = MetricSurrogate(
-                    weights, normalizers,
-                    log_metrics=[METRIC_COLUMNS.index(name) for name in self.log_metrics],
-                    n_restarts=self.n_restarts, length_scale_bounds=self.length_scale_bounds,
-                    noise_bounds=self.noise_bounds, warm_start=self.warm_start,
-                    restart_every=self.restart_every, length_scale_prior=self.length_scale_prior,
-                    noise_prior=self.noise_prior, min_fit_points=self.min_fit_points,
-                    prior_mean=self.prior_mean, optimize_every=self.metric_optimize_every,
+                    weights, normalizers, log_metrics=[METRIC_COLUMNS.index(name) for name in LOG_METRICS],
                     settling=self._settling_model(env, normalizers[_SETTLING]), settling_index=_SETTLING)
         self._model_in_use = "cost"
         self._plant_X: list[np.ndarray] = []  # unit box
@@ -404,11 +266,8 @@ class BayesianOptimization(Tuner):
         loop = getattr(env, "loop", None)
         if self.settling_model != "envelope" or not all(hasattr(loop, a) for a in ("r1", "r2", "duration")):
             return None
-        times = np.linspace(loop.duration / self.settling_times, loop.duration, self.settling_times)
-        return SettlingTimeModel(times, normalizer=normalizer, n_restarts=self.n_restarts,
-                                 length_scale_bounds=self.length_scale_bounds, noise_bounds=self.noise_bounds,
-                                 warm_start=self.warm_start, restart_every=self.restart_every,
-                                 min_fit_points=self.min_fit_points)
+        times = np.linspace(loop.duration / SETTLING_TIMES, loop.duration, SETTLING_TIMES)
+        return SettlingTimeModel(times, normalizer=normalizer)
 
     def _record_envelope(self, record: dict | None) -> np.ndarray | None:
         """:func:`agents.settling.error_envelope` of a record, or None (no settling model, no trajectories)."""
@@ -451,7 +310,7 @@ class BayesianOptimization(Tuner):
         return self._model
 
     def incumbent(self) -> float:
-        """``J+`` of EI over the current training set (see ``incumbent`` in the class doc)."""
+        """``J+`` of EI over the current training set, by :attr:`incumbent_rule` (see the class doc)."""
         model = self.fit_surrogate()
         X, y = self.training_set()
         if self.incumbent_rule == "observed":
@@ -478,30 +337,12 @@ class BayesianOptimization(Tuner):
             Posterior std of ``J_hat`` at ``gains``, cost units.
         """
         model = self.fit_surrogate()
-        # EI in the transformed space z = T(J): J+ -> T(J+), xi in cost units -> xi T'(J+)
         best = self.incumbent()
-        transform = model.transform_
-        acquisition = ExpectedImprovement(_Latent(model), float(transform(best)),
-                                          self.xi * float(transform.derivative(best)))
+        acquisition = ExpectedImprovement(model, best)
         unit_box = np.column_stack([np.zeros(self.space.dim), np.ones(self.space.dim)])
-        x, ei = maximize_on_grid(acquisition, self.candidates(), polish=self.polish, bounds=unit_box)
+        x, ei = maximize_on_grid(acquisition, self._unit_grid, polish=self.polish, bounds=unit_box)
         std = float(model.predict(x[None, :])[1][0])
-        if transform.kind != "none":  # EI back in cost units (delta method at the incumbent)
-            ei = ei / float(transform.derivative(best))
         return self.space.from_unit(x), float(ei), std
-
-    def is_local_step(self) -> bool:
-        """Whether this BO iteration searches the trust region only (see ``local_every``)."""
-        k = self.n_observations - self.n_initial
-        return self.local_every > 0 and k >= 0 and k % self.local_every == self.local_every - 1
-
-    def candidates(self) -> np.ndarray:
-        """Unit-box candidate set of this iteration: the dense grid, or the trust region around the best."""
-        if not self.is_local_step():
-            return self._unit_grid
-        X, y = self.training_set()
-        centre = X[int(np.argmin(y))]
-        return np.clip(centre + self._local_offsets, 0.0, 1.0)
 
     def posterior(self, gains) -> tuple[np.ndarray, np.ndarray]:
         """GP mean and std of ``J_hat`` at gains of shape (m, n_gains) (physical units); each (m,)."""
@@ -570,16 +411,6 @@ class BayesianOptimization(Tuner):
             yield self
         finally:
             self.remove_data(source)
-
-
-class _Latent:
-    """The GP's posterior in the transformed-cost space ``z = T(J)`` (what EI is computed on)."""
-
-    def __init__(self, model: GPSurrogate) -> None:
-        self.model = model
-
-    def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.model.predict_latent(X)
 
 
 def _record_metrics(record: dict | None) -> np.ndarray | None:

@@ -13,20 +13,22 @@ from typing import Any
 
 import numpy as np
 
-from agents.bo import INCUMBENTS, BayesianOptimization
+from agents.bo import BayesianOptimization
+from agents.parameters import HasMethods, Interval, Options, validate_params
 from gbo_envs import METRIC_NAMES
 
-__all__ = ["GuidedBO", "ACTIVATION_RULES", "BEST_POINT_RULES"]
-
-#: How "the best point of D" (Algorithm 1, line theta_plus) is chosen after the twin iterations: the
-#: lowest noise-free twin cost among this activation's twin points ("twin_new"), the lowest noise-free
-#: twin cost over all of D, plant points included ("twin_cost"), the lowest GP posterior mean over D
-#: ("posterior_mean") or the lowest cost value stored in D ("observed", the paper's literal rule).
-BEST_POINT_RULES = ("twin_new", "twin_cost", "posterior_mean", "observed")
+__all__ = ["GuidedBO", "ACTIVATION_RULES", "MIN_TWIN_ITERATIONS", "TWIN_REFIT_EVERY"]
 
 #: How the twin is switched on: the paper's uncertainty test eq. (DT_activation), or every
 #: ``period`` plant experiments for ``n_ei`` twin iterations (the twin-fidelity study, Sec. V-A).
 ACTIVATION_RULES = ("uncertainty", "periodic")
+
+#: Twin iterations per activation before eq. (DT_stop_a) may stop them.
+MIN_TWIN_ITERATIONS = 10
+
+#: The GP hyperparameters are re-fitted (warm-started) on every this-many-th twin iteration;
+#: the iterations in between only re-condition the GP on the new point.
+TWIN_REFIT_EVERY = 5
 
 
 class GuidedBO(BayesianOptimization):
@@ -37,44 +39,35 @@ class GuidedBO(BayesianOptimization):
     1. fit the GP on the plant data ``D`` and find ``theta+ = argmax a_EI`` (eq. (EI));
     2. activate the twin if ``sqrt(v_n(theta+)) > eta1 sigma_eps`` (eq. (eta1)) and
        ``e_RMSE < eta2`` (eq. (DT_rmse1));
-    3. while active: evaluate the twin at ``theta+``, ``J~ = J^_twin(theta+) + eps``
-       with ``eps ~ N(0, sigma_eps^2)``, add ``(theta+, J~)`` to ``D``
-       (line D_in_DT), refit, propose again; stop when for ``n_ei`` consecutive
+    3. while active: evaluate the twin at ``theta+``, add ``(theta+, J^_twin(theta+))``
+       to ``D`` (line D_in_DT), refit, propose again; stop when for ``n_ei`` consecutive
        twin iterations ``a_EI,i <= eta3 max_j a_EI,j`` (eq. (DT_stop_a)) or after
        ``max_twin_iterations`` (eq. (DT_stop_b));
     4. query the plant at the best point of ``D`` (line theta_plus), then remove the
        twin data from ``D`` (line remove_DT_data).
 
-    Choices where the paper leaves room (measured on DCMotor-v0, default noise, N0 = 1,
-    35 plant experiments, seeds 0-19, against :class:`~agents.bo.BayesianOptimization`
-    on the same seeds; BO needs 24.4 experiments on average to reach optimality
-    ratio 1.05, 7 of 20 runs never):
+    Choices where the paper leaves room (their measured effect on DCMotor-v0 is in
+    benchmarks/README.md):
 
     * the maximum in eq. (DT_stop_a) runs over every EI realised since the
       activation (the paper's text: "the maximal expected improvement realized so
       far");
-    * at least ``min_twin_iterations`` (10) twin iterations per activation and at
+    * at least :data:`MIN_TWIN_ITERATIONS` (10) twin iterations per activation and at
       most ``max_twin_iterations`` (20): with the bare stopping rule the twin search
-      stopped after 6-14 iterations, its best point was often worse than the plant
-      incumbent and guided BO stalled near ratio 1.1 (29.2 experiments to 1.05,
-      15 of 20 never);
-    * the twin's costs enter ``D`` without the artificial noise ``eps``
-      (``twin_noise=0``; the paper adds ``N(0, sigma_eps^2)``): the twin is a
-      deterministic simulation and, with ``sigma_eps`` about 1.3 times the gap to
-      ratio 1.05, noisy twin costs hide the thin optimal strip from the GP;
-    * "the best point of ``D``" (line theta_plus) is the twin point of this
-      activation with the lowest noise-free twin cost (``best_point="twin_new"``),
-      so every plant experiment tests a new point the twin rates best instead of
-      re-measuring the plant incumbent;
-    * during twin iterations EI uses the posterior-mean incumbent
-      (``twin_incumbent``; the plant data in ``D`` stay noisy) and its grid
-      maximiser is refined by L-BFGS-B (``twin_polish``), and the GP
-      hyperparameters are re-fitted on every ``twin_refit_every``-th twin
-      iteration (warm-started), the others only re-condition the GP (speed).
-
-    With these defaults guided BO needed 12.6 plant experiments to ratio 1.05
-    (0.51 x BO; 4 of 20 never) and 1.8 to beat the nominal PGM controller
-    (BO: 3.2).
+      stopped early, its best point was often worse than the plant incumbent and
+      guided BO stalled;
+    * the twin's costs enter ``D`` without the artificial noise ``eps ~ N(0, sigma_eps^2)``
+      the paper adds (``J~ = J^ + eps``): the twin is a deterministic simulation and,
+      with ``sigma_eps`` comparable to the gap to the optimum, noisy twin costs hide the
+      thin optimal strip from the GP;
+    * "the best point of ``D``" (line theta_plus) is the twin point of this activation
+      with the lowest noise-free twin cost, so every plant experiment tests a new point
+      the twin rates best instead of re-measuring the plant incumbent;
+    * during twin iterations EI uses the posterior-mean incumbent (the plant data in
+      ``D`` stay noisy) and its grid maximiser is refined by L-BFGS-B, and the GP
+      hyperparameters are re-fitted by marginal likelihood (Algorithm 1, line 12,
+      warm-started) on every :data:`TWIN_REFIT_EVERY`-th twin iteration; the others only
+      re-condition the GP (speed).
 
     Every ``tell``: predict the experiment's cost with the last fitted twin, add
     the record to the twin data set ``D~`` (eq. (Ds)), and re-initialise ``D~``
@@ -84,6 +77,16 @@ class GuidedBO(BayesianOptimization):
 
     Parameters
     ----------
+    n_initial : int, default 1
+        Size ``N0`` of the Latin hypercube initial set (see :class:`~agents.bo.BayesianOptimization`).
+    grid_points : int, default 100
+        Grid points per gain for maximising EI (see :class:`~agents.bo.BayesianOptimization`).
+    noise_std : float, optional
+        ``sigma_eps``, cost units; also the GP's fixed noise. Default: the plant env's
+        declared cost noise (``cost_noise_std``), which stands for the paper's prior
+        measurement of five repeated experiments (:func:`agents.noise.estimate_noise`
+        measures it on a real plant); if the env declares none (or zero), 1 % of the mean
+        measured cost. (The GP then learns its noise.)
     eta1 : float, default 3.0
         Activation threshold of eq. (eta1), in units of ``sigma_eps``: the twin is
         used when the GP's posterior std at the next query exceeds
@@ -100,50 +103,20 @@ class GuidedBO(BayesianOptimization):
         Re-initialisation threshold ``delta~`` of eq. (reinit_DTdataset).
     max_twin_iterations : int, default 20
         Cap of eq. (DT_stop_b) on twin iterations per activation.
-    min_twin_iterations : int, default 10
-        Twin iterations per activation before eq. (DT_stop_a) may stop them.
     n_samples : int, default 100
-        Samples per experiment kept for identification, the paper's ``n~`` of eq. (Ds).
-    noise_std : float, optional
-        ``sigma_eps``. Default: the plant env's declared cost noise
-        (``cost_noise_std``), which stands for the paper's prior measurement of
-        five repeated experiments (:func:`agents.noise.estimate_noise` measures it on
-        a real plant); if the env declares none (or zero), 1 % of the mean measured cost.
+        Samples per experiment kept for identification, the paper's ``n~`` of eq. (Ds);
+        ``None`` keeps every sample.
     activation : {"uncertainty", "periodic"}, default "uncertainty"
         ``"periodic"`` activates the twin every ``period`` plant experiments for
         exactly ``n_ei`` iterations, subject only to ``eta2`` (Sec. V-A).
     period : int, default 1
         ``N_G`` of the periodic rule.
-    twin_poles, twin_zeros : int, default 2, 0
-        Orders of the identified transfer function (the paper's high-fidelity twin
-        has 2 poles, the low-fidelity one 5).
+    twin_poles : int, default 2
+        Poles of the identified transfer function, which has no zeros (the paper's
+        high-fidelity twin has 2 poles, the low-fidelity one 5).
     twin : TwinEstimator, optional
         A configured (unfitted) estimator to clone instead of the default
         SRIVC twin, e.g. one with physical effects.
-    twin_hyperparameters : {"refit", "fixed"}, default "refit"
-        During twin iterations the GP hyperparameters are re-fitted by marginal
-        likelihood every iteration, as Algorithm 1, line 12 writes ("refit",
-        warm-started), or held at the values fitted on the plant data at this
-        activation ("fixed", one Cholesky factorisation per iteration: faster,
-        but with few plant points the held values are the prior's and the twin
-        search suffers).
-    twin_noise : float, default 0.0
-        Std of the noise added to twin costs, in units of ``sigma_eps`` (the
-        paper's ``J~ = J^ + eps`` is ``twin_noise=1``).
-    best_point : {"twin_new", "twin_cost", "posterior_mean", "observed"}, default "twin_new"
-        Rule for the best point of ``D`` sent to the plant, see :data:`BEST_POINT_RULES`.
-    twin_incumbent : {"observed", "posterior_mean"} or None, default "posterior_mean"
-        EI incumbent during twin iterations (``None``: the plant-side ``incumbent``).
-    twin_polish : bool or None, default True
-        Polish the EI maximiser during twin iterations (``None``: the plant-side ``polish``).
-    twin_refit_every : int, default 5
-        Re-fit the GP hyperparameters on every ``twin_refit_every``-th twin
-        iteration (when ``twin_hyperparameters="refit"``).
-    **bo_kwargs
-        Passed to :class:`~agents.bo.BayesianOptimization` (``n_initial``,
-        ``grid_points``, ``polish``, ``incumbent``, ...). ``model`` defaults to ``"cost"``
-        here (one GP on the cost, as in the paper's Algorithm 1), not to the metrics model of
-        plain BO.
 
     Attributes
     ----------
@@ -155,72 +128,47 @@ class GuidedBO(BayesianOptimization):
         How often eq. (reinit_DTdataset) emptied the twin data set.
     twin_ : TwinEstimator or None
         The current fitted twin.
+    model : str
+        Always ``"cost"``: one GP on the cost, as in the paper's Algorithm 1 (the twin's
+        points enter ``D`` as costs, line D_in_DT).
     """
 
     name = "guided-bo"
 
-    def __init__(self, *, eta1: float = 3.0, eta2: float | None = None, eta3: float = 0.2, n_ei: int = 3,
+    _parameter_constraints: dict[str, list] = {
+        **BayesianOptimization._parameter_constraints,
+        "eta1": [Interval(float, 0.0, None)],
+        "eta2": [None, Interval(float, 0.0, None, closed="neither")],
+        "eta3": [Interval(float, 0.0, None)],
+        "n_ei": [Interval(int, 1, None)],
+        "delta": [Interval(float, 0.0, None)],
+        "max_twin_iterations": [Interval(int, 1, None)],
+        "n_samples": [None, Interval(int, 10, None)],
+        "activation": [Options(ACTIVATION_RULES)],
+        "period": [Interval(int, 1, None)],
+        "twin_poles": [Interval(int, 1, None)],
+        "twin": [None, HasMethods(("fit", "get_params"))],
+    }
+
+    def __init__(self, *, n_initial: int = 1, grid_points: int = 100, noise_std: float | None = None,
+                 eta1: float = 3.0, eta2: float | None = None, eta3: float = 0.2, n_ei: int = 3,
                  delta: float = 2.0, max_twin_iterations: int = 20, n_samples: int | None = 100,
-                 noise_std: float | None = None, activation: str = "uncertainty", period: int = 1,
-                 twin_poles: int = 2, twin_zeros: int = 0, twin=None, twin_hyperparameters: str = "refit",
-                 twin_noise: float = 0.0, best_point: str = "twin_new", min_twin_iterations: int = 10,
-                 twin_incumbent: str | None = "posterior_mean", twin_polish: bool | None = True,
-                 twin_refit_every: int = 5,
-                 **bo_kwargs) -> None:
+                 activation: str = "uncertainty", period: int = 1, twin_poles: int = 2, twin=None) -> None:
         # one GP on the cost: the twin's points enter D as costs (Algorithm 1, line D_in_DT)
-        super().__init__(noise_std=noise_std, **{"model": "cost", **bo_kwargs})
-        for name, value in (("eta1", eta1), ("eta3", eta3), ("delta", delta)):
-            if not (value >= 0):
-                raise ValueError(f"{name}: must be >= 0, got {value}")
-        if eta2 is not None and not eta2 > 0:
-            raise ValueError(f"eta2: must be None or > 0, got {eta2}")
-        if int(n_ei) < 1:
-            raise ValueError(f"n_ei: must be >= 1, got {n_ei}")
-        if int(max_twin_iterations) < 1:
-            raise ValueError(f"max_twin_iterations: must be >= 1, got {max_twin_iterations}")
-        if activation not in ACTIVATION_RULES:
-            raise ValueError(f"activation: must be one of {ACTIVATION_RULES}, got {activation!r}")
-        if int(period) < 1:
-            raise ValueError(f"period: must be >= 1, got {period}")
-        if twin_hyperparameters not in ("fixed", "refit"):
-            raise ValueError(f"twin_hyperparameters: must be 'fixed' or 'refit', got {twin_hyperparameters!r}")
-        if not (np.isfinite(twin_noise) and twin_noise >= 0):
-            raise ValueError(f"twin_noise: must be a finite number >= 0, got {twin_noise}")
-        if best_point not in BEST_POINT_RULES:
-            raise ValueError(f"best_point: must be one of {BEST_POINT_RULES}, got {best_point!r}")
-        if int(min_twin_iterations) < 1:
-            raise ValueError(f"min_twin_iterations: must be >= 1, got {min_twin_iterations}")
-        if twin_incumbent is not None and twin_incumbent not in INCUMBENTS:
-            raise ValueError(f"twin_incumbent: must be None or one of {INCUMBENTS}, got {twin_incumbent!r}")
-        if int(twin_refit_every) < 1:
-            raise ValueError(f"twin_refit_every: must be >= 1, got {twin_refit_every}")
-        if n_samples is not None and int(n_samples) < 10:
-            raise ValueError(f"n_samples: must be None or >= 10, got {n_samples}")
-        if int(twin_poles) < 1 or not 0 <= int(twin_zeros) < int(twin_poles):
-            raise ValueError(f"twin_poles, twin_zeros: need 0 <= twin_zeros < twin_poles, got {twin_poles}, "
-                             f"{twin_zeros}")
-        self.eta1, self.eta2, self.eta3 = float(eta1), eta2, float(eta3)
-        self.n_ei, self.delta = int(n_ei), float(delta)
-        self.max_twin_iterations = int(max_twin_iterations)
-        self.n_samples = None if n_samples is None else int(n_samples)
-        self.activation, self.period = activation, int(period)
-        self.twin_poles, self.twin_zeros = int(twin_poles), int(twin_zeros)
+        super().__init__(n_initial=n_initial, grid_points=grid_points, noise_std=noise_std, model="cost")
+        params = validate_params(self._parameter_constraints, {
+            "eta1": eta1, "eta2": eta2, "eta3": eta3, "n_ei": n_ei, "delta": delta,
+            "max_twin_iterations": max_twin_iterations, "n_samples": n_samples, "activation": activation,
+            "period": period, "twin_poles": twin_poles, "twin": twin})
+        self.eta1, self.eta2, self.eta3 = params["eta1"], params["eta2"], params["eta3"]
+        self.n_ei, self.delta = params["n_ei"], params["delta"]
+        self.max_twin_iterations = params["max_twin_iterations"]
+        self.n_samples = params["n_samples"]
+        self.activation, self.period = params["activation"], params["period"]
+        self.twin_poles = params["twin_poles"]
         self.twin_template = twin
-        self.twin_hyperparameters = twin_hyperparameters
-        self.twin_noise = float(twin_noise)
-        self.best_point = best_point
-        self.min_twin_iterations = int(min_twin_iterations)
-        self.twin_incumbent = twin_incumbent
-        self.twin_polish = twin_polish
-        self.twin_refit_every = max(1, int(twin_refit_every))
-        self._params.update({"eta1": self.eta1, "eta2": eta2, "eta3": self.eta3, "n_ei": self.n_ei,
-                             "delta": self.delta, "max_twin_iterations": self.max_twin_iterations,
-                             "n_samples": self.n_samples, "activation": activation, "period": self.period,
-                             "twin_poles": self.twin_poles, "twin_zeros": self.twin_zeros,
-                             "twin_hyperparameters": twin_hyperparameters, "twin_noise": self.twin_noise,
-                             "best_point": best_point, "min_twin_iterations": self.min_twin_iterations,
-                             "twin_incumbent": twin_incumbent, "twin_polish": twin_polish,
-                             "twin_refit_every": self.twin_refit_every})
+        self._params = {"n_initial": self.n_initial, "grid_points": self.grid_points, "noise_std": self.noise_std,
+                        **{name: value for name, value in params.items() if name != "twin"}}
 
     # -- Tuner hooks ---------------------------------------------------------------------------------
     def _setup(self) -> None:
@@ -235,13 +183,11 @@ class GuidedBO(BayesianOptimization):
         self._twin_dirty = False
         self.twin_ = None
         self._twin_env = None
-        self._twin_noise = np.random.default_rng(self.rng.integers(2**63))
         self.activations_ = 0
         self.twin_evaluations_ = 0
         self.reinitializations_ = 0
         # periodic rule (Sec. V-A): the twin is used right after the initial data, then every N_G experiments
         self._since_activation = self.period
-        self._twin_rmse_history: list[float] = []
 
     def _ask(self) -> np.ndarray:
         if self.n_observations < self.n_initial:
@@ -281,7 +227,7 @@ class GuidedBO(BayesianOptimization):
     # -- Algorithm 1 ---------------------------------------------------------------------------------
     @property
     def sigma_eps(self) -> float:
-        """Cost noise std ``sigma_eps`` used by eqs. (eta1), (DT_rmse1) and the twin's noise."""
+        """Cost noise std ``sigma_eps`` used by eqs. (eta1) and (DT_rmse1)."""
         if self.noise_std is not None:
             return float(self.noise_std)
         declared = float(getattr(self._plant_env, "cost_noise_std", 0.0) or 0.0)
@@ -313,12 +259,9 @@ class GuidedBO(BayesianOptimization):
         twin_env = self._current_twin_env()
         periodic = self.activation == "periodic"
         cap = self.n_ei if periodic else self.max_twin_iterations
-        self._optimize_hyperparameters = self.twin_hyperparameters == "refit"
         saved = self.incumbent_rule, self.polish
-        if self.twin_incumbent is not None:
-            self.incumbent_rule = self.twin_incumbent
-        if self.twin_polish is not None:
-            self.polish = bool(self.twin_polish)
+        # twin iterations: posterior-mean incumbent (the plant data in D are noisy), polished EI maximiser
+        self.incumbent_rule, self.polish = "posterior_mean", True
         try:
             best = self._twin_iterations(twin_env, gains, ei, cap, periodic)
         finally:
@@ -335,32 +278,21 @@ class GuidedBO(BayesianOptimization):
             metrics, clean = twin_env.evaluate(gains[None, :])
             twin_X.append(gains.copy())
             twin_J.append(float(clean[0]))
-            noisy = float(clean[0]) + self.twin_noise * self.sigma_eps * self._twin_noise.standard_normal()
-            self.add_data(gains, noisy, source="twin")  # line D_in_DT
-            self.log_twin(gains, noisy, dict(zip(METRIC_NAMES, metrics[0])), activation=self.activations_,
+            self.add_data(gains, float(clean[0]), source="twin")  # line D_in_DT, without the paper's eps
+            self.log_twin(gains, float(clean[0]), dict(zip(METRIC_NAMES, metrics[0])), activation=self.activations_,
                           twin_iteration=iteration, twin_true_cost=float(clean[0]))
             self.twin_evaluations_ += 1
-            self._optimize_hyperparameters = (self.twin_hyperparameters == "refit"
-                                              and (iteration - 1) % self.twin_refit_every == 0)
+            # Algorithm 1, line 12: hyperparameters re-fitted on every TWIN_REFIT_EVERY-th twin iteration
+            self._optimize_hyperparameters = (iteration - 1) % TWIN_REFIT_EVERY == 0
             gains, ei, _ = self.propose()
             if not periodic:
                 # eq. (DT_stop_a), against the largest EI realised since the activation
                 calm = calm + 1 if ei <= self.eta3 * max(eis) else 0
                 eis.append(ei)
-                if calm >= self.n_ei and iteration >= self.min_twin_iterations:
+                if calm >= self.n_ei and iteration >= MIN_TWIN_ITERATIONS:
                     break
-        if self.best_point == "twin_new":
-            return twin_X[int(np.argmin(twin_J))]
-        X, y = self.training_set()
-        if self.best_point == "twin_cost":
-            values = twin_env.evaluate(self.space.from_unit(X))[1]
-            return self.space.from_unit(X[int(np.argmin(values))])
-        if self.best_point == "observed":
-            return self.space.from_unit(X[int(np.argmin(y))])
-        # line theta_plus: the best point of D, judged by the GP's posterior mean so that one
-        # lucky noise draw cannot pick it (the same point as the paper's rule when noise is zero)
-        mean = self.fit_surrogate().predict(X)[0]
-        return self.space.from_unit(X[int(np.argmin(mean))])
+        # line theta_plus: the twin point of this activation with the lowest noise-free twin cost
+        return twin_X[int(np.argmin(twin_J))]
 
     def _current_twin(self):
         """The twin fitted on ``D~``, refitted only when it mispredicts records added since its last fit.
@@ -386,8 +318,6 @@ class GuidedBO(BayesianOptimization):
             self._twin_env = None
             self._twin_dirty = False
             self._twin_fitted_on = len(self._twin_records)
-            if self.twin_ is not None:
-                self._twin_rmse_history.append(float(self.twin_.rmse_))
         return self.twin_
 
     def _current_twin_env(self):
@@ -405,7 +335,7 @@ class GuidedBO(BayesianOptimization):
 
         plant = self._plant_env.loop.plant
         integrators = len(plant.den) - len(np.trim_zeros(np.asarray(plant.den), "b"))
-        return TwinEstimator(n_poles=self.twin_poles, n_zeros=self.twin_zeros,
+        return TwinEstimator(n_poles=self.twin_poles, n_zeros=0,
                              n_integrators=min(integrators, self.twin_poles - 1), n_samples=self.n_samples,
                              output=plant.output, warm_start=True)
 

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from agents.surrogate import GPSurrogate, OutputTransform
+from agents.surrogate import GPSurrogate
 
 __all__ = ["CompositeSurrogate", "GPDerivedMetric", "MetricSurrogate"]
 
@@ -52,12 +52,6 @@ class CompositeSurrogate:
         ``w_i`` of eq. (J_used).
     cost_noise_std : float, default 0
         Std of the cost-level noise the metric models do not see (see the module doc).
-
-    Attributes
-    ----------
-    transform_ : OutputTransform
-        The identity (``"none"``): the composite is already in cost units, so the
-        BO code that handles a GP's output transform needs no special case.
     """
 
     def __init__(self, models, weights, cost_noise_std: float = 0.0) -> None:
@@ -66,7 +60,6 @@ class CompositeSurrogate:
         if self.weights.size != len(self.models):
             raise ValueError(f"weights: need one per model ({len(self.models)}), got {self.weights.size}")
         self.cost_noise_std_ = float(cost_noise_std)
-        self.transform_ = OutputTransform("none", np.zeros(1))
 
     def predict_metrics(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Posterior means and stds of every normalised metric, each of shape (m, n_metrics)."""
@@ -84,8 +77,6 @@ class CompositeSurrogate:
             mean += weight * mu
             var += weight**2 * sigma**2
         return mean, np.sqrt(var)
-
-    predict_latent = predict
 
     @property
     def noise_std_(self) -> float:
@@ -115,11 +106,6 @@ class MetricSurrogate:
         gets ``envelopes``.
     settling_index : int, default 1
         Which metric ``settling`` models (the settling time in :data:`agents.result.METRIC_COLUMNS`).
-    optimize_every : int, default 1
-        Fit the metric GPs' hyperparameters (log marginal likelihood) only on every
-        ``optimize_every``-th call of :meth:`fit` (and the first ones below ``min_fit_points``);
-        in between, each GP is only conditioned on the new data with its previous
-        hyperparameters (one Cholesky factorisation): four GPs cost about one.
     **gp_kwargs
         Passed to every metric's :class:`GPSurrogate` (length-scale bounds, warm start, ...).
 
@@ -129,15 +115,13 @@ class MetricSurrogate:
         One per metric; warm-started from their own previous fits.
     """
 
-    def __init__(self, weights, normalizers, log_metrics=(), optimize_every: int = 1, settling=None,
-                 settling_index: int = 1, **gp_kwargs) -> None:
+    def __init__(self, weights, normalizers, log_metrics=(), settling=None, settling_index: int = 1,
+                 **gp_kwargs) -> None:
         self.weights = np.asarray(weights, dtype=float).ravel()
         self.normalizers = np.asarray(normalizers, dtype=float).ravel()
         if self.weights.shape != self.normalizers.shape or np.any(self.normalizers <= 0):
             raise ValueError("weights, normalizers: need the same length, normalizers > 0")
         self.log_metrics = tuple(int(i) for i in log_metrics)
-        self.optimize_every = max(1, int(optimize_every))
-        self._n_fits = 0
         self.models = [GPSurrogate(**gp_kwargs) for _ in self.weights]
         self.settling = settling
         self.settling_index = int(settling_index)
@@ -170,9 +154,6 @@ class MetricSurrogate:
         if metrics.shape != (np.shape(X)[0], self.weights.size) or not np.all(np.isfinite(metrics)):
             raise ValueError(f"metrics: need finite values of shape ({np.shape(X)[0]}, {self.weights.size})")
         scaled = metrics / self.normalizers
-        if optimize:  # hyperparameters only every optimize_every-th fit (warm GPs are conditioned otherwise)
-            optimize = self._n_fits % self.optimize_every == 0
-            self._n_fits += 1
         models = []
         for i, model in enumerate(self.models):
             if i == self.settling_index and self.settling is not None and envelopes is not None:

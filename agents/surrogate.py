@@ -14,101 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, cholesky
 from scipy.optimize import minimize
-from scipy.special import ndtri
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 from threadpoolctl import ThreadpoolController
 
-__all__ = ["GPSurrogate", "OutputTransform", "OUTPUT_TRANSFORMS"]
-
-#: Monotone output transforms ``z = T(J)`` the GP can be fitted on (see :class:`OutputTransform`).
-OUTPUT_TRANSFORMS = ("none", "log", "rank")
-
-#: How the constant prior mean ``mu`` is set (see :class:`GPSurrogate`).
-PRIOR_MEANS = ("sample", "ml", "max")
-
-
-class OutputTransform:
-    """Strictly increasing map ``z = T(J)`` of costs, fitted on the training costs ``y``.
-
-    * ``"none"``: ``T(J) = J``.
-    * ``"log"``: ``T(J) = log(J - min(y) + c)``, ``c = 0.1 (max(y) - min(y))`` (or 1 if all
-      costs are equal), continued linearly below ``min(y)``: stretches the low costs,
-      compresses the high ones.
-    * ``"rank"``: the Gaussian copula transform (Salinas et al., 2020; HEBO's idea): the
-      training costs map to normal scores ``Phi^-1((rank_i - 1/2) / n)`` (ties: average rank),
-      other costs by linear interpolation between the sorted pairs, extrapolated linearly
-      beyond them with the end slopes. Makes the GP model the *ordering* of the costs, so
-      that the large costs far from the valley do not dictate the length scales.
-
-    Parameters
-    ----------
-    kind : {"none", "log", "rank"}
-    y : ndarray of shape (n,)
-        Training costs.
-
-    Attributes
-    ----------
-    slope_ : float
-        Mean slope ``(T(max y) - T(min y)) / (max y - min y)`` (1 for ``"none"``); converts a
-        known cost noise std to transformed units.
-    """
-
-    def __init__(self, kind: str, y: np.ndarray) -> None:
-        self.kind = kind
-        y = np.asarray(y, dtype=float).ravel()
-        span = float(np.ptp(y)) if y.size else 0.0
-        self._low = float(np.min(y)) if y.size else 0.0
-        self._offset = 0.1 * span if span > 1e-12 else 1.0
-        if kind == "rank":
-            values, counts = np.unique(y, return_counts=True)
-            ranks = np.cumsum(counts) - 0.5 * (counts - 1)  # average 1-based rank of each distinct cost
-            scores = ndtri((ranks - 0.5) / y.size) if y.size > 1 else np.zeros(1)
-            if values.size == 1:  # one distinct cost: the identity around it
-                values, scores = np.array([values[0], values[0] + 1.0]), np.array([0.0, 1.0])
-            self._y, self._z = values, scores
-            self._slope_low = (scores[1] - scores[0]) / (values[1] - values[0])
-            self._slope_high = (scores[-1] - scores[-2]) / (values[-1] - values[-2])
-        self.slope_ = 1.0
-        if kind != "none" and span > 1e-12:
-            self.slope_ = float((self(np.max(y)) - self(np.min(y))) / span)
-
-    def __call__(self, y):
-        """``z = T(y)``, elementwise."""
-        y = np.asarray(y, dtype=float)
-        if self.kind == "none":
-            return y
-        if self.kind == "log":  # linear below min(y), so that T stays finite and increasing everywhere
-            shifted = y - self._low
-            return np.where(shifted >= 0, np.log(np.maximum(shifted, 0.0) + self._offset),
-                            np.log(self._offset) + shifted / self._offset)
-        z = np.interp(y, self._y, self._z)
-        z = np.where(y < self._y[0], self._z[0] + self._slope_low * (y - self._y[0]), z)
-        return np.where(y > self._y[-1], self._z[-1] + self._slope_high * (y - self._y[-1]), z)
-
-    def inverse(self, z):
-        """``y = T^-1(z)``, elementwise."""
-        z = np.asarray(z, dtype=float)
-        if self.kind == "none":
-            return z
-        if self.kind == "log":
-            edge = np.log(self._offset)
-            return self._low + np.where(z >= edge, np.exp(np.maximum(z, edge)) - self._offset,
-                                        (z - edge) * self._offset)
-        y = np.interp(z, self._z, self._y)
-        y = np.where(z < self._z[0], self._y[0] + (z - self._z[0]) / self._slope_low, y)
-        return np.where(z > self._z[-1], self._y[-1] + (z - self._z[-1]) / self._slope_high, y)
-
-    def derivative(self, y):
-        """``dT/dy`` at ``y`` (for ``"rank"``: the slope of the segment containing ``y``)."""
-        y = np.asarray(y, dtype=float)
-        if self.kind == "none":
-            return np.ones_like(y)
-        if self.kind == "log":
-            return 1.0 / (np.maximum(y - self._low, 0.0) + self._offset)
-        slopes = np.diff(self._z) / np.diff(self._y)
-        index = np.clip(np.searchsorted(self._y, y, side="right") - 1, 0, slopes.size - 1)
-        return np.where(y < self._y[0], self._slope_low, np.where(y > self._y[-1], self._slope_high,
-                                                                  slopes[index]))
+__all__ = ["GPSurrogate"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -177,18 +86,6 @@ class GPSurrogate:
         variance 1e-2 in standardised units) is used as is.
     max_iter : int, default 60
         L-BFGS-B iterations per start.
-    output_transform : {"none", "log", "rank"}, default "none"
-        The GP models ``z = T(J)`` (:class:`OutputTransform`), standardised as above;
-        :meth:`predict` maps back to cost units, :meth:`predict_latent` does not. A known
-        ``noise_std`` is converted to ``z`` units with the transform's mean slope.
-    length_scale_prior, noise_prior : (float, float), optional
-        ``(m, s)`` of normal priors on ``log l_j`` and on the log noise variance: the fit
-        maximises the log marginal likelihood plus ``-sum (theta_i - m)^2 / (2 s^2)`` (MAP;
-        a log-normal prior on each hyperparameter). ``None``: flat (maximum likelihood).
-    prior_mean : {"sample", "ml", "max"}, default "sample"
-        The constant prior mean ``mu`` (eq. (gpr_mio1)): the sample mean of ``z``; its
-        generalised-least-squares estimate ``1' K^-1 z / 1' K^-1 1``, profiled out of the
-        marginal likelihood (ordinary kriging; clustered points count less); or ``max z``.
 
     Attributes
     ----------
@@ -207,17 +104,7 @@ class GPSurrogate:
     def __init__(self, *, n_restarts: int = 2, length_scale_bounds: tuple[float, float] = (0.05, 0.5),
                  noise_std: float | None = None, noise_bounds: tuple[float, float] = (1e-6, 0.5),
                  warm_start: bool = True, restart_every: int = 5, min_fit_points: int = 5,
-                 max_iter: int = 60, output_transform: str = "none",
-                 length_scale_prior: tuple[float, float] | None = None,
-                 noise_prior: tuple[float, float] | None = None, prior_mean: str = "sample") -> None:
-        if prior_mean not in PRIOR_MEANS:
-            raise ValueError(f"prior_mean: must be one of {PRIOR_MEANS}, got {prior_mean!r}")
-        self.prior_mean = prior_mean
-        self.length_scale_prior = None if length_scale_prior is None else tuple(map(float, length_scale_prior))
-        self.noise_prior = None if noise_prior is None else tuple(map(float, noise_prior))
-        if output_transform not in OUTPUT_TRANSFORMS:
-            raise ValueError(f"output_transform: must be one of {OUTPUT_TRANSFORMS}, got {output_transform!r}")
-        self.output_transform = output_transform
+                 max_iter: int = 60) -> None:
         self.n_restarts = int(n_restarts)
         self.length_scale_bounds = tuple(float(b) for b in length_scale_bounds)
         self.noise_std = None if noise_std is None else float(noise_std)
@@ -251,9 +138,9 @@ class GPSurrogate:
         y : ndarray of shape (n,) or (n, k)
             Costs ``J`` (cost units), finite. A 2-D ``y`` with ``k > 1`` columns fits ``k``
             outputs with one shared kernel (the same correlation, each output standardised on
-            its own; the likelihood is the sum over the outputs); it needs
-            ``output_transform="none"``, ``prior_mean="sample"`` and a learned noise, and
-            :meth:`predict` then returns arrays of shape (m, k). One column is one output.
+            its own; the likelihood is the sum over the outputs); it needs a learned noise
+            (``noise_std=None``), and :meth:`predict` then returns arrays of shape (m, k). One
+            column is one output.
         seed : int, optional
             Seeds the random restarts of the likelihood optimiser.
         optimize : bool, default True
@@ -276,24 +163,19 @@ class GPSurrogate:
             raise ValueError("X, y: must be finite")
         if outputs:
             return self._fit_outputs(X, y, seed, optimize)
-        self.transform_ = OutputTransform(self.output_transform, y)
-        z = self.transform_(y)
-        # Constant mean by standardisation: mu = mean(z) (paper, subsec. BO, constant prior mean).
-        self.y_mean_ = float(np.max(z)) if self.prior_mean == "max" else float(np.mean(z))
-        scale = float(np.std(z)) if z.size > 1 else 0.0
+        # Constant mean by standardisation: mu = mean(y) (paper, subsec. BO, constant prior mean).
+        self.y_mean_ = float(np.mean(y))
+        scale = float(np.std(y)) if y.size > 1 else 0.0
         self.y_scale_ = scale if scale > 1e-12 else 1.0
-        y_std = (z - self.y_mean_) / self.y_scale_
+        y_std = (y - self.y_mean_) / self.y_scale_
         # Fixed noise: sigma_eps^2 I of eq. (gpr_mio1), in standardised units; else a small jitter.
-        noise = None if self.noise_std is None else self.noise_std * self.transform_.slope_
-        alpha = 1e-8 if noise is None else max((noise / self.y_scale_) ** 2, 1e-8)
+        alpha = 1e-8 if self.noise_std is None else max((self.noise_std / self.y_scale_) ** 2, 1e-8)
         return self._fit_standardised(X, y, y_std, alpha, seed, optimize)
 
     def _fit_outputs(self, X: np.ndarray, y: np.ndarray, seed: int | None, optimize: bool) -> GPSurrogate:
         """:meth:`fit` of several outputs, ``y`` of shape (n, k > 1), with one shared kernel."""
-        if self.output_transform != "none" or self.prior_mean != "sample" or self.noise_std is not None:
-            raise ValueError("y: several outputs (2-D y) need output_transform='none', prior_mean='sample' "
-                             "and noise_std=None")
-        self.transform_ = OutputTransform("none", y[:, 0])
+        if self.noise_std is not None:
+            raise ValueError("y: several outputs (2-D y) need a learned noise (noise_std=None)")
         self.y_mean_ = y.mean(axis=0)
         scale = y.std(axis=0) if y.shape[0] > 1 else np.zeros(y.shape[1])
         self.y_scale_ = np.where(scale > 1e-12, scale, 1.0)
@@ -312,14 +194,6 @@ class GPSurrogate:
         self._condition(kernel, X, y, y_std, alpha)
         if not few:
             self._previous_kernel = self.kernel_
-        if self.prior_mean == "ml" and X.shape[0] > 1:
-            # mu by marginal likelihood (GLS, ordinary kriging): mu = 1' K^-1 y / 1' K^-1 1
-            ones = np.ones(X.shape[0])
-            k_inv_ones = self._K_inv @ ones
-            shift = float(k_inv_ones @ y_std / (ones @ k_inv_ones))
-            self.y_mean_ += shift * self.y_scale_
-            self._n_fits -= 1
-            return self._condition(self.kernel_, X, y, y_std - shift, alpha)
         return self
 
     def _maximise_likelihood(self, kernel, X: np.ndarray, y_std: np.ndarray, alpha: float, restarts: int,
@@ -337,8 +211,7 @@ class GPSurrogate:
         # theta = log([s^2, l_1..l_d, sigma_n^2]) (sklearn's order); the objective is scikit-learn's
         # log_marginal_likelihood, evaluated by _neg_log_marginal_likelihood (about 5x faster here)
         objective = functools.partial(_neg_log_marginal_likelihood, pairwise=(X[:, None, :] - X[None, :, :]) ** 2,
-                                      y=y_std, alpha=alpha, white=self.noise_std is None,
-                                      priors=self._log_priors(X.shape[1]), profile_mean=self.prior_mean == "ml")
+                                      y=y_std, alpha=alpha, white=self.noise_std is None)
         with single_threaded_blas():
             optima = [minimize(objective, start, jac=True, method="L-BFGS-B", bounds=bounds,
                                options={"maxiter": self.max_iter}) for start in starts]
@@ -376,31 +249,7 @@ class GPSurrogate:
         self.X_train_ = X
         self.y_train_ = y
 
-    def _log_priors(self, dim: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """Normal priors on ``theta = log([s^2, l_1..l_d, sigma_n^2])`` as (means, stds); inf std = flat."""
-        if self.length_scale_prior is None and self.noise_prior is None:
-            return None
-        size = 1 + dim + (1 if self.noise_std is None else 0)
-        means, stds = np.zeros(size), np.full(size, np.inf)
-        if self.length_scale_prior is not None:
-            means[1:1 + dim], stds[1:1 + dim] = self.length_scale_prior
-        if self.noise_prior is not None and self.noise_std is None:
-            means[-1], stds[-1] = self.noise_prior
-        return means, stds
-
     def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Posterior of ``J_hat`` in cost units: latent mean and std mapped back through the output transform.
-
-        With ``output_transform="none"`` this is eqs. (gpr_mio1), (gpr_v) exactly. With a
-        transform ``T``, the mean is ``T^-1(mu_z)`` (the posterior *median* of ``J_hat``)
-        and the std is the delta-method ``sigma_z / T'(T^-1(mu_z))``.
-        """
-        mean, std = self.predict_latent(X)
-        if self.transform_.kind == "none":
-            return mean, std
-        return self.transform_.inverse(mean), std / self.transform_.derivative(self.transform_.inverse(mean))
-
-    def predict_latent(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean and standard deviation of ``J_hat`` (eqs. (gpr_mio1), (gpr_v)).
 
         Parameters
@@ -411,11 +260,10 @@ class GPSurrogate:
         Returns
         -------
         mean : ndarray of shape (m,)
-            ``mu_n(theta)`` in transformed-cost units ``z = T(J)``.
+            ``mu_n(theta)``, cost units (shape (m, k) for a GP fitted on a 2-D ``y``).
         std : ndarray of shape (m,)
             ``v_n(theta)^{1/2}`` of the noise-free cost ``J_hat`` (the learned
-            white noise is excluded), in transformed-cost units ``z = T(J)``
-            (cost units when ``output_transform="none"``).
+            white noise is excluded), cost units.
         """
         mean, std = self.predict_standardised(X)
         if mean.ndim == 2:  # several outputs: one correlation, each output's own scale
@@ -423,7 +271,7 @@ class GPSurrogate:
         return self.y_mean_ + self.y_scale_ * mean, self.y_scale_ * std
 
     def predict_standardised(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Posterior of the standardised outputs ``(z - y_mean_) / y_scale_`` at unit-box inputs (m, d).
+        """Posterior of the standardised outputs ``(y - y_mean_) / y_scale_`` at unit-box inputs (m, d).
 
         Returns the mean, of shape (m,) or (m, k) for a GP fitted on a 2-D ``y``, and the std of
         shape (m,), shared by the outputs (one kernel); the white noise is excluded.
@@ -507,8 +355,7 @@ def _kernel_dim(kernel) -> int:
 
 
 def _neg_log_marginal_likelihood(theta: np.ndarray, pairwise: np.ndarray, y: np.ndarray, alpha: float,
-                                 white: bool, priors: tuple | None = None,
-                                 profile_mean: bool = False) -> tuple[float, np.ndarray]:
+                                 white: bool) -> tuple[float, np.ndarray]:
     """``-log p(y | X, theta)`` and its gradient for ``s^2 Matern52 (+ sigma_n^2 I) + alpha I``.
 
     ``log p = -1/2 y^T K^-1 y - 1/2 log|K| - n/2 log(2 pi)``; ``d log p / d theta_i
@@ -530,9 +377,6 @@ def _neg_log_marginal_likelihood(theta: np.ndarray, pairwise: np.ndarray, y: np.
     except np.linalg.LinAlgError:
         return 1e25, np.zeros_like(theta)
     K_inv = cho_solve(factor, np.eye(n), check_finite=False)
-    if profile_mean:  # constant mean profiled out: y - mu_hat(theta), mu_hat = 1'K^-1 y / 1'K^-1 1
-        row = K_inv.sum(axis=0)
-        y = y - float(row @ y / row.sum())
     a = K_inv @ y
     if y.ndim == 1:
         lml = -0.5 * y @ a - np.log(np.diag(factor[0])).sum() - 0.5 * n * np.log(2.0 * np.pi)
@@ -549,10 +393,4 @@ def _neg_log_marginal_likelihood(theta: np.ndarray, pairwise: np.ndarray, y: np.
         grad[1 + j] = 0.5 * np.sum(inner * common * scaled[:, :, j])
     if white:
         grad[-1] = 0.5 * noise * np.trace(inner)
-    if priors is not None:  # MAP: + sum_i log N(theta_i; m_i, s_i^2) over the entries with a prior
-        means, stds = priors
-        mask = np.isfinite(stds)
-        dev = np.where(mask, (theta - means) / np.where(mask, stds, 1.0), 0.0)
-        lml -= 0.5 * float(np.sum(dev**2))
-        grad -= np.where(mask, dev / np.where(mask, stds, 1.0), 0.0)
     return float(-lml), -grad
