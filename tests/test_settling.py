@@ -126,5 +126,3 @@ def test_bo_models_the_settling_time_from_the_envelope_and_falls_back_to_a_gp():
     assert not isinstance(gp_only.fit_surrogate().models[1], SettlingTimeModel)
     with pytest.raises(ValueError, match="settling_model"):
         agents.BayesianOptimization(settling_model="envelopes")
-    with pytest.raises(ValueError, match="settling_times"):
-        agents.BayesianOptimization(settling_times=1)
