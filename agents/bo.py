@@ -22,16 +22,13 @@ from agents.result import METRIC_COLUMNS
 from agents.settling import SettlingTimeModel, error_envelope
 from agents.surrogate import GPSurrogate, single_threaded_blas
 
-__all__ = ["BayesianOptimization", "INCUMBENTS", "LOG_METRICS", "MODELS", "SETTLING_MODELS", "SETTLING_TIMES"]
+__all__ = ["BayesianOptimization", "LOG_METRICS", "MODELS", "SETTLING_MODELS", "SETTLING_TIMES"]
 
 #: What the GP models: the cost ``J`` (one GP) or every performance metric (one GP each).
 MODELS = ("cost", "metrics")
 
 #: How ``model="metrics"`` models the settling time: by a GP of its own, or from the error envelope.
 SETTLING_MODELS = ("gp", "envelope")
-
-#: Choices of the incumbent ``J+`` of EI (attribute ``incumbent_rule``; guided BO switches it on the twin).
-INCUMBENTS = ("observed", "posterior_mean")
 
 #: With ``model="metrics"``: the metrics whose GP models ``log(f_i / n_i + 1e-3)``. The settling time
 #: jumps where the response touches the 2 % band, and the log makes the jump relatively smaller than
