@@ -56,9 +56,9 @@ class BayesianOptimization(Tuner):
     2. Then, every experiment: fit the GP (Matern 5/2 ARD, constant mean by
        standardising the costs, noise learned or given, hyperparameters by log
        marginal likelihood with :class:`~agents.surrogate.GPSurrogate`'s defaults:
-       2 random restarts on every 5th fit, warm starts in between, length scales in
-       ``[0.05, 0.5]`` of the unit box, prior hyperparameters below 5 points; inputs
-       scaled to the unit box) on the training set ``D`` of eq. (D); query the
+       2 random restarts on the first and every 5th fit, warm starts from the previous
+       fit, length scales in ``[0.05, 0.5]`` of the unit box, prior hyperparameters
+       below 5 points; inputs scaled to the unit box) on the training set ``D`` of eq. (D); query the
        maximiser of Expected Improvement (eq. (LCB), no exploration margin) over a
        ``grid_points``-per-gain grid of the feasible set (eq. (EI)). The incumbent
        ``J+`` of EI is the lowest measured cost in ``D`` (the paper's "best-observed
