@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import importlib
 
-from agents.base import Tuner, TuningInterrupted
+from agents.base import Tuner, TuningInterrupted, TuningStopped
 from agents.registry import make, register, registered_names
 from agents.result import TuningResult
 from agents.space import GainSpace
@@ -52,8 +52,8 @@ _TUNERS = {
 for _name, _entry in _TUNERS.items():
     register(_name, _entry)
 
-__all__ = ["GainSpace", "Tuner", "TuningInterrupted", "TuningResult", "make", "register", "registered_names",
-           *_LAZY]
+__all__ = ["GainSpace", "Tuner", "TuningInterrupted", "TuningResult", "TuningStopped", "make", "register",
+           "registered_names", *_LAZY]
 
 
 def __getattr__(name: str):

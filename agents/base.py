@@ -9,16 +9,21 @@ party writes a tuner by subclassing :class:`Tuner` and implementing those two.
 from __future__ import annotations
 
 import abc
+import logging
 import time
 from typing import Any
 
 import numpy as np
 
+from agents.recorder import ExperimentRecorder
 from agents.result import METRIC_COLUMNS, TuningResult
 from agents.space import GainSpace
 from agents.utils import env_id, progress_bar
+from gbo_envs.envs.external import ExperimentFailed
 
-__all__ = ["Tuner", "TuningInterrupted"]
+__all__ = ["Tuner", "TuningInterrupted", "TuningStopped"]
+
+_log = logging.getLogger(__name__)
 
 
 class TuningInterrupted(KeyboardInterrupt):
@@ -26,6 +31,20 @@ class TuningInterrupted(KeyboardInterrupt):
 
     def __init__(self, result: TuningResult) -> None:
         super().__init__(f"tuning interrupted after {result.n_experiments} plant experiments")
+        self.result = result
+
+
+class TuningStopped(RuntimeError):
+    """Raised when the failure policy of :meth:`Tuner.run` stops it before its budget.
+
+    A failed experiment under ``on_failure="stop"``, too many skipped failures
+    in a row, or (in a session) an experiment cut by a crash with
+    ``on_crash="stop"``. ``.result`` holds the finished experiments (``None``
+    when stopped before the loop started).
+    """
+
+    def __init__(self, message: str, result: TuningResult | None = None) -> None:
+        super().__init__(message)
         self.result = result
 
 
@@ -119,7 +138,8 @@ class Tuner(abc.ABC):
         row.update(extra)
         self._twin_log.append(row)
 
-    def _drain_twin_log(self) -> list[dict]:
+    def drain_twin_log(self) -> list[dict]:
+        """The twin evaluations logged since the last call (see :meth:`log_twin`), emptying the log."""
         rows, self._twin_log = self._twin_log, []
         return rows
 
@@ -131,10 +151,15 @@ class Tuner(abc.ABC):
         """Constructor arguments (as given), for result files and study specs."""
         return dict(getattr(self, "_params", {}))
 
-    # -- the shared loop ---------------------------------------------------------------------------
-    def run(self, env, budget: int, seed: int | None = None, progress: bool = False,
-            callback=None) -> TuningResult:
-        """Tune on ``env`` for ``budget`` plant experiments.
+    # -- the one tuning loop ----------------------------------------------------------------------
+    def run(self, env, budget: int, seed: int | None = None, progress: bool = False, callback=None,
+            recorder: ExperimentRecorder | None = None, max_consecutive_skips: int = 5) -> TuningResult:
+        """Tune on ``env`` for ``budget`` plant experiments; with a ``recorder``, a crash-safe session.
+
+        This is the one tuning loop: ``ask``, run the experiment with
+        ``env.step``, ``tell``. A crash-safe session
+        (:class:`evaluation.sessions.TuningSession`) is this loop with a
+        ``recorder`` that commits every experiment before the next is proposed.
 
         Parameters
         ----------
@@ -142,42 +167,121 @@ class Tuner(abc.ABC):
             A plant env (``gym.make("gbo_envs/DCMotor-v0")`` or any env whose
             ``step`` takes gains and returns the experiment record in ``info``).
         budget : int
-            Number of plant experiments, ``>= 1`` (initial experiments included).
+            Plant experiments the tuner learns from, ``>= 1`` (initial
+            experiments included; skipped failures do not count).
         seed : int, optional
             Seeds both the env (``reset(seed=seed)``) and the tuner.
         progress : bool, default False
             Show a progress bar.
         callback : callable, optional
-            Called as ``callback(row)`` after every plant experiment (e.g. to save it).
+            Called as ``callback(row)`` after every plant experiment the tuner learned from.
+        recorder : agents.recorder.ExperimentRecorder, optional
+            Experiment log: the loop first resumes from it (``recorder.resume``),
+            then commits each experiment's intent before the plant is touched and
+            its outcome before the tuner learns from it.
+        max_consecutive_skips : int, default 5
+            Stop after this many failed experiments in a row that the tuner was
+            not told about (``>= 1``).
 
         Returns
         -------
         TuningResult
+            The experiments run by this call (a session reads the whole log back instead).
 
         Raises
         ------
         TuningInterrupted
             On Ctrl-C, carrying the result of the finished experiments.
+        TuningStopped
+            When the failure policy stops the loop (see Notes), carrying the result so far.
+        ValueError
+            If ``budget`` or ``max_consecutive_skips`` is below 1, or ``env.step``
+            reports a non-finite cost.
+
+        Notes
+        -----
+        Failure policy, the same with and without a recorder. A failed
+        experiment is recorded (``failed``, with its reason) and handled by
+        what failed:
+
+        * ``env.step`` raises :class:`gbo_envs.ExperimentFailed` (an external
+          plant with ``on_failure="skip"`` or ``"stop"``): the tuner is not
+          told. ``"skip"`` proposes again; the failure does not count against
+          the budget, and ``max_consecutive_skips`` skips in a row raise
+          :class:`TuningStopped`. ``"stop"`` raises :class:`TuningStopped`.
+        * ``info["failed"]`` is true (``on_failure="penalize"``): the tuner is
+          told the penalty cost without a record (a failed experiment has no
+          trajectories to learn from); it counts against the budget.
+        * ``env.step`` raises any other exception, or reports a non-finite
+          cost: a fault of the env rather than of the experiment; the tuner is
+          not told and the error propagates (``ValueError`` for the cost).
+
+        An unstable closed loop is not a failure: the env reports its finite
+        ``unstable_cost`` with ``info["unstable"] = True`` and the tuner learns
+        it like any other cost. Ctrl-C during ``env.step`` abandons that
+        experiment (a resumed session runs it again).
         """
         if int(budget) < 1:
             raise ValueError(f"budget: must be an integer >= 1, got {budget}")
-        budget = int(budget)
+        if int(max_consecutive_skips) < 1:
+            raise ValueError(f"max_consecutive_skips: must be an integer >= 1, got {max_consecutive_skips}")
+        budget, max_consecutive_skips = int(budget), int(max_consecutive_skips)
         space = GainSpace.from_env(env)
         self.setup(space, seed=seed, env=env)
         env.reset(seed=seed)
+        told, skips = recorder.resume(self, env) if recorder is not None else (0, 0)
         name = env_id(env)
         result = TuningResult(tuner=self.name, env_id=name, gain_names=space.names, seed=seed,
                               info={"params": self.get_params()})
         start = time.perf_counter()
         best = np.inf
-        bar = progress_bar(budget, f"{self.name} on {name}", progress)
+        bar = progress_bar(budget, f"{self.name} on {name}", progress, initial=told)
         try:
-            for experiment in range(1, budget + 1):
+            while told < budget:
+                if skips >= max_consecutive_skips:
+                    raise TuningStopped(f"{skips} failed experiments in a row; fix the plant, then rerun to resume",
+                                        result)
+                experiment = told + 1
                 gains = self.ask()
-                _, _, _, _, info = env.step(np.asarray(gains, dtype=np.float64))
+                proposing = self.drain_twin_log()
+                handle = None if recorder is None else recorder.begin(experiment, gains, proposing)
+                try:
+                    _, _, _, _, info = env.step(np.asarray(gains, dtype=np.float64))
+                except ExperimentFailed as failure:
+                    if recorder is not None:
+                        recorder.finish(handle, failure.record, failed=True, reason=failure.reason, told_cost=None)
+                    if failure.policy == "stop":
+                        raise TuningStopped(f"experiment {experiment} failed ({failure.reason}); the failure "
+                                            "policy is 'stop'. Rerun to resume.", result) from failure
+                    skips += 1
+                    _log.warning("%s on %s: experiment %s failed and is skipped: %s", self.name, name, experiment,
+                                 failure.reason)
+                    continue
+                except KeyboardInterrupt:
+                    if recorder is not None:
+                        recorder.abandon(handle, "Ctrl-C during the experiment; it is run again")
+                    raise
+                except Exception as exc:
+                    if recorder is not None:
+                        recorder.finish(handle, {"gains": gains}, failed=True, reason=f"{type(exc).__name__}: {exc}",
+                                        told_cost=None)
+                    raise
                 cost = float(info["cost"])
-                self.tell(gains, cost, info)
-                for twin in self._drain_twin_log():
+                if not np.isfinite(cost):
+                    reason = f"env.step reported a non-finite cost ({cost})"
+                    if recorder is not None:
+                        recorder.finish(handle, info, failed=True, reason=reason, told_cost=None)
+                    raise ValueError(f"experiment {experiment}: {reason}; the env must report a finite cost")
+                failed = bool(info.get("failed", False))
+                if recorder is not None:
+                    recorder.finish(handle, info, failed=failed, told_cost=cost,
+                                    reason=str(info.get("failure_reason")) if failed else None)
+                self.tell(gains, cost, None if failed else info)
+                learning = self.drain_twin_log()
+                if recorder is not None:
+                    recorder.add_twins(handle, learning)
+                told, skips = told + 1, 0
+                for twin in proposing + learning:
                     result.rows.append(_row(experiment, "twin", space, twin["gains"], twin["cost"], np.nan,
                                             twin.get("metrics"), time.perf_counter() - start, twin))
                 best = min(best, cost)

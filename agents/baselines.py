@@ -66,11 +66,11 @@ class GridSearch(Tuner):
         self.order = order
         self._params = {"points_per_gain": self.points_per_gain, "budget": self.budget, "order": order}
 
-    def run(self, env, budget: int, seed: int | None = None, progress: bool = False, callback=None):
-        """As :meth:`Tuner.run`; the grid is sized to this ``budget``."""
+    def run(self, env, budget: int, seed: int | None = None, **options):
+        """As :meth:`Tuner.run` (same ``options``); the grid is sized to this ``budget``."""
         self._run_budget = int(budget)
         try:
-            return super().run(env, budget, seed=seed, progress=progress, callback=callback)
+            return super().run(env, budget, seed=seed, **options)
         finally:
             del self._run_budget
 

@@ -1,4 +1,4 @@
-"""Statistics of a study's tidy results table (one row per experiment, see :mod:`evaluation.runner`).
+"""Statistics of a study's tidy results table (one row per experiment, see :mod:`evaluation.study_runner`).
 
 Definitions (paper, Sec. V):
 
@@ -68,7 +68,7 @@ def load_results(out: Path | str, study=None) -> pd.DataFrame:
     pandas.DataFrame
         Sorted by tuner (spec order when ``study`` is given), batch and row. Empty if nothing finished.
     """
-    from evaluation.runner import RESULTS_DIR, plan_batches
+    from evaluation.study_runner import RESULTS_DIR, plan_batches
 
     folder = Path(out) / RESULTS_DIR
     files = sorted(folder.glob("*.parquet")) if folder.is_dir() else []

@@ -42,8 +42,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def bench(args: argparse.Namespace) -> int:
     """Handler of ``gbo bench``; returns the exit status (130 after Ctrl-C, 1 if a batch failed)."""
-    from evaluation.runner import default_out_dir, run_study
     from evaluation.study import StudySpecError, load_study, shipped_studies
+    from evaluation.study_runner import default_out_dir, run_study
 
     if args.list:
         for name in shipped_studies():

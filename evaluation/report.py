@@ -108,7 +108,7 @@ def write_report(study: Study, out: Path | str, frame: pd.DataFrame | None = Non
     ----------
     study : Study
     out : Path
-        The study's output folder (as given to :func:`evaluation.runner.run_study`).
+        The study's output folder (as given to :func:`evaluation.study_runner.run_study`).
     frame : DataFrame, optional
         The tidy results (default: :func:`evaluation.analysis.load_results`).
 

@@ -7,7 +7,7 @@
     gbo export --db runs.sqlite --csv out/session.csv        # the latest session
 
 Rerunning an interrupted ``gbo tune`` command resumes its session (see
-:mod:`evaluation.sessions.runner`). ``--import MODULE`` imports a module first,
+:mod:`evaluation.sessions.recorder`). ``--import MODULE`` imports a module first,
 for envs and tuners registered outside this package (e.g. an
 :class:`~gbo_envs.envs.external.ExternalPlantEnv` around your rig).
 """
@@ -77,7 +77,8 @@ def _tune(args: argparse.Namespace) -> int:
 
     from gymnasium.error import Error as GymError
 
-    from evaluation.sessions import ReplayMismatch, SessionBusy, SessionStopped, TuningSession
+    from agents import TuningStopped
+    from evaluation.sessions import ReplayMismatch, SessionBusy, TuningSession
 
     for module in args.imports:
         importlib.import_module(module)
@@ -90,7 +91,7 @@ def _tune(args: argparse.Namespace) -> int:
         print("gbo tune: interrupted; finished experiments are stored, rerun the same command to resume",
               file=sys.stderr)
         return 130
-    except (SessionStopped, ReplayMismatch, SessionBusy, ValueError, GymError) as exc:
+    except (TuningStopped, ReplayMismatch, SessionBusy, ValueError, GymError) as exc:
         print(f"gbo tune: {exc}", file=sys.stderr)
         return 1
     resumed = f" (resumed after {session.n_replayed})" if session.n_replayed else ""

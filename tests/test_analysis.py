@@ -12,7 +12,7 @@ import pytest
 import agents
 import gbo_envs  # noqa: F401
 from evaluation import analysis, figures
-from evaluation.runner import BatchTask, run_batch
+from evaluation.study_runner import BatchTask, run_batch
 
 
 def table(batches: dict[tuple[str, int], list[tuple]], info: dict | None = None) -> pd.DataFrame:

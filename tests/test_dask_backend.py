@@ -6,8 +6,8 @@ import pandas as pd
 import pytest
 
 from evaluation import analysis
-from evaluation.runner import run_study
 from evaluation.study import parse_study
+from evaluation.study_runner import run_study
 
 distributed = pytest.importorskip("distributed")
 

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -13,7 +15,9 @@ pytest.importorskip("stable_baselines3")
 import agents  # noqa: E402
 import gbo_envs  # noqa: E402, F401
 from agents.rl import RLTuner, TuningMDPEnv, TuningObserver, rescaled  # noqa: E402
-from agents.rl.study import Method, experiments_to_ratio, markdown_table, rl_comparison  # noqa: E402
+from evaluation.study import parse_study  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
 
 ENV_ID = "gbo_envs/DCMotor-v0"
 # tiny settings: a handful of gradient steps, a few model experiments
@@ -145,24 +149,32 @@ def test_bad_arguments_raise():
         RLTuner("sac")  # keyword-only
 
 
-def test_experiments_to_ratio_and_never_reached_is_said_plainly(tmp_path):
-    assert experiments_to_ratio(np.array([1.5, 1.2, 1.08, 1.01]), 1.1) == 3
-    assert experiments_to_ratio(np.array([1.5, 1.2]), 1.05) is None
-    methods = [Method("rl", "rl", 2, dict(FAST)), Method("random", "random", 2)]
-    checkpoint = tmp_path / "runs.jsonl"
-    study = rl_comparison(env_ids=(ENV_ID, "gbo_envs/NoSuchEnv-v0"), seeds=(0,), methods=methods,
-                          checkpoint=checkpoint, ground_truth_resolution=5, progress=False)
-    assert study["skipped"] == {"gbo_envs/NoSuchEnv-v0": "not registered"}
-    assert len(study["runs"]) == 2 and len(checkpoint.read_text().splitlines()) == 2
-    table = markdown_table(study)
-    assert "| DCMotor-v0 | rl | 2 | 0 / 0 |" in table
-    for entry in study["summary"]:
-        stats = entry["1.05"]
-        if stats["reached"] == 0:
-            assert stats["mean"] == 3.0  # budget + 1
-    again = rl_comparison(env_ids=(ENV_ID,), seeds=(0,), methods=methods, checkpoint=checkpoint,
-                          ground_truth_resolution=5, progress=False)
-    assert len(again["runs"]) == 2  # resumed from the checkpoint, nothing re-run
+def _rl_comparison():
+    spec = importlib.util.spec_from_file_location("rl_comparison", ROOT / "benchmarks" / "rl_comparison.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_rl_comparison_runs_through_the_evaluation_study_runner_and_resumes(tmp_path):
+    bench = _rl_comparison()
+    study = parse_study({"study": {"name": "rl_tiny", "batches": 3, "budget": 9, "resolution": 5},
+                         "env": {"id": ENV_ID},
+                         "tuners": [{"name": "rl", "params": dict(FAST)}, {"name": "random"}],
+                         "thresholds": [{"ratio": 1e6}, {"ratio": 0.5}]})
+    studies = bench.configure(study, seeds=1, budget=2, rl_budget=3)
+    assert [(s.budget, s.labels, s.batches) for s in studies] == [(2, ["random"], 1), (3, ["rl"], 1)]
+    comparison = bench.compare(studies, tmp_path, workers=1, progress=False)
+    assert comparison["batches_run"] == 2 and not comparison["interrupted"]
+    rows = {row["method"]: row for summary in comparison["summaries"] for row in summary["rows"]}
+    assert (rows["rl"]["budget"], rows["rl"]["n_runs"], rows["random"]["budget"]) == (3, 1, 2)
+    # phi <= 1e6 is reached by the first experiment; phi <= 0.5 never (phi >= 1): counted as budget + 1
+    assert rows["rl"]["phi=1e+06"] == {"mean": 1.0, "median": 1.0, "reached": 1}
+    assert rows["rl"]["phi=0.5"] == {"mean": 4.0, "median": 4.0, "reached": 0}
+    table = bench.markdown_table(comparison["summaries"])
+    assert "| DCMotor-v0 | rl | 3 | 0 / 0 | 1.0 / 1 (1/1) | never within 3 (0/1; counted as 4) |" in table
+    again = bench.compare(studies, tmp_path, workers=1, progress=False)
+    assert again["batches_run"] == 0 and again["summaries"] == comparison["summaries"]  # resumed, nothing re-run
 
 
 def test_twin_mode_on_a_rig_needs_an_explicit_nominal_model():

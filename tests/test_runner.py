@@ -10,8 +10,8 @@ import agents
 from agents.base import Tuner
 from evaluation import analysis
 from evaluation.cli import main
-from evaluation.runner import RESULTS_DIR, finished_files, plan_batches, run_study
 from evaluation.study import load_study, parse_study
+from evaluation.study_runner import RESULTS_DIR, finished_files, plan_batches, run_study
 
 TIMING = ["wall_time", "batch_wall_time"]
 

@@ -15,12 +15,11 @@ import pytest
 
 import agents
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.base import Tuner
+from agents.base import Tuner, TuningStopped
 from evaluation.cli import main as gbo
 from evaluation.sessions import (
     ReplayMismatch,
     SessionBusy,
-    SessionStopped,
     SessionStore,
     TuningSession,
     export_csv,
@@ -183,7 +182,7 @@ def test_resume_after_an_interruption_equals_an_uninterrupted_run(tmp_path, monk
     assert [r.status for r in _plant(db, told=False)] == statuses
     assert len(_plant(db)) == (4 if cut == "crash-before-twin-commit" else 3)
     if cut == "crash-before-commit":
-        with pytest.raises(SessionStopped, match="may have run it"):
+        with pytest.raises(TuningStopped, match="may have run it"):
             TuningSession(db, ENV, "test-cost-aware", budget=8, seed=5, on_crash="stop").run()
     session = TuningSession(db, ENV, "test-cost-aware", budget=8, seed=5)
     resumed = session.run()
@@ -274,7 +273,7 @@ def test_failure_policies(tmp_path):
     assert again.n_replayed == 5 and again.session_id == session.session_id
     # stop: recorded, then a clear error; rerunning after the fix resumes
     stopping = TuningSession(db, _external({3}, "stop"), "random", budget=4, seed=0, env_id="rig-stop")
-    with pytest.raises(SessionStopped, match="experiment 3 failed .*ConnectionError"):
+    with pytest.raises(TuningStopped, match="experiment 3 failed .*ConnectionError"):
         stopping.run()
     with SessionStore(db) as store:
         info = store.session(stopping.session_id)
@@ -282,7 +281,7 @@ def test_failure_policies(tmp_path):
     TuningSession(db, _external(set(), "stop"), "random", budget=4, seed=0, env_id="rig-stop").run()
     assert [r.experiment for r in _plant(db, stopping.session_id)] == [1, 2, 3, 4]
     # a plant that always fails stops the session instead of looping
-    with pytest.raises(SessionStopped, match="3 failed experiments in a row"):
+    with pytest.raises(TuningStopped, match="3 failed experiments in a row"):
         TuningSession(db, _external(set(range(1, 99)), "skip"), "random", budget=4, seed=0, env_id="dead",
                       max_consecutive_skips=3).run()
     with SessionStore(db) as store:

@@ -4,25 +4,19 @@
 >>> session = TuningSession("runs.sqlite", "gbo_envs/DCMotor-v0", "bo", budget=20, seed=0)  # doctest: +SKIP
 >>> result = session.run(progress=True)  # doctest: +SKIP
 
-Rerunning the same session after a crash resumes it (see
-:mod:`evaluation.sessions.runner` for the replay and the crash policy). The
-command line is ``gbo tune``, ``gbo sessions`` and ``gbo export``
-(:mod:`evaluation.tune_cli`).
+A session is :meth:`agents.Tuner.run` with a
+:class:`~evaluation.sessions.recorder.SessionRecorder`; rerunning the same
+session after a crash resumes it (see :mod:`evaluation.sessions.recorder` for
+the replay and the crash policy). The command line is ``gbo tune``,
+``gbo sessions`` and ``gbo export`` (:mod:`evaluation.tune_cli`).
 """
 
 from __future__ import annotations
 
 from evaluation.sessions.export import export_csv, load_result, sessions_table
-from evaluation.sessions.runner import (
-    CRASH_POLICIES,
-    ReplayMismatch,
-    SessionStopped,
-    TuningSession,
-    env_state,
-    restore_env_state,
-    session_spec,
-)
+from evaluation.sessions.recorder import CRASH_POLICIES, ReplayMismatch, SessionRecorder, env_state, restore_env_state
 from evaluation.sessions.store import ExperimentRow, SessionBusy, SessionInfo, SessionStore
+from evaluation.sessions.tuning_session import TuningSession, session_spec
 
 __all__ = [
     "CRASH_POLICIES",
@@ -30,7 +24,7 @@ __all__ = [
     "ReplayMismatch",
     "SessionBusy",
     "SessionInfo",
-    "SessionStopped",
+    "SessionRecorder",
     "SessionStore",
     "TuningSession",
     "env_state",

@@ -184,10 +184,10 @@ class ExternalPlantEnv(ControllerTuningEnv):
       ``info["failed"] = True`` and ``info["failure_reason"]``; the tuner learns
       the penalty and the session goes on.
     * ``"stop"``: ``step`` raises :class:`ExperimentFailed` (carrying the record);
-      a session (``gbo tune``) records it and stops.
+      the tuning loop (:meth:`agents.Tuner.run`, a ``gbo tune`` session) records it and stops.
     * ``"skip"``: ``step`` raises :class:`ExperimentFailed` with
-      ``policy="skip"``; a session records it and asks the tuner again without
-      telling it (the plain :meth:`agents.Tuner.run` loop stops instead).
+      ``policy="skip"``; the tuning loop records it and asks the tuner again
+      without telling it.
 
     The experiment counter counts every attempt, failed ones included.
 
