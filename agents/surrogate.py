@@ -16,7 +16,8 @@ from scipy.linalg import cho_factor, cho_solve, cholesky
 from scipy.optimize import minimize
 from scipy.special import ndtri
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
-from threadpoolctl import ThreadpoolController
+
+from agents.thread_limits import single_thread
 
 __all__ = ["GPSurrogate", "OutputTransform", "OUTPUT_TRANSFORMS"]
 
@@ -119,18 +120,8 @@ class _Conditioned:
     L_: np.ndarray
     alpha_: np.ndarray
 
-_THREADPOOLS: ThreadpoolController | None = None
-
 #: Candidate rows per block in :meth:`GPSurrogate.predict` (measured fastest on the 100 x 100 grid).
 _PREDICT_BLOCK = 1024
-
-
-def single_threaded_blas():
-    """Context limiting BLAS to one thread: the GP's matrices are small and threads only contend."""
-    global _THREADPOOLS
-    if _THREADPOOLS is None:
-        _THREADPOOLS = ThreadpoolController()
-    return _THREADPOOLS.limit(limits=1, user_api="blas")
 
 
 class GPSurrogate:
@@ -339,7 +330,7 @@ class GPSurrogate:
         objective = functools.partial(_neg_log_marginal_likelihood, pairwise=(X[:, None, :] - X[None, :, :]) ** 2,
                                       y=y_std, alpha=alpha, white=self.noise_std is None,
                                       priors=self._log_priors(X.shape[1]), profile_mean=self.prior_mean == "ml")
-        with single_threaded_blas():
+        with single_thread():
             optima = [minimize(objective, start, jac=True, method="L-BFGS-B", bounds=bounds,
                                options={"maxiter": self.max_iter}) for start in starts]
         return kernel.clone_with_theta(min(optima, key=lambda optimum: optimum.fun).x)
@@ -350,7 +341,7 @@ class GPSurrogate:
         The same algebra as scikit-learn's ``GaussianProcessRegressor.fit`` with
         ``optimizer=None``, without its per-call validation overhead.
         """
-        with single_threaded_blas():
+        with single_thread():
             gram = kernel(X)
             gram[np.diag_indices_from(gram)] += alpha
             lower = cholesky(gram, lower=True, check_finite=False)
@@ -431,7 +422,7 @@ class GPSurrogate:
         if not hasattr(self, "gp_"):
             raise RuntimeError("GPSurrogate: call fit(X, y) first")
         X = np.atleast_2d(np.asarray(X, dtype=float))
-        with single_threaded_blas():
+        with single_thread():
             return self._predict_standardised(X)
 
     def _predict_standardised(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

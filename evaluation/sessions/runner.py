@@ -38,10 +38,11 @@ from typing import Any
 
 import numpy as np
 
+from agents.jsonable import to_json
 from agents.space import GainSpace
 from agents.utils import env_id as env_name
 from agents.utils import progress_bar
-from evaluation.sessions.store import SessionStore, to_json
+from evaluation.sessions.store import SessionStore
 from gbo_envs.envs.external import ExperimentFailed
 
 __all__ = ["CRASH_POLICIES", "ReplayMismatch", "SessionStopped", "TuningSession", "env_state", "restore_env_state",
