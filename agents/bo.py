@@ -71,7 +71,7 @@ class BayesianOptimization(Tuner):
     xi : float, default 0.0
         EI exploration margin, cost units.
     noise_std : float, optional
-        Known cost noise ``sigma_eps`` (e.g. from :func:`agents.noise.estimate_noise`);
+        Known cost noise ``sigma_eps`` (e.g. from :func:`agents.cost_noise.estimate_noise`);
         ``None`` learns it by marginal likelihood.
     n_restarts : int, default 2
         Random restarts of the likelihood optimiser per fit (seeded by the tuner).

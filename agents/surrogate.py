@@ -152,7 +152,7 @@ class GPSurrogate:
         Bounds of the ARD length scales, in units of the (unit-box) inputs.
     noise_std : float, optional
         Known cost noise ``sigma_eps`` (cost units, e.g. from
-        :func:`agents.noise.estimate_noise`). ``None`` learns it (WhiteKernel).
+        :func:`agents.cost_noise.estimate_noise`). ``None`` learns it (WhiteKernel).
     noise_bounds : (float, float), default (1e-6, 0.5)
         Bounds of the learned noise variance, in units of the standardised costs.
     warm_start : bool, default True
