@@ -122,8 +122,12 @@ class StudyRun:
 
 
 def default_out_dir(study: Study) -> Path:
-    """``evaluation/reports/<study name>`` beside this package."""
-    return Path(__file__).resolve().parent / "reports" / study.name
+    """``out/studies/<study name>`` under the working directory (never inside the installed package).
+
+    The reports committed with the project live in ``docs/reports/<study name>``;
+    refresh one with ``gbo bench STUDY --out docs/reports/STUDY``.
+    """
+    return Path("out") / "studies" / study.name
 
 
 # -- planning -----------------------------------------------------------------------------------------
