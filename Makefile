@@ -25,8 +25,10 @@ test: setup
 bench: setup
 	$(PY) benchmarks/run_all.py --out out/bench
 
+# ruff, then import-linter's contracts in pyproject.toml (the layers and no cycles in agents.twin)
 lint: setup
 	$(VENV)/bin/ruff check .
+	PYTHONPATH=$(CURDIR) $(VENV)/bin/lint-imports
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache

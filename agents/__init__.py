@@ -33,7 +33,7 @@ _LAZY = {
     "OptunaTuner": "agents.optuna_tuner",
     "OptunaGP": "agents.optuna_tuner",
     "OptunaTPE": "agents.optuna_tuner",
-    "estimate_noise": "agents.noise",
+    "estimate_noise": "agents.cost_noise",
     "GuidedBO": "agents.guided_bo",
 }
 

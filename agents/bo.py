@@ -20,7 +20,9 @@ from agents.metric_surrogate import CompositeSurrogate, MetricSurrogate
 from agents.parameters import Interval, Options, validate_params
 from agents.result import METRIC_COLUMNS
 from agents.settling import SettlingTimeModel, error_envelope
-from agents.surrogate import GPSurrogate, single_threaded_blas
+from agents.surrogate import GPSurrogate
+from agents.thread_limits import single_thread
+from gbo_envs.gain_grid import grid_axes, grid_points
 
 __all__ = ["BayesianOptimization", "LOG_METRICS", "MODELS", "SETTLING_MODELS", "SETTLING_TIMES"]
 
@@ -73,7 +75,7 @@ class BayesianOptimization(Tuner):
         paper's dense grid). Above 65536 candidates a scrambled Sobol set of
         65536 points is used instead.
     noise_std : float, optional
-        Known cost noise ``sigma_eps``, cost units (e.g. from :func:`agents.noise.estimate_noise`);
+        Known cost noise ``sigma_eps``, cost units (e.g. from :func:`agents.cost_noise.estimate_noise`);
         ``None`` learns it by marginal likelihood.
     model : {"cost", "metrics"}, default "metrics"
         What is modelled. ``"metrics"``: the paper's "performance metrics modeled by Gaussian
@@ -185,7 +187,7 @@ class BayesianOptimization(Tuner):
         if n < self.n_initial:
             self.last_ei_ = self.last_std_ = self.last_mean_ = float("nan")
             return self.space.from_unit(self._initial[n])
-        with single_threaded_blas():  # small matrices: BLAS threads would only contend (and spin)
+        with single_thread():  # small matrices: BLAS threads would only contend (and spin)
             gains, ei, std = self.propose()
             self.last_mean_ = float(self.posterior(gains[None, :])[0][0])
         self.last_ei_, self.last_std_ = ei, std
@@ -424,6 +426,5 @@ def _record_metrics(record: dict | None) -> np.ndarray | None:
 def _unit_candidates(dim: int, points_per_gain: int, rng: np.random.Generator) -> np.ndarray:
     """The dense grid of the unit box, shape (points_per_gain ** dim, dim), or a Sobol set if too large."""
     if points_per_gain**dim <= _MAX_GRID:
-        axes = [np.linspace(0.0, 1.0, points_per_gain)] * dim
-        return np.column_stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")])
+        return grid_points(grid_axes(np.zeros(dim), np.ones(dim), points_per_gain))
     return qmc.Sobol(d=dim, scramble=True, rng=rng).random(_MAX_GRID)

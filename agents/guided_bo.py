@@ -84,7 +84,7 @@ class GuidedBO(BayesianOptimization):
     noise_std : float, optional
         ``sigma_eps``, cost units; also the GP's fixed noise. Default: the plant env's
         declared cost noise (``cost_noise_std``), which stands for the paper's prior
-        measurement of five repeated experiments (:func:`agents.noise.estimate_noise`
+        measurement of five repeated experiments (:func:`agents.cost_noise.estimate_noise`
         measures it on a real plant); if the env declares none (or zero), 1 % of the mean
         measured cost. (The GP then learns its noise.)
     eta1 : float, default 3.0

@@ -120,9 +120,9 @@ class TuningResult:
         optimum : float, optional
             Ground-truth ``J(theta*)`` drawn as a horizontal line.
         """
-        from gbo_envs.plotting import _pyplot
+        from gbo_envs.lazy_pyplot import pyplot
 
-        plt = _pyplot()
+        plt = pyplot()
         if ax is None:
             _, ax = plt.subplots(figsize=(6, 4))
         rows = self.plant_rows

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gbo_envs.gain_grid import grid_axes, grid_points
+
 __all__ = ["GainSpace"]
 
 
@@ -60,9 +62,7 @@ class GainSpace:
 
     def grid(self, points_per_gain: int) -> np.ndarray:
         """Regular grid of shape (points_per_gain ** n_gains, n_gains) over the box."""
-        axes = [np.linspace(lo, hi, points_per_gain) for lo, hi in zip(self.low, self.high)]
-        mesh = np.meshgrid(*axes, indexing="ij")
-        return np.column_stack([m.ravel() for m in mesh])
+        return grid_points(grid_axes(self.low, self.high, points_per_gain))
 
     def check(self, gains, name: str = "gains", atol: float = 1e-9) -> np.ndarray:
         """Validate gains: shape (n_gains,), finite, inside the box (within ``atol`` of the span).

@@ -15,7 +15,8 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve, cholesky
 from scipy.optimize import minimize
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
-from threadpoolctl import ThreadpoolController
+
+from agents.thread_limits import single_thread
 
 __all__ = ["GPSurrogate"]
 
@@ -28,18 +29,8 @@ class _Conditioned:
     L_: np.ndarray
     alpha_: np.ndarray
 
-_THREADPOOLS: ThreadpoolController | None = None
-
 #: Candidate rows per block in :meth:`GPSurrogate.predict` (measured fastest on the 100 x 100 grid).
 _PREDICT_BLOCK = 1024
-
-
-def single_threaded_blas():
-    """Context limiting BLAS to one thread: the GP's matrices are small and threads only contend."""
-    global _THREADPOOLS
-    if _THREADPOOLS is None:
-        _THREADPOOLS = ThreadpoolController()
-    return _THREADPOOLS.limit(limits=1, user_api="blas")
 
 
 class GPSurrogate:
@@ -70,7 +61,7 @@ class GPSurrogate:
         Bounds of the ARD length scales, in units of the (unit-box) inputs.
     noise_std : float, optional
         Known cost noise ``sigma_eps`` (cost units, e.g. from
-        :func:`agents.noise.estimate_noise`). ``None`` learns it (WhiteKernel).
+        :func:`agents.cost_noise.estimate_noise`). ``None`` learns it (WhiteKernel).
     noise_bounds : (float, float), default (1e-6, 0.5)
         Bounds of the learned noise variance, in units of the standardised costs.
     warm_start : bool, default True
@@ -212,7 +203,7 @@ class GPSurrogate:
         # log_marginal_likelihood, evaluated by _neg_log_marginal_likelihood (about 5x faster here)
         objective = functools.partial(_neg_log_marginal_likelihood, pairwise=(X[:, None, :] - X[None, :, :]) ** 2,
                                       y=y_std, alpha=alpha, white=self.noise_std is None)
-        with single_threaded_blas():
+        with single_thread():
             optima = [minimize(objective, start, jac=True, method="L-BFGS-B", bounds=bounds,
                                options={"maxiter": self.max_iter}) for start in starts]
         return kernel.clone_with_theta(min(optima, key=lambda optimum: optimum.fun).x)
@@ -223,7 +214,7 @@ class GPSurrogate:
         The same algebra as scikit-learn's ``GaussianProcessRegressor.fit`` with
         ``optimizer=None``, without its per-call validation overhead.
         """
-        with single_threaded_blas():
+        with single_thread():
             gram = kernel(X)
             gram[np.diag_indices_from(gram)] += alpha
             lower = cholesky(gram, lower=True, check_finite=False)
@@ -279,7 +270,7 @@ class GPSurrogate:
         if not hasattr(self, "gp_"):
             raise RuntimeError("GPSurrogate: call fit(X, y) first")
         X = np.atleast_2d(np.asarray(X, dtype=float))
-        with single_threaded_blas():
+        with single_thread():
             return self._predict_standardised(X)
 
     def _predict_standardised(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

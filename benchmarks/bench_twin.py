@@ -24,6 +24,7 @@ from timing import median_time
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin import TwinEnv, TwinEstimator
+from gbo_envs.gain_grid import grid_axes, grid_points
 
 TRUE = np.array([9.544, 4.145, 4.199])
 
@@ -40,8 +41,7 @@ def main() -> dict:
     env = gym.make("gbo_envs/DCMotor-v0", noise=False)
     records = _records(env, 35)
     low, high = env.action_space.low, env.action_space.high
-    kp, ki = np.meshgrid(np.linspace(low[0], high[0], 20), np.linspace(low[1], high[1], 20))
-    grid = np.column_stack([kp.ravel(), ki.ravel()])
+    grid = grid_points(grid_axes(low, high, 20))
     plant_cost = env.unwrapped.evaluate(grid)[1]
 
     fit_s, fidelity, twins = {}, {}, {}

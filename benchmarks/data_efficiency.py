@@ -47,12 +47,12 @@ def experiments_to_reach(ratios: np.ndarray, threshold: float) -> int:
 
 def run_one(tuner: str, seed: int, budget: int, optimum: float, tuner_kwargs: dict | None = None) -> dict:
     """One run: the optimality-ratio curve and wall time of ``tuner`` with ``seed``."""
-    from threadpoolctl import threadpool_limits
+    from agents.thread_limits import single_thread
 
     gbo_envs.__name__  # noqa: B018  (registers the envs in a fresh worker)
     env = gym.make("gbo_envs/DCMotor-v0")
     start = time.perf_counter()
-    with warnings.catch_warnings(), threadpool_limits(1):
+    with warnings.catch_warnings(), single_thread(user_api=None):
         warnings.simplefilter("ignore")
         name, options = VARIANTS.get(tuner, (tuner, {}))
         result = agents.make(name, **{**options, **(tuner_kwargs or {})}).run(env, budget=budget, seed=seed)

@@ -45,14 +45,13 @@ def thresholds(env_id: str) -> tuple[float, ...]:
 
 def run_one(env_id: str, tuner: str, seed: int, optimum: float) -> dict:
     """One tuning session; returns its minimum-observed optimality-ratio curve."""
-    from threadpoolctl import threadpool_limits
-
     import agents
     import gbo_envs  # noqa: F401  (registers the envs in a fresh worker)
+    from agents.thread_limits import single_thread
 
     start = time.perf_counter()
     env = gym.make(env_id)
-    with threadpool_limits(1):
+    with single_thread(user_api=None):
         result = agents.make(tuner).run(env, budget=env.spec.max_episode_steps, seed=seed)
     ratios = result.min_true_cost_curve() / optimum
     return {"env": env_id, "tuner": tuner, "seed": seed, "optimum": optimum, "ratios": ratios.tolist(),

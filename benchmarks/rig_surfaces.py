@@ -31,6 +31,7 @@ from scipy import ndimage
 
 import gbo_envs
 from gbo_envs import ground_truth
+from gbo_envs.lazy_pyplot import pyplot
 
 ROOT = Path(__file__).resolve().parents[1]
 IMAGES = ROOT / "docs" / "images"
@@ -55,11 +56,7 @@ def single_draw_error(env_id: str, gains: np.ndarray, optimum: float, draws: int
 
 
 def heat_map(truth, name: str, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     ratio = truth.costs.T / truth.cost
     fig, ax = plt.subplots(figsize=(6.4, 5))
     mesh = ax.pcolormesh(truth.axes[0], truth.axes[1], ratio, shading="nearest", cmap="viridis",

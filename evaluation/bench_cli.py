@@ -13,6 +13,7 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import sys
 from pathlib import Path
 
@@ -32,7 +33,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="local: joblib processes (default); dask: dask.distributed")
     parser.add_argument("--address", help="dask scheduler address (default with --backend dask: a LocalCluster)")
     parser.add_argument("--workers", type=int, help="worker processes (default: all cores; 1 = in this process)")
-    parser.add_argument("--out", help="output folder (default: evaluation/reports/<study>)")
+    parser.add_argument("--out", help="output folder (default: out/studies/<study>)")
     parser.add_argument("--no-report", action="store_true", help="only run the batches")
     parser.add_argument("--report-only", action="store_true", help="only write the report from saved batches")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -56,6 +57,10 @@ def bench(args: argparse.Namespace) -> int:
         return 2
     if args.address and args.backend != "dask":
         print("gbo bench: --address needs --backend dask", file=sys.stderr)
+        return 2
+    if importlib.util.find_spec("pyarrow") is None:
+        print("gbo bench: the batch results are Parquet files and need pyarrow, a dependency of gbo-envs "
+              "missing from this environment; install it with `pip install pyarrow`", file=sys.stderr)
         return 2
     try:
         study = load_study(args.study)

@@ -15,7 +15,8 @@ import gymnasium as gym
 import numpy as np
 
 import gbo_envs
-from gbo_envs.plotting import _pyplot, response_figure
+from gbo_envs.lazy_pyplot import pyplot
+from gbo_envs.plotting import response_figure
 
 __all__ = ["run_demo"]
 
@@ -42,7 +43,7 @@ def run_demo(out: Path, env_id: str = "gbo_envs/DCMotor-v0", seed: int = 0, budg
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    plt = _pyplot()
+    plt = pyplot()
     summary: dict = {}
 
     start = time.perf_counter()
@@ -89,7 +90,7 @@ def _run_tuners(out: Path, env_id: str, truth, seed: int, budget: int) -> dict:
     available = [name for name in ("bo", "guided-bo") if name in agents.registered_names()]
     if not available:
         return {}
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 4))
     rows = {}
     print(f"\nTuning {env_id} with {', '.join(available)} (seed {seed}, {budget} plant experiments each):")

@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from evaluation.analysis import PAPER_BANDS, percentile_bands
+from gbo_envs.lazy_pyplot import pyplot
 
 __all__ = [
     "save",
@@ -23,14 +24,8 @@ __all__ = [
 ]
 
 
-def _plt():
-    from gbo_envs.plotting import _pyplot
-
-    return _pyplot()
-
-
 def _colors(n: int) -> list:
-    cmap = _plt().get_cmap("tab10" if n <= 10 else "tab20")
+    cmap = pyplot().get_cmap("tab10" if n <= 10 else "tab20")
     return [cmap(i % cmap.N) for i in range(n)]
 
 
@@ -39,7 +34,7 @@ def save(fig, path: Path | str, dpi: int = 120) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi)
-    _plt().close(fig)
+    pyplot().close(fig)
     return path
 
 
@@ -59,7 +54,7 @@ def ratio_curve_figure(curves: dict[str, np.ndarray], thresholds: dict[str, floa
         Draw the bands (default: when at most 3 tuners, else the means only).
     title : str, optional
     """
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     bands = len(curves) <= 3 if bands is None else bands
     levels = sorted(levels, reverse=True)
@@ -99,7 +94,7 @@ def histogram_figure(table: pd.DataFrame, title: str | None = None):
     table : DataFrame
         From :func:`evaluation.analysis.histogram_table` (``low, high`` and one column per tuner).
     """
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4))
     labels = [c for c in table.columns if c not in ("low", "high")]
     widths = (table["high"] - table["low"]).to_numpy()
@@ -136,7 +131,7 @@ def cost_surface_figure(truth, frame: pd.DataFrame, batch: int = 0, tuners: list
     """
     from gbo_envs.plotting import cost_surface
 
-    plt = _plt()
+    plt = pyplot()
     labels = tuners or list(dict.fromkeys(frame["tuner"]))
     cols = min(3, len(labels))
     rows = int(np.ceil(len(labels) / cols))
@@ -167,7 +162,7 @@ def cost_surface_figure(truth, frame: pd.DataFrame, batch: int = 0, tuners: list
 
 def activations_figure(table: pd.DataFrame, title: str | None = None):
     """Twin activations per batch, one box per tuner (from :func:`evaluation.analysis.twin_activations`)."""
-    plt = _plt()
+    plt = pyplot()
     labels = list(dict.fromkeys(table["tuner"]))
     fig, ax = plt.subplots(figsize=(max(5, 1.1 * len(labels) + 2), 4))
     data = [table.loc[table["tuner"] == label, "activations"].to_numpy() for label in labels]
@@ -195,7 +190,7 @@ def sweep_figure(table: pd.DataFrame, param: str, references: dict[str, dict[str
         Unswept tuners (e.g. BO): label -> ``{"to <threshold>": mean, "mean_measured_ratio": ...}``,
         drawn as dashed lines.
     """
-    plt = _plt()
+    plt = pyplot()
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6.5), sharex=True)
     x = table[param].to_numpy(dtype=float)
     columns = [c for c in table.columns if c.startswith("to ")]

@@ -2,7 +2,7 @@
 
 :func:`write_report` reads the finished batches under ``OUT/results``, writes the
 PNG figures next to ``OUT/report.md`` and links them relatively, so the folder
-can be committed (``evaluation/reports/<study>/``) and read on GitHub.
+can be committed (``docs/reports/<study>/``) and read on GitHub.
 """
 
 from __future__ import annotations

@@ -35,6 +35,8 @@ from typing import Any
 
 import numpy as np
 
+from agents.jsonable import to_json
+from agents.thread_limits import single_thread
 from evaluation.study import Study, TunerEntry, slugify
 
 __all__ = ["BatchTask", "StudyRun", "BACKENDS", "default_out_dir", "plan_batches", "finished_files",
@@ -75,8 +77,7 @@ class BatchTask:
     @property
     def key(self) -> str:
         """10 hex digits hashing what determines the batch's results (not the study or label)."""
-        payload = json.dumps([self.env_id, self.env_kwargs, self.tuner, self.params, self.budget, self.seed],
-                             sort_keys=True, default=_json_default)
+        payload = to_json([self.env_id, self.env_kwargs, self.tuner, self.params, self.budget, self.seed])
         return hashlib.sha256(payload.encode()).hexdigest()[:10]
 
     @property
@@ -121,8 +122,12 @@ class StudyRun:
 
 
 def default_out_dir(study: Study) -> Path:
-    """``evaluation/reports/<study name>`` beside this package."""
-    return Path(__file__).resolve().parent / "reports" / study.name
+    """``out/studies/<study name>`` under the working directory (never inside the installed package).
+
+    The reports committed with the project live in ``docs/reports/<study name>``;
+    refresh one with ``gbo bench STUDY --out docs/reports/STUDY``.
+    """
+    return Path("out") / "studies" / study.name
 
 
 # -- planning -----------------------------------------------------------------------------------------
@@ -179,7 +184,7 @@ def run_batch(task: BatchTask):
     import agents
     import gbo_envs  # noqa: F401  (registers the envs)
 
-    with _single_thread():
+    with single_thread(user_api=None):  # BLAS and OpenMP: same numbers on every backend, no oversubscription
         kwargs = dict(task.env_kwargs)
         kwargs.setdefault("max_episode_steps", task.budget)
         env = gym.make(task.env_id, **kwargs)
@@ -195,8 +200,8 @@ def run_batch(task: BatchTask):
                                                  ("tuner_name", task.tuner), ("batch", task.batch),
                                                  ("seed", task.seed)]):
         frame.insert(position, column, value)
-    frame["params"] = json.dumps(task.params, sort_keys=True, default=_json_default)
-    frame["info"] = json.dumps(info, sort_keys=True, default=_json_default)
+    frame["params"] = to_json(task.params)
+    frame["info"] = to_json(info)
     frame["batch_wall_time"] = float(elapsed)
     return _tidy(frame)
 
@@ -207,24 +212,6 @@ def _safe_run_batch(task: BatchTask):
         return task, run_batch(task), None
     except Exception:
         return task, None, traceback.format_exc()
-
-
-class _single_thread:
-    """Limit BLAS/OpenMP pools to one thread (identical numbers across backends, no oversubscription)."""
-
-    def __enter__(self):
-        try:
-            from threadpoolctl import threadpool_limits
-
-            self._limits = threadpool_limits(limits=1)
-        except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
-            self._limits = None
-        return self
-
-    def __exit__(self, *exc):
-        if self._limits is not None:
-            self._limits.restore_original_limits()
-        return False
 
 
 def _tidy(frame):
@@ -238,23 +225,13 @@ def _tidy(frame):
             try:
                 pa.array(frame[column], from_pandas=True)
             except (pa.ArrowInvalid, pa.ArrowTypeError, TypeError, ValueError):
-                frame[column] = [None if _is_missing(v) else json.dumps(v, default=_json_default)
+                frame[column] = [None if _is_missing(v) else to_json(v, sort_keys=False)
                                  for v in frame[column]]
     return frame
 
 
 def _is_missing(value: Any) -> bool:
     return value is None or (isinstance(value, float) and np.isnan(value))
-
-
-def _json_default(value: Any):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, (set, tuple)):
-        return list(value)
-    return str(value)
 
 
 def write_batch(frame, out: Path, filename: str) -> Path:

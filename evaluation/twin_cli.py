@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import warnings
 from pathlib import Path
@@ -82,19 +81,6 @@ def _fit(data, spec, effects):
     return fit_model(data, effects, spec=spec)
 
 
-def _dump(obj) -> str:
-    def clean(v):
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, list):
-            return [clean(x) for x in v]
-        return v
-
-    return json.dumps(clean(obj), allow_nan=False)
-
-
 def _run(handler):
     def wrapped(args: argparse.Namespace) -> int:
         with warnings.catch_warnings():
@@ -110,6 +96,7 @@ def _run(handler):
 
 @_run
 def _compare(args) -> int:
+    from agents.jsonable import to_json
     from agents.twin.workbench import compare
 
     records, data, spec, effects = _load(args)
@@ -124,7 +111,7 @@ def _compare(args) -> int:
     if args.json:
         payload = res.to_dict()
         payload["params"] = fit.effect_params
-        print(_dump(payload))
+        print(to_json(payload, finite=True, sort_keys=False))
         return 0
     print(f"model {res.model}: fit {res.fit_percent_all:.2f} %, RMSE {res.rmse_all:.5g} (units of y)")
     if fit.effect_params:
@@ -137,6 +124,7 @@ def _compare(args) -> int:
 
 @_run
 def _resid(args) -> int:
+    from agents.jsonable import to_json
     from agents.twin.workbench import residuals
 
     _, data, spec, effects = _load(args)
@@ -151,7 +139,7 @@ def _resid(args) -> int:
     if args.json:
         payload = ra.to_dict()
         payload["model"] = fit.spec.label
-        print(_dump(payload))
+        print(to_json(payload, finite=True, sort_keys=False))
         return 0
     print(f"model {fit.spec.label}: RMSE {fit.rmse:.5g}; 99 % band +-{ra.band:.3g}")
     outside = float((abs(ra.acf[1:]) > ra.band).mean())
@@ -173,13 +161,14 @@ def _resid(args) -> int:
 
 @_run
 def _diagnose(args) -> int:
+    from agents.jsonable import to_json
     from agents.twin.workbench import diagnose
 
     _, data, spec, effects = _load(args)
     result = diagnose(data, effects=effects, spec=spec, n_folds=args.folds)
     payload = result.to_dict()
     if args.json:
-        print(_dump(payload))
+        print(to_json(payload, finite=True, sort_keys=False))
         return 0
     noise = payload["noise_rmse"]
     print(f"model {payload['model']}: RMSE {payload['rmse']:.5g}, fit {payload['fit_percent']:.2f} %, "

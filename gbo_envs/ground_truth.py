@@ -8,6 +8,8 @@ import gymnasium as gym
 import numpy as np
 from joblib import Parallel, delayed
 
+from gbo_envs.gain_grid import grid_axes, grid_points
+
 __all__ = ["GroundTruth", "ground_truth"]
 
 
@@ -81,14 +83,14 @@ def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: in
     env = gym.make(env_or_id, **make_kwargs) if isinstance(env_or_id, str) else env_or_id
     plant_env = env.unwrapped
     low, high = plant_env.action_space.low, plant_env.action_space.high
-    axes = tuple(np.linspace(lo, hi, int(resolution)) for lo, hi in zip(low, high))
-    mesh = np.meshgrid(*axes, indexing="ij")
-    grid = np.column_stack([m.ravel() for m in mesh])
+    axes = grid_axes(low, high, int(resolution))
+    grid = grid_points(axes)
     parts = np.array_split(grid, max(1, grid.shape[0] // max(1, int(chunk))))
     costs = np.concatenate(Parallel(n_jobs=n_jobs)(delayed(_evaluate_part)(plant_env, part) for part in parts))
     best = int(np.argmin(costs))
     return GroundTruth(gains=grid[best].copy(), cost=float(costs[best]), gain_names=plant_env.gain_names,
-                       axes=axes, costs=costs.reshape(mesh[0].shape), gain_units=plant_env.gain_units)
+                       axes=axes, costs=costs.reshape([axis.size for axis in axes]),
+                       gain_units=plant_env.gain_units)
 
 
 def _evaluate_part(env, gains: np.ndarray) -> np.ndarray:

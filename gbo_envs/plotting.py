@@ -4,20 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from gbo_envs.lazy_pyplot import pyplot
+
 __all__ = ["response_figure", "figure_to_rgb", "cost_surface"]
-
-
-def _pyplot():
-    import matplotlib
-
-    if matplotlib.get_backend().lower() not in ("agg", "module://matplotlib_inline.backend_inline"):
-        try:
-            matplotlib.use("Agg")
-        except Exception:  # pragma: no cover - an interactive backend already in use
-            pass
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def response_figure(loop, response, labels=None, title: str | None = None):
@@ -31,7 +20,7 @@ def response_figure(loop, response, labels=None, title: str | None = None):
     labels : list of str, optional
         One label per response row.
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, (ax_y, ax_u) = plt.subplots(2, 1, sharex=True, figsize=(7, 5))
     if response is not None:
         for i in range(response.y.shape[0]):
@@ -54,7 +43,7 @@ def response_figure(loop, response, labels=None, title: str | None = None):
 
 def figure_to_rgb(fig) -> np.ndarray:
     """Render a figure to an ``uint8`` array of shape (height, width, 3) and close it."""
-    plt = _pyplot()
+    plt = pyplot()
     fig.canvas.draw()
     image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
     plt.close(fig)
@@ -73,7 +62,7 @@ def cost_surface(truth, ax=None, points=None, levels: int = 30):
     levels : int
         Number of contour levels.
     """
-    plt = _pyplot()
+    plt = pyplot()
     if len(truth.axes) != 2:
         raise ValueError(f"truth: cost surfaces are drawn for 2 gains, got {len(truth.axes)}")
     if ax is None:

@@ -84,7 +84,7 @@ def test_cost_normalised_by_the_four_vertices():
 
 
 def test_bare_nominal_model_overshoots():
-    """Without the damping the authors' double integrator overshoots 6-36 % over the set (DESIGN.md: 8-37 %)."""
+    """The undamped double integrator overshoots 6-36 % over the set (docs/design.md, "Calibration")."""
     env = _env(noise=False, damping=0.0)
     metrics, _ = env.evaluate(_grid(env, 20))
     assert metrics[:, 0].min() > 5.0

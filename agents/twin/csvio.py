@@ -1,6 +1,6 @@
 """The workbench's measured-data CSV: reading with row-and-column error messages, writing, records from loops.
 
-Format (DESIGN.md, "Measured data CSV"): a header with at least
+Format (docs/design.md, "Workbench CSV"): a header with at least
 ``experiment,t,r,u,y`` (extra columns are allowed and ignored), one row per
 sample: experiment id (integer), time since the step in s (increasing and
 uniformly spaced within an experiment), reference, commanded plant input,

@@ -12,13 +12,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from agents.jsonable import jsonable
+from agents.thread_limits import single_thread
 from agents.twin.compare import compare
 from agents.twin.evidence import _evidence, _excitation, separating_experiment
 from agents.twin.fitting import (
     _current_effect_bounds,
     _effect_offset,
     _problem,
-    _single_thread,
     candidate_problems,
     fit_model,
     linear_fit,
@@ -56,19 +57,7 @@ class Diagnosis:
                 "candidates": self.candidates, "heldout_rmse": float(self.heldout_rmse),
                 "validation": self.validation, "indistinguishable": self.indistinguishable,
                 "suggested_experiment": self.suggested_experiment,
-                "current_params": _jsonable(self.current.effect_params)}
-
-
-def _jsonable(value):
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, (np.floating, float)):
-        return float(value) if np.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
+                "current_params": jsonable(self.current.effect_params, finite=True)}
 
 
 def _variants(name: str, spec: ModelSpec) -> list[dict]:
@@ -129,7 +118,7 @@ def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_i
 
 
 
-@_single_thread
+@single_thread()
 def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
              current: GreyFit | None = None, n_folds: int = 4, bic_margin: float = 10.0, min_gain: float = 0.02,
              max_iter: int = 20, _restarts: int = 0) -> Diagnosis:
@@ -218,7 +207,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     for i, name in enumerate(order, start=1):
         fit = fits[name]
         entry = {"effect": name, "rmse": float(np.sqrt(rss[i] / n)), "delta_bic": float(bic[i] - bic[0]),
-                 "params": _jsonable(fit.effect_params.get(name, {})) if name in fit.effect_params else {},
+                 "params": jsonable(fit.effect_params.get(name, {}), finite=True) if name in fit.effect_params else {},
                  "evidence": _evidence(name, data, current, fit), "train_rmse": float(fit.rmse),
                  "extra_params": int(fit.n_params - current.n_params),
                  "effect_rms": _effect_size(data, fit)}
@@ -243,7 +232,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
                      validation, pairs, suggestion)
 
 
-@_single_thread
+@single_thread()
 def _effect_size(data: GreyData, fit: GreyFit) -> float:
     """RMS change of the output when the last effect of ``fit`` is switched off (its magnitude at zero).
 
@@ -306,7 +295,7 @@ def error_ladder(data: GreyData, effects=None, spec: ModelSpec | None = None, ma
         diagnoses.append(d)
         rungs.append({"model": current.spec.label, "added": added, "rmse": float(current.rmse),
                       "fit_percent": float(d.fit_percent), "heldout_rmse": float(d.heldout_rmse),
-                      "params": _jsonable(current.effect_params)})
+                      "params": jsonable(current.effect_params, finite=True)})
         if d.best is None or len(rungs) > max_steps:
             break
         added, current = d.best, d.fits[d.best]

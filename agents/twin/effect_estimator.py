@@ -6,6 +6,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from agents.thread_limits import single_thread
 from agents.twin.estimator import TwinEstimator
 from agents.twin.fitting import (
     _current_effect_bounds,
@@ -13,7 +14,6 @@ from agents.twin.fitting import (
     _forward_bias,
     _problem,
     _profile,
-    _single_thread,
     fit_model,
     linear_fit,
     refine_grid_parameters,
@@ -37,7 +37,7 @@ def _estimator_data(estimator, records) -> GreyData:
     return GreyData.from_records([{"t": r.t, "r": r.r, "u": r.u, "y": r.y} for r in kept], experiment_index=index)
 
 
-@_single_thread
+@single_thread()
 def fit_twin_effects(estimator, records):
     """``TwinEstimator.fit`` with ``effects``: grey-box fit of the linear part and the effect parameters.
 
@@ -129,14 +129,14 @@ def _refit_rest(estimator, records) -> tuple[GreyData, GreyFit]:
     return data, GreyFit.from_problem(data, problem)
 
 
-@_single_thread
+@single_thread()
 def predict_twin_effects(estimator, records) -> list[np.ndarray]:
     """``TwinEstimator.predict`` with effects: simulated outputs, each of shape (n_steps,)."""
     data, fit = _refit_rest(estimator, records)
     return [fit.y_sim[k][data.mask[k]] for k in range(data.n_records)]
 
 
-@_single_thread
+@single_thread()
 def rmse_twin_effects(estimator, records, normalize: bool = True) -> float:
     """``TwinEstimator.rmse`` with effects (normalised by the step height by default)."""
     data, fit = _refit_rest(estimator, records)

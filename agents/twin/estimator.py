@@ -12,8 +12,8 @@ import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 from sklearn.base import BaseEstimator
 from sklearn.exceptions import NotFittedError
-from threadpoolctl import threadpool_limits
 
+from agents.thread_limits import single_thread
 from agents.twin import srivc as _srivc
 from agents.twin.records import as_records, decimate, make_batches
 from gbo_envs import ContinuousPlant
@@ -194,7 +194,7 @@ class TwinEstimator(BaseEstimator):
 
             return fit_twin_effects(self, records)
         self.__dict__.pop("effects_", None)
-        with threadpool_limits(limits=1, user_api="blas"):  # tiny matrices: BLAS threads only contend
+        with single_thread():  # tiny matrices: BLAS threads only contend
             return self._fit(records)
 
     def _fit(self, records) -> TwinEstimator:

@@ -11,8 +11,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
+from agents.thread_limits import single_thread
 from agents.twin.estimator import TwinEstimator
 from agents.twin.greybox import FITTED_PARAMETERS, GreyData, GreyFit, ModelSpec, Problem, fit_problems, simulate_sets
 from agents.twin.guesses import _quantization_scan, _rest_command, effect_starts
@@ -21,19 +21,7 @@ from gbo_envs.physics.effects import EFFECT_NAMES, EFFECTS
 __all__ = ["PROFILE_EFFECTS", "candidate_problems", "fit_model", "linear_fit", "refine_grid_parameters"]
 
 
-def _single_thread(fn):
-    """Run ``fn`` with one BLAS thread: its many tiny matrix exponentials only contend for threads."""
-    import functools
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        with threadpool_limits(limits=1, user_api="blas"):
-            return fn(*args, **kwargs)
-
-    return wrapper
-
-
-@_single_thread
+@single_thread()
 def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = True) -> GreyFit:
     """Base linear model: SRIVC with a delay of at most one sample, then refined by simulation error.
 
@@ -296,7 +284,7 @@ def refine_grid_parameters(data: GreyData, fit: GreyFit) -> GreyFit:
     return best
 
 
-@_single_thread
+@single_thread()
 def fit_model(data: GreyData, effects: Sequence | Mapping | None = None, spec: ModelSpec | None = None,
               base: GreyFit | None = None, max_iter: int = 25) -> GreyFit:
     """Grey-box fit of the linear model plus ``effects`` (names, or ``{name: {parameter: value}}`` guesses).

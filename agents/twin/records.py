@@ -1,7 +1,7 @@
 """Closed-loop experiment records: validation, decimation and batching for identification.
 
 A record is one step experiment as an env ``step`` reports it in ``info``
-(DESIGN.md, "Experiment record"): equal-length float arrays ``t, r, u, y`` with
+(docs/design.md, "The experiment record"): equal-length float arrays ``t, r, u, y`` with
 ``t`` the time since the reference step in s, ``r`` the reference (its last
 value is the post-step level ``r2``), ``u`` the commanded plant input and ``y``
 the measured output. Every record starts at rest at the pre-step level.

@@ -18,17 +18,9 @@ import numpy as np
 
 from agents.twin.greybox import GreyData, GreyFit
 from agents.twin.workbench import Diagnosis, ResidualAnalysis, compare
+from gbo_envs.lazy_pyplot import pyplot
 
 __all__ = ["compare_figure", "figure_to_base64", "ladder_figure", "residual_figure", "write_report"]
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int = 4):
@@ -42,7 +34,7 @@ def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int
     max_experiments : int, default 4
         Experiments shown (spread over the data set).
     """
-    plt = _plt()
+    plt = pyplot()
     shown = np.unique(np.linspace(0, data.n_records - 1, min(max_experiments, data.n_records)).round().astype(int))
     fig, axes = plt.subplots(2, shown.size, figsize=(4.2 * shown.size, 5.5), squeeze=False, sharex="col")
     for col, k in enumerate(shown):
@@ -65,7 +57,7 @@ def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int
 
 def residual_figure(analysis: ResidualAnalysis, title: str = ""):
     """Residual autocorrelation and input cross-correlation with 99 % bands, and the binned residual."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(2, 3, figsize=(13, 6.5))
     ax = axes[0, 0]
     ax.bar(analysis.lags, analysis.acf, width=0.8, color="tab:blue")
@@ -97,7 +89,7 @@ def residual_figure(analysis: ResidualAnalysis, title: str = ""):
 
 def ladder_figure(rungs: Sequence[dict], noise_rmse: float | None = None):
     """Bar chart of the error ladder: RMSE of each model as effects are added."""
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(1.8 * len(rungs) + 3, 3.8))
     labels = [r["model"] for r in rungs]
     ax.bar(range(len(rungs)), [r["rmse"] for r in rungs], color="tab:blue", label="RMSE (fit)")
@@ -114,7 +106,7 @@ def ladder_figure(rungs: Sequence[dict], noise_rmse: float | None = None):
 
 def figure_to_base64(fig) -> str:
     """PNG of a matplotlib figure as a base64 string (the figure is closed)."""
-    plt = _plt()
+    plt = pyplot()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)
     plt.close(fig)

@@ -62,7 +62,7 @@ def load_result(store: SessionStore, session_id: int) -> TuningResult:
 
 def export_csv(store: SessionStore, out: str | Path, session_id: int | None = None, include_twin: bool = False,
                include_failed: bool = False) -> tuple[SessionInfo, int]:
-    """Write a session in the workbench CSV format (DESIGN.md, "Measured data CSV").
+    """Write a session in the workbench CSV format (docs/design.md, "Workbench CSV").
 
     Columns: ``experiment,t,r,u,y`` (one row per sample), then one column per
     gain (e.g. ``Kp,Ki``), then ``source`` and ``cost``.

@@ -35,6 +35,8 @@ from typing import Any
 
 import numpy as np
 
+from agents.jsonable import to_json
+
 __all__ = ["ARRAY_FIELDS", "PLANT_STATUSES", "ExperimentRow", "SessionBusy", "SessionInfo", "SessionStore",
            "array_from_blob", "array_to_blob"]
 
@@ -188,25 +190,6 @@ def array_to_blob(array) -> bytes:
 def array_from_blob(blob: bytes) -> np.ndarray:
     """Inverse of :func:`array_to_blob`."""
     return np.load(io.BytesIO(blob), allow_pickle=False)
-
-
-def to_json(value: Any) -> str:
-    """JSON text of ``value`` with numpy scalars and arrays converted (floats round-trip exactly)."""
-    return json.dumps(_plain(value), sort_keys=True)
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    return repr(value)
 
 
 def _real(value) -> float | None:

@@ -21,7 +21,8 @@ from agents.base import TuningInterrupted, TuningStopped
 from agents.space import GainSpace
 from agents.utils import env_id as env_name
 from evaluation.sessions.recorder import CRASH_POLICIES, SessionRecorder
-from evaluation.sessions.store import SessionStore, to_json
+from agents.jsonable import to_json
+from evaluation.sessions.store import SessionStore
 
 __all__ = ["TuningSession", "session_spec"]
 

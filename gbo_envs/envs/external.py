@@ -148,8 +148,8 @@ class ExternalPlantEnv(ControllerTuningEnv):
     ## Description
 
     ``run_experiment(gains) -> (t, r, u, y)`` sets the controller gains on the
-    rig, runs one step experiment and returns its record (DESIGN.md,
-    "Experiment record"): equal-length 1-D arrays with ``t`` the time since the
+    rig, runs one step experiment and returns its record (docs/design.md,
+    "The experiment record"): equal-length 1-D arrays with ``t`` the time since the
     reference step in s (starting at 0, increasing), ``r`` the reference
     (ending at ``r2``), ``u`` the commanded plant input and ``y`` the measured
     output. A mapping with keys ``t, r, u, y`` is accepted too. The env checks

@@ -23,14 +23,14 @@ from gbo_envs.physics.sensor import Quantization
 
 __all__ = ["EFFECTS", "EFFECT_NAMES", "build_effect", "build_effects", "describe_effect"]
 
-#: Catalogue name -> block class (DESIGN.md, "Physical effects catalogue"; the names are public API).
+#: Catalogue name -> block class (docs/design.md, "Effects catalogue"; the names are public API).
 EFFECTS: dict[str, type[EffectBlock]] = {
     cls.name: cls
     for cls in (TimeDelay, Saturation, DeadZone, CoulombFriction, ViscousFriction, Stiction, Backlash,
                 Quantization, Drift, Offset, Cogging)
 }
 
-#: The catalogue names in DESIGN.md order.
+#: The catalogue names in the order of docs/design.md, "Effects catalogue".
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
 
 

@@ -1,4 +1,4 @@
-"""The paper's estimate of the cost noise ``sigma_eps`` from repeated experiments."""
+"""The cost noise ``sigma_eps`` of ``J = J_hat + epsilon`` from repeated experiments (paper, Secs. II-C, VI-A)."""
 
 from __future__ import annotations
 

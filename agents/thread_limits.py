@@ -1,0 +1,67 @@
+"""One thread for the BLAS (and optionally OpenMP) pools, through threadpoolctl.
+
+The GP's matrices and the twin's many small matrix exponentials are too small
+for BLAS threads to help: they only contend and spin. A study worker also runs
+single-threaded so that every backend computes the same numbers and the cores
+are shared by processes, not oversubscribed by threads.
+"""
+
+from __future__ import annotations
+
+import sys
+from contextlib import contextmanager
+
+from threadpoolctl import ThreadpoolController
+
+__all__ = ["single_thread"]
+
+#: Values of ``user_api``: the BLAS pools, the OpenMP pools, or (None) both.
+USER_APIS = ("blas", "openmp", None)
+
+# Inspecting the loaded libraries costs about 7 ms, so the controller is kept;
+# it is rebuilt when a module was imported since, as that may have loaded a new pool.
+_controller: ThreadpoolController | None = None
+_n_modules = -1
+
+
+def _thread_pools() -> ThreadpoolController:
+    global _controller, _n_modules
+    if _controller is None or len(sys.modules) != _n_modules:
+        _controller = ThreadpoolController()
+        _n_modules = len(sys.modules)
+    return _controller
+
+
+def single_thread(user_api: str | None = "blas"):
+    """Limit the thread pools to one thread inside a ``with`` block or a decorated function.
+
+    Parameters
+    ----------
+    user_api : {"blas", "openmp"} or None, default "blas"
+        Which pools to limit; None limits both.
+
+    Examples
+    --------
+    >>> with single_thread():
+    ...     pass
+    >>> @single_thread()
+    ... def fit():
+    ...     pass
+
+    Returns
+    -------
+    contextlib.AbstractContextManager
+        Also usable as a decorator: each call of the function enters it anew.
+    """
+    if user_api not in USER_APIS:
+        raise ValueError(f"user_api: must be one of {USER_APIS}, got {user_api!r}")
+    return _one_thread(user_api)
+
+
+@contextmanager
+def _one_thread(user_api: str | None):
+    limiter = _thread_pools().limit(limits=1, user_api=user_api)
+    try:
+        yield
+    finally:
+        limiter.restore_original_limits()
