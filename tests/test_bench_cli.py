@@ -5,8 +5,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from evaluation.cli import main
 from evaluation.runner import default_out_dir
+
+from evaluation.cli import main
 from evaluation.study import load_study
 
 

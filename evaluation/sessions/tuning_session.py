@@ -18,10 +18,10 @@ from typing import Any
 import numpy as np
 
 from agents.base import TuningInterrupted, TuningStopped
+from agents.jsonable import to_json
 from agents.space import GainSpace
 from agents.utils import env_id as env_name
 from evaluation.sessions.recorder import CRASH_POLICIES, SessionRecorder
-from agents.jsonable import to_json
 from evaluation.sessions.store import SessionStore
 
 __all__ = ["TuningSession", "session_spec"]
