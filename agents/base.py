@@ -14,9 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from agents.result import METRIC_COLUMNS, TuningResult
+from agents.result import TuningResult
 from agents.space import GainSpace
 from agents.utils import env_id, progress_bar
+from gbo_envs.experiment import Experiment
 
 __all__ = ["Tuner", "TuningInterrupted"]
 
@@ -167,7 +168,7 @@ class Tuner(abc.ABC):
         env.reset(seed=seed)
         name = env_id(env)
         result = TuningResult(tuner=self.name, env_id=name, gain_names=space.names, seed=seed,
-                              info={"params": self.get_params()})
+                              info={"params": self.get_params()}, gain_units=space.units)
         start = time.perf_counter()
         best = np.inf
         bar = progress_bar(budget, f"{self.name} on {name}", progress)
@@ -178,13 +179,12 @@ class Tuner(abc.ABC):
                 cost = float(info["cost"])
                 self.tell(gains, cost, info)
                 for twin in self._drain_twin_log():
-                    result.rows.append(_row(experiment, "twin", space, twin["gains"], twin["cost"], np.nan,
-                                            twin.get("metrics"), time.perf_counter() - start, twin))
+                    result.add(Experiment.from_mapping(twin, source="twin", index=experiment - 1), experiment,
+                               np.nan, time.perf_counter() - start, twin)
                 best = min(best, cost)
-                row = _row(experiment, "plant", space, gains, cost, best, info.get("metrics"),
-                           time.perf_counter() - start, {"true_cost": info.get("true_cost", np.nan),
-                                                         "unstable": bool(info.get("unstable", False))})
-                result.rows.append(row)
+                row = result.add(Experiment.from_mapping(info), experiment, best, time.perf_counter() - start,
+                                 {"true_cost": info.get("true_cost", np.nan),
+                                  "unstable": bool(info.get("unstable", False))})
                 if callback is not None:
                     callback(row)
                 bar.update(1)
@@ -204,19 +204,3 @@ class Tuner(abc.ABC):
         args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
         return f"{type(self).__name__}({args})"
 
-
-def _row(experiment, source, space, gains, cost, best, metrics, wall_time, extra) -> dict:
-    row: dict[str, Any] = {"experiment": experiment, "source": source}
-    row.update({name: float(g) for name, g in zip(space.names, gains)})
-    row["cost"] = float(cost)
-    row["best_cost"] = float(best)
-    metrics = metrics or {}
-    if not isinstance(metrics, dict):
-        metrics = dict(zip(METRIC_COLUMNS, np.asarray(metrics, dtype=float)))
-    for column in METRIC_COLUMNS:
-        row[column] = float(metrics.get(column, np.nan))
-    row["wall_time"] = float(wall_time)
-    for key, value in extra.items():
-        if key not in ("gains", "cost", "metrics"):
-            row[key] = value
-    return row

@@ -155,7 +155,7 @@ def write_csv(records, path: str | Path, gain_names: Sequence[str] | None = None
         raise ValueError("records: need at least one record to write, got none")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    pd.concat(frames, ignore_index=True).to_csv(path, index=False, float_format="%.10g")
+    pd.concat(frames, ignore_index=True).to_csv(path, index=False)  # shortest exact repr: a lossless round trip
     return path
 
 
