@@ -263,6 +263,10 @@ class Experiment:
 
     __hash__ = None  # compared by value (arrays inside), so not hashable
 
+    def __reduce__(self):
+        """Pickle through the constructor, so an unpickled record is validated and read-only again."""
+        return type(self), tuple(getattr(self, name) for name in self.__dataclass_fields__)
+
     def __repr__(self) -> str:
         gains = ", ".join(f"{g:.6g}" for g in self.gains)
         return (f"Experiment(source={self.source!r}, index={self.index}, gains=[{gains}], cost={self.cost:.6g}, "

@@ -217,3 +217,24 @@ def test_print_is_a_short_summary(guided):
     empty = agents.TuningResult(tuner="bo", env_id="x", gain_names=("Kp",))
     assert str(empty) == "TuningResult(bo on x, seed None: 0 real experiments)"
     assert empty.to_pandas().empty and empty.samples().empty
+
+
+def test_pickled_record_is_equal_and_read_only():
+    import pickle
+
+    env = gym.make("gbo_envs/DCMotor-v0")
+    env.reset(seed=0)
+    record = env.step(np.array([0.5, 1.2]))[4]["experiment"]
+    back = pickle.loads(pickle.dumps(record))
+    assert back == record and back is not record and not back.y.flags.writeable
+    assert back != record.replace(index=5) and back != record.replace(cost=record.cost + 1e-12)
+
+
+def test_a_step_on_the_twin_is_a_twin_record():
+    from agents.twin.env import make_twin_env
+
+    plant = gym.make("gbo_envs/DCMotor-v0")
+    twin = make_twin_env(plant, plant.unwrapped.loop.plant)
+    twin.reset(seed=0)
+    record = twin.step(np.array([0.5, 1.2]))[4]["experiment"]
+    assert record.source == "twin" and record.has_signals and record.index == 0
