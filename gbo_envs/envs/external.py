@@ -168,7 +168,8 @@ class ExternalPlantEnv(ControllerTuningEnv):
     As :class:`ControllerTuningEnv`: reward ``-J``; ``info`` holds the record
     plus ``gains``, ``metrics``, ``cost``, ``unstable``, ``experiment_index``
     and ``failed`` (no ``true_cost``: the noise-free cost of a real plant is
-    unknown). The record of a failed experiment has no ``t, r, u, y`` (so a
+    unknown), and ``info["experiment"]``, the same as one
+    :class:`~gbo_envs.experiment.Experiment`. The record of a failed experiment has no ``t, r, u, y`` (so a
     twin never fits on it) but ``failure_reason``. A response leaving ``r2 +- 100 |r2 - r1|`` is ``unstable`` and
     costs ``unstable_cost``, as in the built-in envs.
 
@@ -331,11 +332,11 @@ class ExternalPlantEnv(ControllerTuningEnv):
             info = {"gains": gains.copy(), "metrics": {name: float("nan") for name in METRIC_NAMES},
                     "unstable": False, "experiment_index": index, "failed": True, "failure_reason": reason}
             if self.on_failure != "penalize":
-                info["experiment"] = Experiment.from_mapping(info)
+                info["experiment"] = Experiment.from_mapping(info, source=self.experiment_source)
                 raise ExperimentFailed(reason, info, self.on_failure)
             metrics, cost = np.zeros(len(METRIC_NAMES)), self.failure_cost
             info["cost"] = cost
-        info["experiment"] = Experiment.from_mapping(info)
+        info["experiment"] = Experiment.from_mapping(info, source=self.experiment_source)
         self._best_cost = min(self._best_cost, cost)
         self._last_obs = self._observation(gains, metrics, cost)
         return self._last_obs.copy(), -cost, False, False, info
