@@ -16,10 +16,11 @@ from typing import Any
 import numpy as np
 
 from agents.recorder import ExperimentRecorder
-from agents.result import METRIC_COLUMNS, TuningResult
+from agents.result import TuningResult
 from agents.space import GainSpace
 from agents.utils import env_id, progress_bar
 from gbo_envs.envs.external import ExperimentFailed
+from gbo_envs.experiment import Experiment
 
 __all__ = ["Tuner", "TuningInterrupted", "TuningStopped"]
 
@@ -232,7 +233,7 @@ class Tuner(abc.ABC):
         told, skips = recorder.resume(self, env) if recorder is not None else (0, 0)
         name = env_id(env)
         result = TuningResult(tuner=self.name, env_id=name, gain_names=space.names, seed=seed,
-                              info={"params": self.get_params()})
+                              info={"params": self.get_params()}, gain_units=space.units)
         start = time.perf_counter()
         best = np.inf
         bar = progress_bar(budget, f"{self.name} on {name}", progress, initial=told)
@@ -282,13 +283,15 @@ class Tuner(abc.ABC):
                     recorder.add_twins(handle, learning)
                 told, skips = told + 1, 0
                 for twin in proposing + learning:
-                    result.rows.append(_row(experiment, "twin", space, twin["gains"], twin["cost"], np.nan,
-                                            twin.get("metrics"), time.perf_counter() - start, twin))
+                    result.add(Experiment.from_mapping(twin, source="twin", index=experiment - 1), experiment,
+                               np.nan, time.perf_counter() - start, twin)
                 best = min(best, cost)
-                row = _row(experiment, "plant", space, gains, cost, best, info.get("metrics"),
-                           time.perf_counter() - start, {"true_cost": info.get("true_cost", np.nan),
-                                                         "unstable": bool(info.get("unstable", False))})
-                result.rows.append(row)
+                record = Experiment.from_mapping(info)
+                if record.cost != cost:  # a wrapper edited info["cost"]: the row shows the cost the tuner was told
+                    record = record.replace(cost=cost)
+                row = result.add(record, experiment, best, time.perf_counter() - start,
+                                 {"true_cost": info.get("true_cost", np.nan),
+                                  "unstable": bool(info.get("unstable", False))})
                 if callback is not None:
                     callback(row)
                 bar.update(1)
@@ -308,19 +311,3 @@ class Tuner(abc.ABC):
         args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
         return f"{type(self).__name__}({args})"
 
-
-def _row(experiment, source, space, gains, cost, best, metrics, wall_time, extra) -> dict:
-    row: dict[str, Any] = {"experiment": experiment, "source": source}
-    row.update({name: float(g) for name, g in zip(space.names, gains)})
-    row["cost"] = float(cost)
-    row["best_cost"] = float(best)
-    metrics = metrics or {}
-    if not isinstance(metrics, dict):
-        metrics = dict(zip(METRIC_COLUMNS, np.asarray(metrics, dtype=float)))
-    for column in METRIC_COLUMNS:
-        row[column] = float(metrics.get(column, np.nan))
-    row["wall_time"] = float(wall_time)
-    for key, value in extra.items():
-        if key not in ("gains", "cost", "metrics"):
-            row[key] = value
-    return row

@@ -1,24 +1,36 @@
-"""The tidy result of a tuning run: one row per experiment."""
+"""The result of a tuning run: the records of its real experiments and a tidy table of them."""
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["TuningResult", "METRIC_COLUMNS"]
+from gbo_envs.experiment import SIGNALS, Experiment
+from gbo_envs.metrics import METRIC_NAMES
+
+__all__ = ["TuningResult", "METRIC_COLUMNS", "SAMPLE_COLUMNS", "TABLE_COLUMNS"]
 
 #: Metric columns of a result table, in the env's metric order.
-METRIC_COLUMNS = ("overshoot_pct", "settling_time", "rise_time", "itae")
+METRIC_COLUMNS = METRIC_NAMES
+#: Leading columns of :meth:`TuningResult.to_pandas` (the gain names follow ``source``).
+TABLE_COLUMNS = ("experiment", "source", "cost", "best_cost", "true_cost", "unstable", *METRIC_COLUMNS, "wall_time")
+#: Columns of :meth:`TuningResult.samples`.
+SAMPLE_COLUMNS = ("experiment", "source", *SIGNALS)
+#: Record fields a row takes from the record itself, never from ``columns``.
+_RECORD_KEYS = frozenset({"experiment", "experiment_index", "source", "gains", "cost", "metrics", *SIGNALS})
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class TuningResult:
-    """Everything a tuning run produced, one row per experiment.
+    """Everything a tuning run produced.
 
-    Rows with ``source == "plant"`` are real experiments (counted in
-    ``experiment``, 1-based); rows with ``source == "twin"`` are digital-twin
-    evaluations made before the plant experiment of the same number.
+    ``to_pandas()`` has one row per real (plant) experiment; digital-twin
+    evaluations are rows with ``source == "twin"`` that only
+    ``to_pandas(include_twin=True)`` shows. ``samples()`` is the long table of
+    the recorded signals. ``print(result)`` gives a one-line summary.
 
     Attributes
     ----------
@@ -28,12 +40,18 @@ class TuningResult:
         Id of the env (or its class name).
     gain_names : tuple of str
     rows : list of dict
-        Columns: ``experiment, source, <gain names>, cost, best_cost,
-        true_cost, unstable, overshoot_pct, settling_time, rise_time, itae,
-        wall_time`` (s since the run started), plus tuner-specific extras.
+        The table in run order, plant and twin rows (see :meth:`to_pandas`);
+        written through :meth:`add`.
     seed : int or None
     interrupted : bool
         Whether the run was stopped early (rows hold what finished).
+    info : dict
+        Tuner parameters (``"params"``) and tuner-specific figures.
+    experiments : list of Experiment
+        The record of every plant row, in the same order as :attr:`plant_rows`
+        (without signals when none were recorded, e.g. a failed rig experiment).
+    gain_units : tuple of str
+        Units of the gains (the env's ``gain_units``; empty when unknown).
     """
 
     tuner: str
@@ -43,19 +61,92 @@ class TuningResult:
     seed: int | None = None
     interrupted: bool = False
     info: dict = field(default_factory=dict)
+    experiments: list[Experiment] = field(default_factory=list)
+    gain_units: tuple[str, ...] = ()
 
-    def to_pandas(self):
-        """The rows as a :class:`pandas.DataFrame`."""
+    def add(self, record: Experiment, experiment: int, best_cost: float, wall_time: float,
+            columns: Mapping | None = None) -> dict:
+        """Append ``record`` as a row of the table (and a plant record to :attr:`experiments`).
+
+        Parameters
+        ----------
+        record : Experiment
+            Its ``source``, gains, cost and metrics fill those columns.
+        experiment : int
+            Number of the plant experiment (1-based); a twin row carries the
+            number of the plant experiment it was made for.
+        best_cost : float
+            Lowest measured cost so far (NaN for a twin row).
+        wall_time : float
+            Time since the run started, in s.
+        columns : mapping, optional
+            Further columns (``true_cost``, ``unstable``, tuner-specific ones);
+            keys that name record fields (``gains``, ``cost``, ``metrics``, ...) are ignored.
+
+        Returns
+        -------
+        dict
+            The row.
+        """
+        if record.gains.size != len(self.gain_names):
+            raise ValueError(f"record.gains: expected {len(self.gain_names)} gains {self.gain_names}, "
+                             f"got {record.gains.size}")
+        row: dict = {"experiment": int(experiment), "source": record.source}
+        row.update({name: float(g) for name, g in zip(self.gain_names, record.gains)})
+        row["cost"] = record.cost
+        row["best_cost"] = float(best_cost)
+        for column in METRIC_COLUMNS:
+            row[column] = float(record.metrics.get(column, math.nan))
+        row["wall_time"] = float(wall_time)
+        row.update({key: value for key, value in (columns or {}).items() if key not in _RECORD_KEYS})
+        self.rows.append(row)
+        if record.source == "plant":
+            self.experiments.append(record)
+        return row
+
+    def to_pandas(self, include_twin: bool = False):
+        """The table as a :class:`pandas.DataFrame`, one row per real experiment.
+
+        Columns: ``experiment`` (1-based), ``source``, one per gain (e.g. ``Kp,
+        Ki``), ``cost`` (measured), ``best_cost`` (lowest measured so far),
+        ``true_cost`` (noise-free, NaN when unknown), ``unstable``,
+        ``overshoot_pct, settling_time, rise_time, itae``, ``wall_time`` (s
+        since the run started), then any tuner- or session-specific columns
+        (e.g. ``status, reason`` of a session).
+
+        Parameters
+        ----------
+        include_twin : bool, default False
+            Also the digital-twin evaluations (``source == "twin"``, in run
+            order before the plant experiment they were made for, with
+            ``best_cost`` NaN and the tuner's twin columns such as
+            ``activation, twin_iteration, twin_true_cost``).
+        """
         import pandas as pd
 
-        columns = ["experiment", "source", *self.gain_names, "cost", "best_cost", "true_cost", "unstable",
-                   *METRIC_COLUMNS, "wall_time"]
-        frame = pd.DataFrame(self.rows)
+        columns = [*TABLE_COLUMNS[:2], *self.gain_names, *TABLE_COLUMNS[2:]]
+        frame = pd.DataFrame(self.rows if include_twin else self.plant_rows)
         extras = [c for c in frame.columns if c not in columns]
         for column in columns:
             if column not in frame:
                 frame[column] = np.nan
         return frame[columns + extras]
+
+    def samples(self):
+        """The recorded signals as a long table, one row per sample of every real experiment.
+
+        Columns :data:`SAMPLE_COLUMNS`: ``experiment`` (as in :meth:`to_pandas`),
+        ``source``, ``t`` (s since the reference step), ``r, u, y`` (the env's
+        units). Experiments recorded without signals are left out.
+        """
+        import pandas as pd
+
+        frames = [pd.DataFrame({"experiment": np.full(record.n_steps, row["experiment"]),
+                                "source": record.source, **{name: getattr(record, name) for name in SIGNALS}})
+                  for row, record in zip(self.plant_rows, self.experiments) if record.has_signals]
+        if not frames:
+            return pd.DataFrame({name: pd.Series(dtype=float) for name in SAMPLE_COLUMNS})
+        return pd.concat(frames, ignore_index=True)
 
     @property
     def plant_rows(self) -> list[dict]:
@@ -110,6 +201,18 @@ class TuningResult:
                 best_measured, best_true = row["cost"], row.get("true_cost", row["cost"])
             curve.append(best_true)
         return np.asarray(curve, dtype=float)
+
+    def __repr__(self) -> str:
+        """One line: tuner, env, seed, real experiments (and twin evaluations), best gains with units, best cost."""
+        twin = f" (+{self.n_twin} twin evaluations)" if self.n_twin else ""
+        head = (f"TuningResult({self.tuner} on {self.env_id}, seed {self.seed}: {self.n_experiments} real "
+                f"experiments{twin}{', interrupted' if self.interrupted else ''}")
+        if not self.n_experiments:
+            return head + ")"
+        units = self.gain_units if len(self.gain_units) == len(self.gain_names) else ("",) * len(self.gain_names)
+        gains = ", ".join(f"{name} = {value:.4g}{'' if unit in ('', '-') else ' ' + unit}"
+                          for name, value, unit in zip(self.gain_names, self.best_gains, units))
+        return f"{head}; best {gains}, cost {self.best_cost:.4g})"
 
     def plot(self, ax=None, optimum: float | None = None):
         """Best measured cost against the number of plant experiments.

@@ -13,7 +13,7 @@ either complete or absent. ``key`` hashes everything that determines the batch
 exactly the batches that already exist and reruns those whose spec changed.
 Ctrl-C stops the run and keeps every finished batch; rerunning resumes.
 
-The rows are :meth:`agents.TuningResult.to_pandas` plus ``study``, ``tuner``
+The rows are :meth:`agents.TuningResult.to_pandas` (with ``include_twin=True``) plus ``study``, ``tuner``
 (the label), ``tuner_name`` (registry name), ``batch``, ``seed``, ``row``
 (order within the batch), ``params`` and ``info`` (JSON text) and
 ``batch_wall_time`` (s).
@@ -193,7 +193,7 @@ def run_batch(task: BatchTask):
         result = tuner.run(env, budget=task.budget, seed=task.seed)
         elapsed = time.perf_counter() - start
         env.close()
-    frame = result.to_pandas()
+    frame = result.to_pandas(include_twin=True)  # the twin rows feed the twin-use and timing tables
     info = {k: v for k, v in result.info.items() if k != "params"}
     frame.insert(0, "row", np.arange(len(frame)))
     for position, (column, value) in enumerate([("study", task.study), ("tuner", task.label),

@@ -69,7 +69,7 @@ def _load(args):
     from agents.twin.greybox import GreyData, ModelSpec
 
     records = read_csv(args.data)
-    data = GreyData.from_records(records, experiment_index=[r["experiment"] for r in records])
+    data = GreyData.from_records(records)  # experiment index = the CSV's experiment id
     spec = ModelSpec(args.poles, args.zeros, args.integrators, args.output)
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
     return records, data, spec, effects
@@ -101,7 +101,7 @@ def _compare(args) -> int:
 
     records, data, spec, effects = _load(args)
     fit = _fit(data, spec, effects)
-    res = compare(data, fit, experiments=[r["experiment"] for r in records])
+    res = compare(data, fit, experiments=[r.index for r in records])
     if args.out:
         from agents.twin.report import compare_figure
 

@@ -27,13 +27,14 @@ import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.csvio import read_csv, records_from_env, write_csv
 from agents.twin.greybox import GreyData
 from agents.twin.workbench import compare, diagnose, fit_model
+from gbo_envs.experiment import Experiment
 
 STRIDE = 5  # keep every 5th sample of the rig's 2 ms records (dt 10 ms)
 
 
-def decimated(record: dict, stride: int) -> dict:
+def decimated(record: Experiment, stride: int) -> Experiment:
     """A record at every ``stride``-th sample (the encoder's speed levels stay those of the 2 ms difference)."""
-    return {k: (v[::stride] if k in ("t", "r", "u", "y") else v) for k, v in record.items()}
+    return record.replace(t=record.t[::stride], r=record.r[::stride], u=record.u[::stride], y=record.y[::stride])
 
 
 def main() -> None:
@@ -44,7 +45,7 @@ def main() -> None:
     path = write_csv([decimated(r, STRIDE) for r in records_from_env(env, gains, seed=1)],
                      Path(tempfile.mkdtemp()) / "rig.csv")
     records = read_csv(path)
-    data = GreyData.from_records(records, experiment_index=[r["experiment"] for r in records])
+    data = GreyData.from_records(records)  # experiment index = the CSV's experiment id
     print(f"data: {path} ({data.n_records} experiments of {data.u.shape[1]} samples)")
 
     effects: list[str] = []

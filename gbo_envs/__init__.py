@@ -15,6 +15,7 @@ from gbo_envs.closed_loop import ClosedLoop, StepResponse
 from gbo_envs.controllers import PDT1Controller, PIController
 from gbo_envs.envs.base import ControllerTuningEnv
 from gbo_envs.envs.external import ExperimentFailed, ExternalPlantEnv
+from gbo_envs.experiment import Experiment, RecordError, validate_signals
 from gbo_envs.ground_truth import GroundTruth, ground_truth
 from gbo_envs.metrics import METRIC_NAMES, step_metrics, weighted_cost
 from gbo_envs.physics.lti import ContinuousPlant
@@ -23,15 +24,18 @@ __all__ = [
     "ClosedLoop",
     "ContinuousPlant",
     "ControllerTuningEnv",
+    "Experiment",
     "ExperimentFailed",
     "ExternalPlantEnv",
     "GroundTruth",
     "METRIC_NAMES",
     "PDT1Controller",
     "PIController",
+    "RecordError",
     "StepResponse",
     "ground_truth",
     "step_metrics",
+    "validate_signals",
     "weighted_cost",
     "ENV_IDS",
 ]

@@ -113,9 +113,9 @@ def _malformed_cases(loop):
         return t, r, u, y
 
     return {
-        "wrong lengths": (edit(lambda t, r, u, y: (t, r, u[:-1], y)), "unequal lengths"),
-        "NaN": (edit(with_nan), "y has 1 non-finite"),
-        "t not increasing": (edit(backwards), "t is not increasing at sample 50"),
+        "wrong lengths": (edit(lambda t, r, u, y: (t, r, u[:-1], y)), "must have equal lengths"),
+        "NaN": (edit(with_nan), "y: must be finite, got nan"),
+        "t not increasing": (edit(backwards), "t: must increase strictly, got 0.098 s at sample 50"),
         "three arrays": (edit(lambda t, r, u, y: (t, u, y)), "expected 4 arrays"),
         "not arrays": (lambda g: None, "expected (t, r, u, y)"),
         "wrong dt": (edit(lambda t, r, u, y: (2 * t, r, u, y)), "sample time"),

@@ -29,7 +29,7 @@ def _drive(tuner, env, budget, seed=0):
 
 def test_result_marks_twin_rows_and_counts_activations():
     result = GuidedBO(**FAST).run(gym.make("gbo_envs/DCMotor-v0"), budget=6, seed=0)
-    frame = result.to_pandas()
+    frame = result.to_pandas(include_twin=True)
     plant, twin = frame[frame.source == "plant"], frame[frame.source == "twin"]
     assert plant["experiment"].tolist() == [1, 2, 3, 4, 5, 6]
     assert result.info["activations"] >= 1
@@ -50,7 +50,7 @@ def test_the_twin_identifies_the_plant_from_the_tuning_records():
 def test_periodic_activation_runs_exactly_n_ei_twin_iterations():
     result = GuidedBO(activation="periodic", period=2, n_ei=3, eta3=np.inf, **FAST).run(
         gym.make("gbo_envs/DCMotor-v0"), budget=7, seed=0)
-    twin = result.to_pandas().query("source == 'twin'")
+    twin = result.to_pandas(include_twin=True).query("source == 'twin'")
     assert twin.groupby("activation").size().eq(3).all()
     assert sorted(twin["experiment"].unique()) == [2, 4, 6]  # after the initial data, then every N_G = 2
 

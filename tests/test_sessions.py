@@ -132,6 +132,9 @@ def test_session_matches_tuner_run_and_stores_records(tmp_path):
         np.testing.assert_array_equal(record[key], info[key])
     assert record["metrics"] == info["metrics"] and record["cost"] == info["cost"]
     assert record["experiment_index"] == 0 and rows[-1].env_state["experiment_index"] == 6
+    assert rows[0].to_experiment() == record["experiment"] == info["experiment"]  # the stored record is the env's
+    assert result.experiments == reference.experiments  # load_result returns the records, as Tuner.run does
+    assert "experiment" not in rows[0].extra  # the record object itself is never stored as JSON
     with SessionStore(db) as store:
         (info_row,) = store.sessions()
     assert (info_row.status, info_row.done, info_row.failed, info_row.budget) == ("done", 6, 0, 6)
@@ -326,9 +329,12 @@ def test_cli_tune_sessions_export(tmp_path, capsys):
     first = frame[frame["experiment"] == 1]
     np.testing.assert_array_equal(first["y"].to_numpy(), rows[0].arrays()["y"])
     assert first["Kp"].iloc[0] == rows[0].gains[0] and (frame["source"] == "plant").all()
+    from agents.twin.csvio import read_csv
     from agents.twin.records import as_records
 
     assert len(as_records(frame)) == 3  # the twin workbench reads it
+    back = read_csv(csv, gain_names=("Kp", "Ki"))
+    assert back == [row.to_experiment().replace(metrics={}, index=row.experiment) for row in rows]
     capsys.readouterr()
     assert gbo(["export", "--db", db, "--csv", csv]) == 0  # default: the latest updated session (1, resumed last)
     assert "of session 1 " in capsys.readouterr().out and pd.read_csv(csv)["experiment"].nunique() == 3

@@ -169,8 +169,8 @@ def _one(clean) -> dict:
     ("mutate", "message"),
     [
         (lambda rec: rec.update(u=rec["u"][:-1]), "equal lengths"),
-        (lambda rec: rec["y"].__setitem__(10, np.nan), "non-finite value nan at sample 10"),
-        (lambda rec: rec["t"].__setitem__(5, rec["t"][3]), "time must increase"),
+        (lambda rec: rec["y"].__setitem__(10, np.nan), "y: must be finite, got nan at sample 10"),
+        (lambda rec: rec["t"].__setitem__(5, rec["t"][3]), "t: must increase strictly"),
         (lambda rec: rec.pop("u"), "missing field"),
     ],
 )

@@ -8,6 +8,7 @@ import pytest
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.csvio import read_csv, records_from_env, write_csv
+from gbo_envs.experiment import Experiment
 
 HEADER = "experiment,t,r,u,y"
 
@@ -25,20 +26,46 @@ def _good_rows(exp: int = 0, n: int = 4) -> list[str]:
 def test_round_trip_of_env_records(tmp_path):
     env = gym.make("gbo_envs/DCMotor-v0", noise=False)
     records = records_from_env(env, np.array([[0.5, 1.2], [0.8, 1.0]]), seed=0)
+    assert all(isinstance(r, Experiment) for r in records)
     path = write_csv(records, tmp_path / "out" / "d.csv")
     back = read_csv(path)
-    assert [r["experiment"] for r in back] == [0, 1]
+    assert [r.index for r in back] == [0, 1]
     for rec, got in zip(records, back):
         for name in ("t", "r", "u", "y"):
-            np.testing.assert_allclose(got[name], rec[name], rtol=1e-9, atol=1e-12)
-    assert path.read_text().splitlines()[0] == HEADER + ",gain0,gain1"
+            np.testing.assert_allclose(getattr(got, name), getattr(rec, name), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(got.gains, rec.gains, rtol=1e-9)
+        assert got.cost == pytest.approx(rec.cost, rel=1e-9) and got.source == "plant"
+    assert path.read_text().splitlines()[0] == HEADER + ",gain0,gain1,source,cost"
+
+
+def test_named_gains_twin_source_and_unknown_cost_round_trip(tmp_path):
+    t = np.arange(5) * 0.01
+    records = [Experiment(gains=[0.5, 1.5], t=t, r=np.full(5, 2.0), u=t + 1, y=t ** 2, cost=0.25, index=3),
+               Experiment(gains=[0.7, 1.1], t=t, r=np.full(5, 2.0), u=-t, y=t, source="twin", index=8)]
+    path = write_csv(records, tmp_path / "named.csv", gain_names=("Kp", "Ki"))
+    assert path.read_text().splitlines()[0] == HEADER + ",Kp,Ki,source,cost"
+    back = read_csv(path, gain_names=("Kp", "Ki"))
+    assert [(r.index, r.source) for r in back] == [(3, "plant"), (8, "twin")]
+    assert back[0].cost == 0.25 and np.isnan(back[1].cost)
+    np.testing.assert_array_equal(back[1].gains, [0.7, 1.1])
+    np.testing.assert_allclose(back[0].y, t ** 2, rtol=1e-9, atol=1e-15)
+    assert read_csv(path)[0].gains.shape == (0,)  # without gain_names only gain0, gain1, ... are read
+
+
+def test_writer_rejects_records_without_signals_and_wrong_gain_names(tmp_path):
+    with pytest.raises(ValueError, match="has no t, r, u, y"):
+        write_csv([Experiment(gains=[0.5], cost=1.0, source="twin")], tmp_path / "x.csv")
+    t = np.arange(4) * 0.1
+    with pytest.raises(ValueError, match="gain_names: 1 names"):
+        write_csv([Experiment(gains=[0.5, 1.0], t=t, r=t, u=t, y=t)], tmp_path / "x.csv", gain_names=["Kp"])
 
 
 def test_extra_columns_and_order_of_experiments(tmp_path):
     rows = [HEADER + ",Kp,note"] + [r + ",0.5,x" for r in _good_rows(7)] + [r + ",0.6,y" for r in _good_rows(3)]
     recs = read_csv(_write(tmp_path, "\n".join(rows)))
-    assert [r["experiment"] for r in recs] == [7, 3]
-    assert recs[0]["u"].tolist() == [100, 101, 102, 103]
+    assert [r.index for r in recs] == [7, 3]
+    assert recs[0].u.tolist() == [100, 101, 102, 103]
+    assert read_csv(_write(tmp_path, "\n".join(rows)), gain_names=["Kp"])[1].gains.tolist() == [0.6]
 
 
 @pytest.mark.parametrize("text, message", [
@@ -49,12 +76,18 @@ def test_extra_columns_and_order_of_experiments(tmp_path):
     (HEADER + "\n" + "\n".join(_good_rows()[:3] + ["0,0.006,306,103,"]), "row 5, column 'y': missing value"),
     (HEADER + "\n" + "\n".join(_good_rows()[:1] + ["0,0.002,nan,101,246"]), "row 3, column 'r': missing value"),
     (HEADER + "\n" + "\n".join(_good_rows()[:2] + ["0,0.002,306,102,247"]),
-     "row 4, column 't': time 0.002 s does not increase within experiment 0"),
-    (HEADER + "\n" + "\n".join(_good_rows()[:3] + ["0,0.009,306,102,247"]), "row 5, column 't': samples must be"),
-    (HEADER + "\n" + "\n".join(_good_rows() + ["1,0,306,1,1"]), "row 6, column 'experiment': experiment 1 has 1"),
+     "row 4, column 't': experiment 0: must increase strictly, got 0.002 s at sample 2 after 0.002 s"),
+    (HEADER + "\n" + "\n".join(_good_rows()[:3] + ["0,0.009,306,102,247"]),
+     "row 5, column 't': experiment 0: must be uniformly spaced"),
+    (HEADER + "\n" + "\n".join(_good_rows() + ["1,0,306,1,1"]),
+     "row 6, column 'experiment': experiment 1: need at least 3 samples, got 1"),
     (HEADER + "\n" + "\n".join(_good_rows()[:1] + ["0.5,0.002,306,1,1"]),
      "row 3, column 'experiment': experiment id must be an integer"),
     (HEADER + "\n" + "\n".join(_good_rows()[:1] + ["0,0.002,306,inf,1"]), "row 3, column 'u': non-finite value"),
+    (HEADER + ",gain0\n" + "\n".join(r + f",{0.5 + i}" for i, r in enumerate(_good_rows())),
+     "row 3, column 'gain0': must be constant within experiment 0, got 1.5 after 0.5"),
+    (HEADER + ",source\n" + "\n".join(r + ",rig" for r in _good_rows()),
+     "row 2, column 'source': must be one of ('plant', 'twin'), got 'rig'"),
 ])
 def test_bad_data_names_row_and_column(tmp_path, text, message):
     with pytest.raises(ValueError) as info:

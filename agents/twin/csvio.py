@@ -1,48 +1,63 @@
-"""The workbench's measured-data CSV: reading with row-and-column error messages, writing, records from loops.
+"""The workbench's measured-data CSV: :class:`~gbo_envs.Experiment` records in, records out.
 
 Format (docs/design.md, "Workbench CSV"): a header with at least
-``experiment,t,r,u,y`` (extra columns are allowed and ignored), one row per
-sample: experiment id (integer), time since the step in s (increasing and
-uniformly spaced within an experiment), reference, commanded plant input,
-measured output. Row numbers in messages are line numbers of the file (the
-header is line 1).
+``experiment,t,r,u,y``, one row per sample: experiment id (integer), time since
+the step in s (increasing and uniformly spaced within an experiment),
+reference, commanded plant input, measured output. Optional columns, constant
+within an experiment: the gains (``gain0, gain1, ...`` or named, e.g.
+``Kp,Ki``), ``source`` (``plant`` or ``twin``) and ``cost``; other columns are
+allowed and ignored. :func:`write_csv` writes ``experiment,t,r,u,y``, the gain
+columns, ``source`` and ``cost`` (empty when unknown); ``gbo export`` writes the
+same. Row numbers in messages are line numbers of the file (the header is line 1).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["REQUIRED_COLUMNS", "read_csv", "records_from_env", "records_from_loop", "write_csv"]
+from gbo_envs.experiment import SIGNALS, SOURCES, Experiment, RecordError, validate_signals
+
+__all__ = ["REQUIRED_COLUMNS", "UNIFORM_RTOL_CSV", "read_csv", "records_from_env", "records_from_loop", "write_csv"]
 
 #: Columns every workbench CSV must have.
-REQUIRED_COLUMNS = ("experiment", "t", "r", "u", "y")
+REQUIRED_COLUMNS = ("experiment", *SIGNALS)
+#: Largest relative deviation of a sample step from the median step within an experiment of a CSV.
+UNIFORM_RTOL_CSV = 1e-3
 _MIN_SAMPLES = 3
+_MISSING = ("", "nan", "na", "null", "none")
 
 
-def read_csv(path: str | Path) -> list[dict]:
+def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[Experiment]:
     """Read and validate a workbench CSV.
 
     Parameters
     ----------
     path : str or Path
+    gain_names : sequence of str, optional
+        Columns holding the gains (e.g. ``("Kp", "Ki")`` for a ``gbo export``
+        file). Default: ``gain0, gain1, ...`` as far as present (none: the
+        records' gains have shape (0,)).
 
     Returns
     -------
-    list of dict
-        One record per experiment, in order of first appearance, with arrays
-        ``t, r, u, y`` of shape (n_steps,), ``experiment`` (the id) and
-        ``experiment_index`` (the id, for plant-side effects such as drift).
+    list of Experiment
+        One record per experiment, in order of first appearance, with
+        ``index`` = the experiment id, ``source`` and ``cost`` from their
+        columns when present (else ``"plant"`` and NaN) and empty ``metrics``.
 
     Raises
     ------
     ValueError
-        Missing columns, no data rows, a non-numeric or missing (NaN) value,
-        a non-integer experiment id, a time that does not increase or is not
-        uniformly spaced within an experiment, or an experiment with fewer than
-        3 samples; the message names the row (file line) and the column.
+        Missing columns, no data rows, a non-numeric or missing (NaN) value, a
+        non-integer experiment id, a value of an optional column that changes
+        within an experiment, a time that does not increase or is not
+        uniformly spaced within an experiment
+        (:func:`gbo_envs.experiment.validate_signals`), or an experiment with
+        fewer than 3 samples; the message names the row (file line) and the column.
     FileNotFoundError
         If ``path`` does not exist.
     """
@@ -57,24 +72,20 @@ def read_csv(path: str | Path) -> list[dict]:
         raise ValueError(f"{path}: the file is empty; expected a header {','.join(REQUIRED_COLUMNS)}") from exc
     frame.columns = [str(c).strip() for c in frame.columns]
     missing = [c for c in REQUIRED_COLUMNS if c not in frame.columns]
+    if gain_names is not None:
+        missing += [c for c in gain_names if c not in frame.columns]
     if missing:
         raise ValueError(f"{path}, row 1 (header): missing column(s) {missing}; the header must contain "
                          f"{','.join(REQUIRED_COLUMNS)} (found {list(frame.columns)})")
     if len(frame) == 0:
         raise ValueError(f"{path}: no data rows after the header")
-    values = {}
-    for column in REQUIRED_COLUMNS:
-        text = frame[column].astype(str).str.strip()
-        numbers = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
-        bad = np.flatnonzero(~np.isfinite(numbers))
-        if bad.size:
-            i = int(bad[0])
-            raw = text.iloc[i]
-            what = "missing value" if raw == "" or raw.lower() in ("nan", "na", "null", "none") else (
-                f"non-finite value {raw!r}" if raw.lower().lstrip("+-") in ("inf", "infinity") else
-                f"non-numeric value {raw!r}")
-            raise ValueError(f"{path}, row {i + 2}, column {column!r}: {what}")
-        values[column] = numbers
+    if gain_names is None:
+        gain_names = []
+        while f"gain{len(gain_names)}" in frame.columns:
+            gain_names.append(f"gain{len(gain_names)}")
+    text = {column: frame[column].astype(str).str.strip() for column in frame.columns}
+    values = {column: _numbers(path, column, text[column]) for column in (*REQUIRED_COLUMNS, *gain_names)}
+    costs = _numbers(path, "cost", text["cost"], allow_missing=True) if "cost" in frame.columns else None
     exp = values["experiment"]
     not_int = np.flatnonzero(exp != np.round(exp))
     if not_int.size:
@@ -82,67 +93,108 @@ def read_csv(path: str | Path) -> list[dict]:
         raise ValueError(f"{path}, row {i + 2}, column 'experiment': experiment id must be an integer, "
                          f"got {frame['experiment'].iloc[i]!r}")
     ids = exp.astype(int)
-    order = list(dict.fromkeys(ids.tolist()))
     records = []
-    for ident in order:
+    for ident in dict.fromkeys(ids.tolist()):
         rows = np.flatnonzero(ids == ident)
-        if rows.size < _MIN_SAMPLES:
-            raise ValueError(f"{path}, row {rows[0] + 2}, column 'experiment': experiment {ident} has "
-                             f"{rows.size} sample(s); an experiment needs at least {_MIN_SAMPLES}")
-        t = values["t"][rows]
-        steps = np.diff(t)
-        back = np.flatnonzero(steps <= 0.0)
-        if back.size:
-            j = int(back[0]) + 1
-            raise ValueError(f"{path}, row {rows[j] + 2}, column 't': time {t[j]:g} s does not increase within "
-                             f"experiment {ident} (previous sample {t[j - 1]:g} s at row {rows[j - 1] + 2})")
-        dt = float(np.median(steps))
-        off = np.flatnonzero(np.abs(steps - dt) > 1e-3 * dt)
-        if off.size:
-            j = int(off[0]) + 1
-            raise ValueError(f"{path}, row {rows[j] + 2}, column 't': samples must be uniformly spaced within "
-                             f"experiment {ident} (dt = {dt:g} s), the step to {t[j]:g} s is {steps[j - 1]:g} s")
-        records.append({"t": t, "r": values["r"][rows], "u": values["u"][rows], "y": values["y"][rows],
-                        "experiment": int(ident), "experiment_index": int(ident)})
+        try:
+            signals = validate_signals(*(values[name][rows] for name in SIGNALS), min_steps=_MIN_SAMPLES,
+                                       uniform_rtol=UNIFORM_RTOL_CSV)
+        except RecordError as exc:
+            column = "experiment" if exc.field == "t, r, u, y" else exc.field
+            raise ValueError(f"{path}, row {rows[exc.sample or 0] + 2}, column {column!r}: experiment {ident}: "
+                             f"{exc.rule}") from None
+        gains = [_constant(path, ident, rows, name, values[name][rows]) for name in gain_names]
+        cost = math.nan if costs is None else _constant(path, ident, rows, "cost", costs[rows])
+        source = _constant(path, ident, rows, "source", text["source"].to_numpy()[rows]) if "source" in text \
+            else "plant"
+        if source not in SOURCES:
+            raise ValueError(f"{path}, row {rows[0] + 2}, column 'source': must be one of {SOURCES}, got {source!r}")
+        records.append(Experiment(gains=gains, **signals, cost=cost, source=source, index=ident))
     return records
 
 
-def write_csv(records: Sequence[dict], path: str | Path, experiments: Sequence[int] | None = None) -> Path:
-    """Write records (mappings with ``t, r, u, y``) as a workbench CSV; returns the path.
+def write_csv(records, path: str | Path, gain_names: Sequence[str] | None = None) -> Path:
+    """Write records as a workbench CSV; returns the path.
 
-    Experiment ids are ``experiments``, else each record's ``experiment_index``
-    (or ``experiment``), else 0, 1, ...; extra scalar entries of a record such
-    as ``gains`` are written as extra columns (``gain0, gain1, ...``).
+    Parameters
+    ----------
+    records : sequence of Experiment or of mappings
+        Records with signals (mappings are read by
+        :meth:`~gbo_envs.Experiment.from_mapping`, e.g. env ``info`` dicts).
+        The experiment id is each record's ``index``.
+    path : str or Path
+        File to write (its folder is created).
+    gain_names : sequence of str, optional
+        Names of the gain columns (default ``gain0, gain1, ...``).
+
+    Raises
+    ------
+    ValueError
+        A record without signals, or records with different numbers of gains
+        than ``gain_names``.
     """
     import pandas as pd
 
     frames = []
-    for k, rec in enumerate(records):
-        if experiments is not None:
-            ident = int(experiments[k])
-        else:
-            ident = int(rec.get("experiment_index", rec.get("experiment", k)))
-        n = np.asarray(rec["t"]).size
-        frame = {"experiment": np.full(n, ident, dtype=int)}
-        frame.update({name: np.asarray(rec[name], dtype=float) for name in ("t", "r", "u", "y")})
-        if "gains" in rec:
-            for j, g in enumerate(np.atleast_1d(rec["gains"])):
-                frame[f"gain{j}"] = np.full(n, float(g))
+    for k, item in enumerate(records):
+        record = item if isinstance(item, Experiment) else Experiment.from_mapping(item)
+        if not record.has_signals:
+            raise ValueError(f"records[{k}]: has no t, r, u, y to write ({record!r})")
+        names = list(gain_names) if gain_names is not None else [f"gain{j}" for j in range(record.gains.size)]
+        if len(names) != record.gains.size:
+            raise ValueError(f"gain_names: {len(names)} names {names} for records[{k}] with "
+                             f"{record.gains.size} gains")
+        n = record.n_steps
+        frame = {"experiment": np.full(n, record.index, dtype=int)}
+        frame.update({name: getattr(record, name) for name in SIGNALS})
+        frame.update({name: np.full(n, g) for name, g in zip(names, record.gains)})
+        frame["source"] = np.full(n, record.source)
+        frame["cost"] = np.full(n, record.cost)
         frames.append(pd.DataFrame(frame))
+    if not frames:
+        raise ValueError("records: need at least one record to write, got none")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    pd.concat(frames, ignore_index=True).to_csv(path, index=False, float_format="%.10g")
+    pd.concat(frames, ignore_index=True).to_csv(path, index=False)  # shortest exact repr: a lossless round trip
     return path
 
 
-def records_from_env(env, gains: np.ndarray, seed: int | None = None) -> list[dict]:
-    """Run one env experiment per row of ``gains`` (shape (n, n_gains)) and return the ``info`` records."""
+def _numbers(path: Path, column: str, text, allow_missing: bool = False) -> np.ndarray:
+    """The column as floats; a missing, non-numeric or infinite value raises naming its row."""
+    import pandas as pd
+
+    numbers = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
+    blank = text.str.lower().isin(_MISSING).to_numpy()
+    bad = np.flatnonzero(~np.isfinite(numbers) & ~(blank & allow_missing))
+    if bad.size:
+        i = int(bad[0])
+        raw = text.iloc[i]
+        what = "missing value" if raw.lower() in _MISSING else (
+            f"non-finite value {raw!r}" if raw.lower().lstrip("+-") in ("inf", "infinity") else
+            f"non-numeric value {raw!r}")
+        raise ValueError(f"{path}, row {i + 2}, column {column!r}: {what}")
+    return np.where(blank, np.nan, numbers) if allow_missing else numbers
+
+
+def _constant(path: Path, ident: int, rows: np.ndarray, column: str, values: np.ndarray):
+    """The one value of ``column`` within experiment ``ident`` (rows ``rows`` of the data)."""
+    values = values.tolist()
+    first = values[0]
+    for row, value in zip(rows, values):
+        if value != first and not (isinstance(first, float) and math.isnan(first) and math.isnan(value)):
+            raise ValueError(f"{path}, row {row + 2}, column {column!r}: must be constant within experiment "
+                             f"{ident}, got {value!r} after {first!r}")
+    return first
+
+
+def records_from_env(env, gains: np.ndarray, seed: int | None = None) -> list[Experiment]:
+    """Run one env experiment per row of ``gains`` (shape (n, n_gains)) and return their records."""
     if seed is not None:
         env.reset(seed=seed)
-    return [env.step(np.asarray(g, dtype=float))[4] for g in np.atleast_2d(gains)]
+    return [Experiment.from_mapping(env.step(np.asarray(g, dtype=float))[4]) for g in np.atleast_2d(gains)]
 
 
-def records_from_loop(loop, gains: np.ndarray, rng: np.random.Generator, start_index: int = 0) -> list[dict]:
+def records_from_loop(loop, gains: np.ndarray, rng: np.random.Generator, start_index: int = 0) -> list[Experiment]:
     """Closed-loop experiments of a :class:`gbo_envs.ClosedLoop` (any reference step, e.g. through zero speed).
 
     Experiment ``k`` runs ``loop.at_experiment(start_index + k)`` (so ``drift``
@@ -150,12 +202,11 @@ def records_from_loop(loop, gains: np.ndarray, rng: np.random.Generator, start_i
 
     Returns
     -------
-    list of dict
-        Records with ``t, r, u, y``, ``gains`` and ``experiment_index``.
+    list of Experiment
+        Records with signals, ``gains`` and ``index = start_index + k`` (no cost or metrics).
     """
     out = []
     for k, g in enumerate(np.atleast_2d(np.asarray(gains, dtype=float))):
         res = loop.at_experiment(start_index + k).simulate(g[None, :], rng=rng)
-        out.append({"t": res.t, "r": res.r, "u": res.u[0], "y": res.y[0], "gains": g,
-                    "experiment_index": start_index + k})
+        out.append(Experiment(gains=g, t=res.t, r=res.r, u=res.u[0], y=res.y[0], index=start_index + k))
     return out

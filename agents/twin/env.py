@@ -44,6 +44,8 @@ class TwinEnv(ControllerTuningEnv):
     >>> metrics, cost = twin_env.evaluate(gains)  # gains of shape (batch, n_gains)  # doctest: +SKIP
     """
 
+    experiment_source = "twin"  # info["experiment"].source of a step on the twin
+
     def __init__(self, plant_env, twin, cost_noise_std: float = 0.0) -> None:
         base = getattr(plant_env, "unwrapped", plant_env)
         if not isinstance(base, ControllerTuningEnv):

@@ -83,18 +83,15 @@ class GreyData:
     def from_records(cls, records, experiment_index: Sequence[int] | None = None) -> GreyData:
         """Validate records (:func:`agents.twin.records.as_records`) and stack them.
 
-        ``experiment_index`` defaults to each record's ``experiment_index`` entry
-        when all have one, else to their position.
+        ``experiment_index`` defaults to the records' :attr:`~gbo_envs.Experiment.index`
+        as :func:`~agents.twin.records.as_records` sets it.
         """
-        items = records if isinstance(records, (list, tuple)) else None
         data = as_records(records, min_steps=3)
         dts = np.array([rec.dt for rec in data])
         if np.any(np.abs(dts - dts[0]) > 1e-6 * dts[0]):
             raise ValueError(f"records: every experiment must have the same sample time, got {sorted(set(dts))}")
         if experiment_index is None:
-            given = [it.get("experiment_index") for it in items] if items and all(
-                isinstance(it, Mapping) for it in items) else None
-            experiment_index = given if given and all(g is not None for g in given) else range(len(data))
+            experiment_index = [rec.index for rec in data]
         index = np.asarray(list(experiment_index), dtype=int)
         if index.size != len(data):
             raise ValueError(f"experiment_index: need {len(data)} values, got {index.size}")

@@ -1,46 +1,27 @@
-"""Closed-loop experiment records: validation, decimation and batching for identification.
+"""Experiment records for identification: validation, decimation and batching.
 
-A record is one step experiment as an env ``step`` reports it in ``info``
-(docs/design.md, "The experiment record"): equal-length float arrays ``t, r, u, y`` with
-``t`` the time since the reference step in s, ``r`` the reference (its last
-value is the post-step level ``r2``), ``u`` the commanded plant input and ``y``
-the measured output. Every record starts at rest at the pre-step level.
+A record is an :class:`gbo_envs.experiment.Experiment` (docs/design.md,
+"The experiment record"): equal-length float arrays ``t, r, u, y`` with ``t`` the
+time since the reference step in s, ``r`` the reference (its last value is the
+post-step level ``r2``), ``u`` the commanded plant input and ``y`` the measured
+output. Every record starts at rest at the pre-step level. Identification
+needs a uniform time grid, so :func:`as_records` checks that too.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Record", "Batch", "as_records", "decimate", "make_batches"]
+from gbo_envs.experiment import SIGNALS, Experiment, RecordError, validate_signals
 
-_FIELDS = ("t", "r", "u", "y")
+__all__ = ["Batch", "UNIFORM_RTOL", "as_records", "decimate", "make_batches"]
 
-
-@dataclass(frozen=True, eq=False)
-class Record:
-    """One validated experiment.
-
-    Attributes
-    ----------
-    t, r, u, y : ndarray of shape (n_steps,)
-        Time in s (uniformly sampled, increasing), reference, commanded input, measured output.
-    dt : float
-        Sample time in s.
-    """
-
-    t: np.ndarray
-    r: np.ndarray
-    u: np.ndarray
-    y: np.ndarray
-    dt: float
-
-    @property
-    def n_steps(self) -> int:
-        """Number of samples."""
-        return self.t.size
+#: Largest relative deviation of a sample step from the median step that identification accepts.
+UNIFORM_RTOL = 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,34 +50,51 @@ class Batch:
         return self.u.shape[1]
 
 
-def as_records(records, min_steps: int = 3) -> list[Record]:
-    """Validate experiment records and return them as :class:`Record` objects.
+def as_records(records, min_steps: int = 3) -> list[Experiment]:
+    """Validate experiment records for identification and return them as :class:`~gbo_envs.Experiment` objects.
 
     Parameters
     ----------
-    records : mapping, sequence of mappings or arrays, or pandas.DataFrame
-        One record (a mapping with keys ``t, r, u, y``, extra keys ignored), a
-        sequence of such mappings or of arrays of shape (n_steps, 4) with the
-        columns ``t, r, u, y``, or a DataFrame with columns ``t, r, u, y`` and,
-        for several experiments, an ``experiment`` column (the CSV contract).
+    records : Experiment, mapping, sequence of those or of arrays, or pandas.DataFrame
+        One record (an :class:`~gbo_envs.Experiment`, or a mapping with keys
+        ``t, r, u, y`` such as an env ``info``; other keys are read as by
+        :meth:`~gbo_envs.Experiment.from_mapping`), a sequence of such records
+        or of arrays of shape (n_steps, 4) with the columns ``t, r, u, y``, or
+        a DataFrame with columns ``t, r, u, y`` and, for several experiments,
+        an ``experiment`` column (the CSV contract).
     min_steps : int, default 3
         Fewest samples a record may have.
 
     Returns
     -------
-    list of Record
+    list of Experiment
+        With signals on a uniform time grid (within :data:`UNIFORM_RTOL`).
+        ``index`` is each record's own (an Experiment's ``index``, a mapping's
+        ``experiment_index``, a DataFrame's ``experiment`` id) when every record
+        has one, else the position in ``records``.
 
     Raises
     ------
     ValueError
         Empty input, a missing field, arrays of unequal length or too short,
         NaN/inf values, or a time vector that is not uniformly increasing; the
-        message names the record and the field.
+        message names the record and the field
+        (:func:`gbo_envs.experiment.validate_signals`).
     """
     items = _split(records)
     if len(items) == 0:
         raise ValueError("records: need at least one experiment record, got none")
-    return [_validated(i, item, min_steps) for i, item in enumerate(items)]
+    out, own_index = [], True
+    for i, item in enumerate(items):
+        try:
+            record, has_index = _validated(item, min_steps)
+        except RecordError as exc:
+            raise exc.at(f"record {i}") from None
+        out.append(record)
+        own_index = own_index and has_index
+    if not own_index:
+        out = [record.replace(index=i) for i, record in enumerate(out)]
+    return out
 
 
 def _split(records) -> list:
@@ -104,7 +102,7 @@ def _split(records) -> list:
         if "experiment" in records.columns:
             return [group for _, group in records.groupby("experiment", sort=False)]
         return [records]
-    if isinstance(records, Mapping):
+    if isinstance(records, (Mapping, Experiment)):
         return [records]
     if isinstance(records, np.ndarray) and records.ndim == 2:
         return [records]
@@ -113,54 +111,41 @@ def _split(records) -> list:
     return list(records)
 
 
-def _validated(index: int, item, min_steps: int) -> Record:
-    where = f"record {index}"
-    if isinstance(item, Mapping) or (hasattr(item, "columns") and hasattr(item, "__getitem__")):
-        missing = [name for name in _FIELDS if name not in item]
+def _validated(item, min_steps: int) -> tuple[Experiment, bool]:
+    """The record and whether it carries its own experiment index."""
+    if isinstance(item, Experiment):
+        if not item.has_signals:
+            raise RecordError("t, r, u, y", f"required for identification; {item!r} has none")
+        validate_signals(item.t, item.r, item.u, item.y, min_steps=min_steps, uniform_rtol=UNIFORM_RTOL)
+        return item, True
+    if isinstance(item, Mapping):
+        if isinstance(item.get("experiment"), Experiment):
+            return _validated(item["experiment"], min_steps)
+        missing = [name for name in SIGNALS if name not in item]
         if missing:
-            raise ValueError(f"{where}: missing field(s) {missing}; a record needs t, r, u, y")
-        arrays = {}
-        for name in _FIELDS:
-            try:
-                arrays[name] = np.asarray(item[name], dtype=float)
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f"{where}, field {name!r}: not numeric") from exc
-    else:
-        try:
-            table = np.asarray(item, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{where}: expected a mapping with t, r, u, y or a numeric array") from exc
-        if table.ndim != 2 or table.shape[1] != 4:
-            raise ValueError(f"{where}: an array record must have shape (n_steps, 4) with columns t, r, u, y, "
-                             f"got shape {table.shape}")
-        arrays = {name: table[:, j] for j, name in enumerate(_FIELDS)}
-    for name, values in arrays.items():
-        if values.ndim != 1:
-            raise ValueError(f"{where}, field {name!r}: expected a 1-D array, got shape {values.shape}")
-    lengths = {name: values.size for name, values in arrays.items()}
-    if len(set(lengths.values())) != 1:
-        raise ValueError(f"{where}: t, r, u, y must have equal lengths, got {lengths}")
-    n = lengths["t"]
-    if n < min_steps:
-        raise ValueError(f"{where}: needs at least {min_steps} samples, got {n}")
-    for name, values in arrays.items():
-        bad = np.flatnonzero(~np.isfinite(values))
-        if bad.size:
-            raise ValueError(f"{where}, field {name!r}: non-finite value {values[bad[0]]} at sample {bad[0]}")
-    t = arrays["t"]
-    steps = np.diff(t)
-    dt = (t[-1] - t[0]) / (n - 1)
-    if dt <= 0.0 or np.any(steps <= 0.0):
-        first = int(np.flatnonzero(steps <= 0.0)[0]) + 1 if np.any(steps <= 0.0) else 1
-        raise ValueError(f"{where}, field 't': time must increase, it does not at sample {first}")
-    if np.max(np.abs(steps - dt)) > 1e-6 * dt:
-        worst = int(np.argmax(np.abs(steps - dt))) + 1
-        raise ValueError(f"{where}, field 't': samples must be uniformly spaced (dt = {dt:g} s), "
-                         f"they are not at sample {worst}")
-    return Record(t=t, r=arrays["r"], u=arrays["u"], y=arrays["y"], dt=float(dt))
+            raise RecordError("t, r, u, y", f"missing field(s) {missing}; a record needs t, r, u, y")
+        validate_signals(*(item[name] for name in SIGNALS), min_steps=min_steps, uniform_rtol=UNIFORM_RTOL)
+        return Experiment.from_mapping(item), "experiment_index" in item
+    if hasattr(item, "columns") and hasattr(item, "__getitem__"):  # one experiment of a DataFrame
+        missing = [name for name in SIGNALS if name not in item.columns]
+        if missing:
+            raise RecordError("t, r, u, y", f"missing column(s) {missing}; a record needs t, r, u, y")
+        arrays = validate_signals(*(item[name].to_numpy() for name in SIGNALS), min_steps=min_steps,
+                                  uniform_rtol=UNIFORM_RTOL)
+        has_id = "experiment" in item.columns
+        return Experiment(gains=(), **arrays, index=int(item["experiment"].iloc[0]) if has_id else 0), has_id
+    try:
+        table = np.asarray(item, dtype=float)
+    except (TypeError, ValueError):
+        raise RecordError("t, r, u, y", "expected a mapping with t, r, u, y or a numeric array") from None
+    if table.ndim != 2 or table.shape[1] != 4:
+        raise RecordError("t, r, u, y", "an array record must have shape (n_steps, 4) with columns t, r, u, y, "
+                                        f"got shape {table.shape}")
+    arrays = validate_signals(*table.T, min_steps=min_steps, uniform_rtol=UNIFORM_RTOL)
+    return Experiment(gains=(), **arrays), False
 
 
-def decimate(record: Record, n_samples: int | None) -> Record:
+def decimate(record: Experiment, n_samples: int | None) -> Experiment:
     """Keep ``n_samples`` uniformly spaced samples of a record, starting at the step.
 
     The paper's twin data set keeps ``n_tilde`` samples per experiment, eq. (Ds).
@@ -172,10 +157,10 @@ def decimate(record: Record, n_samples: int | None) -> Record:
         return record
     stride = (record.n_steps - 1) // (n_samples - 1)
     idx = np.arange(n_samples) * stride
-    return Record(t=record.t[idx], r=record.r[idx], u=record.u[idx], y=record.y[idx], dt=record.dt * stride)
+    return dataclasses.replace(record, t=record.t[idx], r=record.r[idx], u=record.u[idx], y=record.y[idx])
 
 
-def make_batches(records: list[Record]) -> list[Batch]:
+def make_batches(records: list[Experiment]) -> list[Batch]:
     """Group records by (length, sample time) and stack each group."""
     groups: dict[tuple[int, float], list[int]] = {}
     for i, rec in enumerate(records):

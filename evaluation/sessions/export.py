@@ -6,9 +6,7 @@ import datetime as dt
 import math
 from pathlib import Path
 
-import numpy as np
-
-from agents.result import METRIC_COLUMNS, TuningResult
+from agents.result import TuningResult
 from evaluation.sessions.store import SessionInfo, SessionStore
 
 __all__ = ["export_csv", "load_result", "sessions_table"]
@@ -19,11 +17,12 @@ TABLE_COLUMNS = ("id", "env", "tuner", "seed", "budget", "done", "failed", "best
 
 
 def load_result(store: SessionStore, session_id: int) -> TuningResult:
-    """The stored session as a tidy result: one row per plant experiment the tuner learned from, plus twin rows.
+    """The stored session as a result: one plant row per experiment the tuner learned from, plus twin rows.
 
     Columns as :meth:`agents.Tuner.run` writes them, plus ``status`` (``ok`` or
     ``failed``: penalised) and ``reason``; ``wall_time`` is in s since the
-    session was created.
+    session was created. ``result.experiments`` holds the stored records
+    (:meth:`~evaluation.sessions.store.ExperimentRow.to_experiment`).
     """
     info = store.session(session_id)
     result = TuningResult(tuner=info.tuner, env_id=info.env_id, gain_names=info.gain_names, seed=info.seed,
@@ -37,35 +36,27 @@ def load_result(store: SessionStore, session_id: int) -> TuningResult:
             if not row.told:
                 continue
             plant_ids.add(row.id)
-            cost = row.told_cost
-            best = min(best, cost)
+            best = min(best, row.told_cost)
+            record = row.to_experiment().replace(cost=row.told_cost)
         elif row.parent_id not in plant_ids or row.status != "ok":
             continue
         else:
-            cost = math.nan if row.cost is None else row.cost
-        out = {"experiment": row.experiment, "source": row.source}
-        out.update({name: float(g) for name, g in zip(info.gain_names, row.gains)})
-        out["cost"] = float(cost)
-        out["best_cost"] = float(best) if row.source == "plant" else math.nan
-        out["true_cost"] = math.nan if row.true_cost is None else row.true_cost
-        out["unstable"] = bool(row.unstable)
-        metrics = row.metrics if isinstance(row.metrics, dict) else dict(zip(METRIC_COLUMNS, row.metrics or ()))
-        for column in METRIC_COLUMNS:
-            value = metrics.get(column)
-            out[column] = math.nan if value is None else float(value)
-        out["wall_time"] = (row.finished_at or row.started_at) - info.created_at
-        out["status"] = row.status
-        out["reason"] = row.reason
-        result.rows.append(out)
+            record = row.to_experiment()
+        result.add(record, row.experiment, best if row.source == "plant" else math.nan,
+                   (row.finished_at or row.started_at) - info.created_at,
+                   {"true_cost": math.nan if row.true_cost is None else row.true_cost,
+                    "unstable": bool(row.unstable), "status": row.status, "reason": row.reason})
     return result
 
 
 def export_csv(store: SessionStore, out: str | Path, session_id: int | None = None, include_twin: bool = False,
                include_failed: bool = False) -> tuple[SessionInfo, int]:
-    """Write a session in the workbench CSV format (docs/design.md, "Workbench CSV").
+    """Write a session in the workbench CSV format (:func:`agents.twin.csvio.write_csv`).
 
     Columns: ``experiment,t,r,u,y`` (one row per sample), then one column per
-    gain (e.g. ``Kp,Ki``), then ``source`` and ``cost``.
+    gain (e.g. ``Kp,Ki``), then ``source`` and ``cost`` (the cost the tuner
+    was told). ``agents.twin.csvio.read_csv(path, gain_names=("Kp", "Ki"))``
+    reads it back as :class:`~gbo_envs.Experiment` records.
 
     Parameters
     ----------
@@ -89,30 +80,24 @@ def export_csv(store: SessionStore, out: str | Path, session_id: int | None = No
     LookupError
         If the session holds no experiment to write.
     """
-    import pandas as pd
+    from agents.twin.csvio import write_csv
 
     info = store.session(session_id) if session_id is not None else store.latest_session()
-    frames = []
+    records = []
     for row in store.experiments(info.id):
         wanted = (row.source == "plant" and (row.status == "ok" or (include_failed and row.status == "failed"))) or (
             include_twin and row.source == "twin" and row.status == "ok")
-        arrays = row.arrays() if wanted else {}
-        if not wanted or any(name not in arrays or arrays[name].size == 0 for name in ("t", "r", "u", "y")):
+        if not wanted:
             continue
-        n = arrays["t"].size
-        frame = {"experiment": np.full(n, row.experiment, dtype=int)}
-        frame.update({name: np.asarray(arrays[name], dtype=float) for name in ("t", "r", "u", "y")})
-        frame.update({name: np.full(n, float(g)) for name, g in zip(info.gain_names, row.gains)})
-        frame["source"] = np.full(n, row.source)
+        record = row.to_experiment()
+        if not record.has_signals:
+            continue
         cost = row.cost if row.source == "twin" else row.told_cost
-        frame["cost"] = np.full(n, np.nan if cost is None else float(cost))
-        frames.append(pd.DataFrame(frame))
-    if not frames:
+        records.append(record.replace(cost=math.nan if cost is None else cost, index=row.experiment))
+    if not records:
         raise LookupError(f"session {info.id}: no experiment with stored t, r, u, y to export")
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    pd.concat(frames, ignore_index=True).to_csv(out, index=False)
-    return info, len(frames)
+    write_csv(records, out, gain_names=info.gain_names)
+    return info, len(records)
 
 
 def sessions_table(sessions: list[SessionInfo]) -> str:

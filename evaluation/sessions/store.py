@@ -36,14 +36,15 @@ from typing import Any
 import numpy as np
 
 from agents.jsonable import to_json
+from gbo_envs.experiment import SIGNALS, Experiment
 
 __all__ = ["ARRAY_FIELDS", "PLANT_STATUSES", "ExperimentRow", "SessionBusy", "SessionInfo", "SessionStore",
            "array_from_blob", "array_to_blob"]
 
 #: Status values of an experiment row.
 PLANT_STATUSES = ("running", "ok", "failed", "lost-in-crash", "interrupted")
-#: Record arrays stored as BLOBs.
-ARRAY_FIELDS = ("t", "r", "u", "y")
+#: Record arrays stored as BLOBs (the signals of :class:`~gbo_envs.Experiment`).
+ARRAY_FIELDS = SIGNALS
 
 SCHEMA_VERSION = 1
 BUSY_TIMEOUT_MS = 60_000
@@ -137,7 +138,11 @@ class SessionInfo:
 
 @dataclass(frozen=True)
 class ExperimentRow:
-    """One stored experiment (plant attempt or twin evaluation); arrays are decoded lazily."""
+    """One stored experiment (plant attempt or twin evaluation) with its bookkeeping; arrays are decoded lazily.
+
+    The experiment itself is :meth:`to_experiment`; the other fields are the
+    session's: status, whether and what the tuner was told, timing, env state.
+    """
 
     id: int
     seq: int
@@ -164,8 +169,27 @@ class ExperimentRow:
         """The stored ``t, r, u, y`` arrays (those present), each of shape (n_steps,)."""
         return {name: array_from_blob(blob) for name, blob in self.blobs.items() if blob is not None}
 
+    def to_experiment(self) -> Experiment:
+        """The stored experiment as the record type.
+
+        Signals when all four were stored; ``cost`` the measured cost, else the
+        cost the tuner was told (a penalised failure), else NaN; ``index`` the
+        env's ``experiment_index`` when stored, else ``experiment - 1``.
+        """
+        arrays = self.arrays()
+        signals = {name: arrays[name] for name in ARRAY_FIELDS} if all(name in arrays for name in ARRAY_FIELDS) \
+            else {}
+        cost = self.cost if self.cost is not None else self.told_cost
+        return Experiment(gains=self.gains, **signals, cost=math.nan if cost is None else cost,
+                          metrics=self.metrics or {}, source=self.source,
+                          index=self.extra.get("experiment_index", self.experiment - 1))
+
     def record(self) -> dict[str, Any]:
-        """The experiment record as ``env.step`` reported it in ``info`` (the stored part of it)."""
+        """The experiment record as ``env.step`` reported it in ``info`` (the stored part of it).
+
+        As in ``info``, ``record()["experiment"]`` is the :class:`~gbo_envs.Experiment`
+        (:meth:`to_experiment`), beside the flat keys.
+        """
         record: dict[str, Any] = dict(self.extra)
         record.update(self.arrays())
         record["gains"] = np.asarray(self.gains, dtype=float)
@@ -177,6 +201,7 @@ class ExperimentRow:
             record["true_cost"] = self.true_cost
         if self.unstable is not None:
             record["unstable"] = bool(self.unstable)
+        record["experiment"] = self.to_experiment()
         return record
 
 
@@ -374,7 +399,7 @@ class SessionStore:
         if metrics is not None and not isinstance(metrics, Mapping):
             metrics = list(np.asarray(metrics, dtype=float))
         extra = {k: v for k, v in record.items()
-                 if k not in (*ARRAY_FIELDS, "gains", "metrics", "cost", "true_cost", "unstable")}
+                 if k not in (*ARRAY_FIELDS, "gains", "metrics", "cost", "true_cost", "unstable", "experiment")}
         unstable = record.get("unstable")
         now = time.time()
         with self.transaction() as conn:

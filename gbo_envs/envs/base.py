@@ -14,6 +14,7 @@ import numpy as np
 from gymnasium import spaces
 
 from gbo_envs.closed_loop import ClosedLoop, StepResponse
+from gbo_envs.experiment import Experiment
 from gbo_envs.metrics import METRIC_NAMES, weighted_cost
 from gbo_envs.physics.block import validated_count
 
@@ -65,6 +66,8 @@ class ControllerTuningEnv(gym.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 1}
+    #: :attr:`~gbo_envs.experiment.Experiment.source` of the records this env produces.
+    experiment_source = "plant"
 
     def __init__(
         self,
@@ -140,7 +143,21 @@ class ControllerTuningEnv(gym.Env):
         return self._last_obs.copy(), {"experiment_index": 0}
 
     def step(self, action):
-        """Run one closed-loop step experiment at the gains ``action``."""
+        """Run one closed-loop step experiment at the gains ``action``.
+
+        Returns
+        -------
+        observation, reward, terminated, truncated, info
+            ``reward = -cost``. ``info["experiment"]`` is the record of this
+            experiment, a :class:`~gbo_envs.experiment.Experiment` (gains, ``t,
+            r, u, y``, cost, metrics, ``source="plant"``, ``index``). ``info``
+            also keeps its flat keys ``t, r, u, y, gains, metrics, cost,
+            true_cost, unstable, experiment_index`` (plus :meth:`extra_info`).
+            The record sits inside ``info`` rather than replacing it because
+            Gymnasium's wrappers and vector envs merge ``info`` key by key as a
+            plain dict of arrays and scalars, and user code reads ``info["y"]``;
+            the flat keys hold the same values as the record (as writable copies).
+        """
         gains = self.validate_gains(action)
         loop = self.loop_for_experiment(self.experiment_index)
         expected_metrics, expected_cost, response = self._expected(loop, gains[None, :])
@@ -169,6 +186,9 @@ class ControllerTuningEnv(gym.Env):
             "unstable": unstable,
             "experiment_index": self.experiment_index,
         }
+        info["experiment"] = Experiment(gains=gains, t=response.t, r=response.r, u=response.u[0], y=response.y[0],
+                                        cost=cost, metrics=info["metrics"], source=self.experiment_source,
+                                        index=self.experiment_index)
         info.update(self.extra_info(self.experiment_index))
         self.experiment_index += 1
         self._last_obs = self._observation(gains, metrics, cost)

@@ -14,6 +14,7 @@ import numpy as np
 from gbo_envs.closed_loop import UNSTABLE_LIMIT, ClosedLoop
 from gbo_envs.controllers import Controller
 from gbo_envs.envs.base import ControllerTuningEnv
+from gbo_envs.experiment import SIGNALS, Experiment, validate_signals
 from gbo_envs.metrics import METRIC_NAMES, step_metrics
 
 __all__ = ["ExperimentFailed", "ExternalLoop", "ExternalPlantEnv", "FAILURE_POLICIES", "PlantStructure"]
@@ -167,7 +168,8 @@ class ExternalPlantEnv(ControllerTuningEnv):
     As :class:`ControllerTuningEnv`: reward ``-J``; ``info`` holds the record
     plus ``gains``, ``metrics``, ``cost``, ``unstable``, ``experiment_index``
     and ``failed`` (no ``true_cost``: the noise-free cost of a real plant is
-    unknown). The record of a failed experiment has no ``t, r, u, y`` (so a
+    unknown), and ``info["experiment"]``, the same as one
+    :class:`~gbo_envs.experiment.Experiment`. The record of a failed experiment has no ``t, r, u, y`` (so a
     twin never fits on it) but ``failure_reason``. A response leaving ``r2 +- 100 |r2 - r1|`` is ``unstable`` and
     costs ``unstable_cost``, as in the built-in envs.
 
@@ -330,9 +332,11 @@ class ExternalPlantEnv(ControllerTuningEnv):
             info = {"gains": gains.copy(), "metrics": {name: float("nan") for name in METRIC_NAMES},
                     "unstable": False, "experiment_index": index, "failed": True, "failure_reason": reason}
             if self.on_failure != "penalize":
+                info["experiment"] = Experiment.from_mapping(info, source=self.experiment_source)
                 raise ExperimentFailed(reason, info, self.on_failure)
             metrics, cost = np.zeros(len(METRIC_NAMES)), self.failure_cost
             info["cost"] = cost
+        info["experiment"] = Experiment.from_mapping(info, source=self.experiment_source)
         self._best_cost = min(self._best_cost, cost)
         self._last_obs = self._observation(gains, metrics, cost)
         return self._last_obs.copy(), -cost, False, False, info
@@ -375,13 +379,15 @@ class ExternalPlantEnv(ControllerTuningEnv):
         Raises
         ------
         ValueError
-            Naming what is malformed.
+            Naming what is malformed: the generic rules of
+            :func:`~gbo_envs.experiment.validate_signals`, then this rig's
+            (``t`` starts at 0, sample time ``dt``, ``duration``, ``r`` ends at ``r2``).
         """
         if isinstance(output, Mapping):
-            missing = [k for k in ("t", "r", "u", "y") if k not in output]
+            missing = [k for k in SIGNALS if k not in output]
             if missing:
                 raise ValueError(f"the record lacks {', '.join(missing)}")
-            parts = [output[k] for k in ("t", "r", "u", "y")]
+            parts = [output[k] for k in SIGNALS]
         else:
             try:
                 parts = list(output)
@@ -389,28 +395,10 @@ class ExternalPlantEnv(ControllerTuningEnv):
                 raise ValueError(f"expected (t, r, u, y), got {type(output).__name__}") from None
             if len(parts) != 4:
                 raise ValueError(f"expected 4 arrays (t, r, u, y), got {len(parts)}")
-        arrays = {}
-        for name, part in zip(("t", "r", "u", "y"), parts):
-            try:
-                array = np.array(part, dtype=np.float64)
-            except (TypeError, ValueError):
-                raise ValueError(f"{name} is not numeric") from None
-            if array.ndim != 1:
-                raise ValueError(f"{name} must be 1-D, got shape {array.shape}")
-            bad = np.flatnonzero(~np.isfinite(array))
-            if bad.size:
-                raise ValueError(f"{name} has {bad.size} non-finite values (first at sample {bad[0]})")
-            arrays[name] = array
-        lengths = {name: a.size for name, a in arrays.items()}
-        if len(set(lengths.values())) != 1:
-            raise ValueError(f"t, r, u, y have unequal lengths {lengths}")
+        # copies: the rig's code may reuse its buffers for the next experiment
+        arrays = {name: np.array(values) for name, values in validate_signals(*parts).items()}
         t = arrays["t"]
-        if t.size < 3:
-            raise ValueError(f"need at least 3 samples, got {t.size}")
         steps = np.diff(t)
-        if np.any(steps <= 0):
-            k = int(np.argmax(steps <= 0))
-            raise ValueError(f"t is not increasing at sample {k + 1} (t = {t[k]:g} then {t[k + 1]:g} s)")
         spacing = float(np.median(steps))
         if abs(t[0]) > 0.5 * spacing:
             raise ValueError(f"t must start at the step (t[0] = 0), got t[0] = {t[0]:g} s")
