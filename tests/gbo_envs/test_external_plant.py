@@ -19,7 +19,7 @@ from gbo_envs.closed_loop import ClosedLoop
 from gbo_envs.envs.dc_motor import dc_motor_plant
 from gbo_envs.envs.external import ExperimentFailed, ExternalPlantEnv
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ import agents
 import gbo_envs  # noqa: F401
 from agents import registry
 
-EXAMPLE = pathlib.Path(__file__).resolve().parents[1] / "examples" / "custom_tuner.py"
+EXAMPLE = pathlib.Path(__file__).resolve().parents[2] / "examples" / "custom_tuner.py"
 
 
 def test_registry_has_the_short_names():
