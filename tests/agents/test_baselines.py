@@ -9,9 +9,7 @@ import pytest
 import agents
 import gbo_envs  # noqa: F401
 from agents.nominal import PAPER_NOMINAL_GAINS, PAPER_TABLE_FOPDT, fopdt_from_second_order, pgm_pi_gains
-from agents.space import GainSpace
-
-SPACE = GainSpace(names=("Kp", "Ki"), low=np.array([0.11, 0.87]), high=np.array([1.10, 2.08]))
+from tests.support import DC_MOTOR_SPACE as SPACE
 
 
 def _asks(tuner, n):

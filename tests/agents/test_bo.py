@@ -15,10 +15,9 @@ from agents.acquisition import (
     maximize_on_grid,
     probability_of_improvement,
 )
-from agents.space import GainSpace
 from agents.surrogate import GPSurrogate
+from tests.support import DC_MOTOR_SPACE as SPACE
 
-SPACE = GainSpace(names=("Kp", "Ki"), low=np.array([0.11, 0.87]), high=np.array([1.10, 2.08]))
 MINIMUM = np.array([0.4, 1.6])
 
 

@@ -10,6 +10,7 @@ import agents
 import gbo_envs  # noqa: F401
 from agents.bo import BayesianOptimization
 from agents.guided_bo import GuidedBO
+from tests.support import DC_MOTOR_PARAMS
 
 FAST = {"grid_points": 40}
 
@@ -43,7 +44,7 @@ def test_result_marks_twin_rows_and_counts_activations():
 def test_the_twin_identifies_the_plant_from_the_tuning_records():
     tuner = GuidedBO(**FAST)
     tuner.run(gym.make("gbo_envs/DCMotor-v0"), budget=5, seed=1)
-    np.testing.assert_allclose(tuner.twin_.params_, [9.544, 4.145, 4.199], rtol=0.01)
+    np.testing.assert_allclose(tuner.twin_.params_, DC_MOTOR_PARAMS, rtol=0.01)
     assert tuner.twin_.rmse_ < tuner.eta2_value
 
 

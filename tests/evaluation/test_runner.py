@@ -12,8 +12,7 @@ from evaluation import analysis
 from evaluation.cli import main
 from evaluation.runner import RESULTS_DIR, finished_files, plan_batches, run_study
 from evaluation.study import load_study, parse_study
-
-TIMING = ["wall_time", "batch_wall_time"]
+from tests.support import TIMING_COLUMNS as TIMING
 
 
 class _Fragile(Tuner):

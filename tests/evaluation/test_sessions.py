@@ -70,8 +70,11 @@ class GlobalRandom(Tuner):
         pass
 
 
-agents.register("test-cost-aware", CostAwareRandom)
-agents.register("test-global-random", GlobalRandom)
+@pytest.fixture(autouse=True)
+def _test_tuners(tuner_registry):
+    """The two test tuners above, registered for each test of this module only."""
+    agents.register("test-cost-aware", CostAwareRandom)
+    agents.register("test-global-random", GlobalRandom)
 
 
 class FailAt(gym.Wrapper):

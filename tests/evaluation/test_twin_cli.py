@@ -4,21 +4,18 @@ from __future__ import annotations
 
 import json
 
-import gymnasium as gym
 import numpy as np
 import pytest
 
-import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin.csvio import records_from_loop, write_csv
+from agents.twin.csvio import write_csv
 from evaluation.cli import main
+from tests.support import loop_records
 
 
 @pytest.fixture(scope="module")
 def csv_path(tmp_path_factory):
-    env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 150.0}}, output_noise_std=0.1)
-    loop = env.unwrapped.loop.replace(duration=1.5)
     gains = np.array([[0.3, 1.0], [0.9, 1.2], [1.05, 2.0]])
-    records = records_from_loop(loop, gains, rng=np.random.default_rng(0), start_index=4)
+    records = loop_records({"saturation": {"limit": 150.0}}, gains=gains, duration=1.5, start_index=4)
     return write_csv(records, tmp_path_factory.mktemp("twin") / "sat.csv")
 
 
