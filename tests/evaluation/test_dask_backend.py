@@ -11,6 +11,7 @@ from evaluation.study import parse_study
 from tests.support import TIMING_COLUMNS
 
 distributed = pytest.importorskip("distributed")
+pytestmark = pytest.mark.slow  # a 2-worker cluster per test
 
 
 def study():

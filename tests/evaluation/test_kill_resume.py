@@ -14,7 +14,7 @@ import pytest
 
 from tests.support import REPO_ROOT
 
-pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="SIGKILL and forkserver are POSIX")
+pytestmark = [pytest.mark.skipif(sys.platform == "win32", reason="SIGKILL and forkserver are POSIX"), pytest.mark.slow]
 
 
 def _bench():

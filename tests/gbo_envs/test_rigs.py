@@ -82,7 +82,8 @@ def test_rig_ground_truth_is_a_common_random_numbers_mean(rig_id):
     assert other[0] != alone[0] and other[0] == pytest.approx(alone[0], rel=0.01)
 
 
-@pytest.mark.parametrize("rig_id", ["gbo_envs/DCMotorRig-v0", "gbo_envs/LinearMotorRig-v0"])
+@pytest.mark.parametrize("rig_id", [pytest.param("gbo_envs/DCMotorRig-v0", marks=pytest.mark.slow),
+                                    "gbo_envs/LinearMotorRig-v0"])
 def test_rig_near_optimal_set_is_one_connected_region(rig_id):
     truth = ground_truth(rig_id, resolution=30)
     inside = truth.costs <= 1.1 * truth.cost
@@ -106,6 +107,7 @@ def test_rig_cost_surface_differs_from_the_identified_model(rig_id, model_id):
     assert rig_metrics[:, 0].max() < 50.0
 
 
+@pytest.mark.slow
 def test_dc_rig_command_limit_winds_up_the_integrator():
     """The 160-unit limit clips the high-gain corner, whose overshoot grows (43 % instead of 35 %)."""
     rig = gym.make("gbo_envs/DCMotorRig-v0").unwrapped

@@ -47,6 +47,7 @@ def hidden(request):
     return name, params, data, diagnose(data)
 
 
+@pytest.mark.slow
 def test_diagnose_names_the_hidden_effect(hidden):
     name, params, data, result = hidden
     out = result.to_dict()
@@ -67,6 +68,7 @@ def test_diagnose_names_the_hidden_effect(hidden):
     assert out["candidates"][0]["evidence"]
 
 
+@pytest.mark.slow
 def test_linear_plant_gives_no_best_effect():
     data = _data(None, n=4)
     result = diagnose(data)
