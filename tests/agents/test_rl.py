@@ -77,15 +77,6 @@ def test_run_returns_budget_plant_rows_with_in_bounds_plain_float_gains():
     assert result.info["transitions_learned"] == 6 and result.info["policy_updates"] > 0
 
 
-def test_ask_returns_plain_floats_in_bounds():
-    env = gym.make(ENV_ID)
-    tuner = RLTuner(**FAST)
-    tuner.setup(agents.GainSpace.from_env(env), seed=1, env=env)
-    gains = tuner.ask()
-    assert isinstance(gains, tuple) and all(type(g) is float for g in gains)
-    assert tuner.space.check(gains) is not None
-
-
 def test_same_seed_same_gains_and_other_seed_other_gains():
     def gains(seed):
         return _gains(RLTuner(**FAST).run(gym.make(ENV_ID), budget=6, seed=seed))

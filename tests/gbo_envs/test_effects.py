@@ -14,7 +14,6 @@ from gbo_envs.physics import (
     CoulombFriction,
     DeadZone,
     Drift,
-    EffectBlock,
     Offset,
     Quantization,
     Saturation,
@@ -325,4 +324,3 @@ def test_blocks_are_vectorised_and_keep_no_state_between_simulations():
     for i in range(DC_GAINS.shape[0]):
         single = loop.simulate(DC_GAINS[i])
         assert np.max(np.abs(single.y[0] - batch.y[i])) < 1e-9
-    assert all(isinstance(b, EffectBlock) for b in blocks)

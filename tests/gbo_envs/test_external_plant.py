@@ -77,7 +77,7 @@ def test_loop_builds_a_twin(dc_motor):
 
     env = _external(dc_motor)
     model_loop = env.loop.replace(plant=dc_motor.loop.plant)
-    assert isinstance(model_loop, ClosedLoop)
+    assert model_loop.plant is dc_motor.loop.plant and env.loop.plant is not dc_motor.loop.plant
     gains = np.array([[0.5, 1.2], [0.9, 1.9]])
     np.testing.assert_array_equal(model_loop.simulate(gains).y, dc_motor.loop.simulate(gains).y)
     twin = TwinEnv(env, dc_motor_plant(*DC_MOTOR_PARAMS, 0.002))

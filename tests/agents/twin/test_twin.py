@@ -8,7 +8,6 @@ import pytest
 from sklearn.base import clone
 from sklearn.exceptions import NotFittedError
 
-import gbo_envs
 from agents.twin import TwinEnv, TwinEstimator, make_twin_env
 from gbo_envs import ClosedLoop, ContinuousPlant, ControllerTuningEnv, PDT1Controller
 from tests.support import DC_MOTOR_PARAMS, gain_grid
@@ -186,6 +185,3 @@ def test_empty_and_malformed_input_raise(clean):
     with pytest.raises(ValueError, match="hold"):
         TwinEstimator(hold="spline").fit(clean[1])
 
-
-def test_env_ids_registered():
-    assert "gbo_envs/DCMotor-v0" in gbo_envs.ENV_IDS
