@@ -28,6 +28,7 @@ def _drive(tuner, env, budget, seed=0):
     return counts
 
 
+@pytest.mark.slow
 def test_result_marks_twin_rows_and_counts_activations():
     result = GuidedBO(**FAST).run(gym.make("gbo_envs/DCMotor-v0"), budget=6, seed=0)
     frame = result.to_pandas()
@@ -65,6 +66,7 @@ def test_untrusted_twin_leaves_plain_bo():
     np.testing.assert_allclose(guided.to_pandas()[cols].to_numpy(), plain.to_pandas()[cols].to_numpy())
 
 
+@pytest.mark.slow
 def test_reinitialisation_fires_after_the_plant_changes_and_the_twin_refits():
     env = gym.make("gbo_envs/DCMotorStep-v0", change_at=5, new_params={"gain": 4.0}, noise=False)
     tuner = GuidedBO(eta1=0.0, delta=0.3, **FAST)

@@ -65,6 +65,7 @@ def test_tuning_mdp_reward_is_minus_cost_and_episodes_truncate_without_resetting
     assert info["experiment_index"] == 3
 
 
+@pytest.mark.slow
 def test_run_returns_budget_plant_rows_with_in_bounds_plain_float_gains():
     env = gym.make(ENV_ID)
     result = RLTuner(**FAST).run(env, budget=6, seed=0)
@@ -136,6 +137,7 @@ def test_bad_arguments_raise():
         RLTuner("sac")  # keyword-only
 
 
+@pytest.mark.slow
 def test_experiments_to_ratio_and_never_reached_is_said_plainly(tmp_path):
     assert experiments_to_ratio(np.array([1.5, 1.2, 1.08, 1.01]), 1.1) == 3
     assert experiments_to_ratio(np.array([1.5, 1.2]), 1.05) is None

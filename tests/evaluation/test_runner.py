@@ -54,6 +54,7 @@ def read(out, name) -> pd.DataFrame:
     return pd.read_parquet(out / RESULTS_DIR / name)
 
 
+@pytest.mark.slow
 def test_smoke_study_end_to_end_and_resume(tmp_path):
     out = tmp_path / "smoke"
     assert main(["bench", "smoke", "--out", str(out), "--workers", "2", "--quiet"]) == 0

@@ -339,6 +339,7 @@ def test_cli_tune_sessions_export(tmp_path, capsys):
     assert gbo(["export", "--db", db, "--session", "9", "--csv", csv]) == 1
 
 
+@pytest.mark.slow
 def test_concurrent_sessions_in_one_database(tmp_path):
     db = tmp_path / "shared.sqlite"
     procs = [subprocess.Popen([sys.executable, "-m", "evaluation.cli", "tune", "--env", ENV, "--tuner", "random",

@@ -186,6 +186,7 @@ def test_argument_errors(dc_motor):
     assert "ExternalPlantEnv" in gbo_envs.__all__
 
 
+@pytest.mark.slow
 def test_example_runs(tmp_path):
     out = subprocess.run([sys.executable, str(REPO_ROOT / "examples" / "external_plant.py"), "--tuner", "random",
                           "--budget", "8", "--db", str(tmp_path / "rig.sqlite"), "--csv", str(tmp_path / "rig.csv")],
