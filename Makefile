@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 PIP := $(VENV)/bin/pip
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: setup demo test bench lint clean
+.PHONY: setup demo test test-fast bench lint clean
 
 setup: $(STAMP)
 
@@ -19,8 +19,14 @@ $(STAMP): pyproject.toml
 demo: setup
 	$(PY) -m evaluation.cli demo --out out/demo
 
+# the whole suite (CI runs this); pytest-xdist spreads it over WORKERS processes
+WORKERS ?= 2
 test: setup
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(WORKERS)
+
+# everything but the tests marked slow (twin diagnosis, rig surfaces, processes, clusters)
+test-fast: setup
+	$(PY) -m pytest -n $(WORKERS) -m "not slow"
 
 bench: setup
 	$(PY) benchmarks/run_all.py --out out/bench

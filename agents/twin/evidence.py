@@ -41,7 +41,7 @@ def separating_experiment(a: str, b: str) -> str:
         return SEPARATING_EXPERIMENTS[key]
     for name, text in _ONE_SIDED.items():
         if name in key:
-            return text.format(other=(key - {name}).pop())
+            return text.format(other=b if name == a else a)
     return (f"an experiment over a wider range of inputs, speeds and directions (other gains, step sizes and "
             f"signs) separates {a} from {b}")
 

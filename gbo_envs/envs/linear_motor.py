@@ -34,7 +34,7 @@ bandwidth and voltage headroom. Their size is not in the paper, so ``c`` is
 the one calibrated number: with it, the ground-truth optimum lies near the
 paper's (5341 A/m, 49.7 A s/m): at (5349 A/m, 50.8 A s/m) with 0.05 %
 overshoot (one sensor step) on the 100 x 100 grid. Any ``c`` in
-``[0.6, 0.9]`` gives the same picture (``tests/test_linear_motor.py``). In
+``[0.6, 0.9]`` gives the same picture (``tests/gbo_envs/test_linear_motor.py``). In
 terms of the effect catalogue, ``c`` equals a ``viscous_friction`` block with
 ``coefficient = c / 0.44262 = 1.81`` A s/m, kept in the linear plant so that
 it is discretised exactly and enters the linear stability analysis.

@@ -59,7 +59,8 @@ class EffectParameter:
         (controller output), "output units" those of the measured output,
         "speed units" those of the mechanical speed.
     low, high : float
-        Allowed closed range ``[low, high]`` (``high`` may be ``inf``).
+        Allowed closed range ``[low, high]`` (``high`` may be ``inf``); a value must be finite
+        unless it is ``zero`` (a saturation's ``limit = inf`` is no saturation).
     default : float or None
         Value used when the parameter is not given; ``None`` means required.
     zero : float
@@ -86,6 +87,9 @@ class EffectParameter:
         value = float(value)
         if np.isnan(value) or not (self.low <= value <= self.high):
             raise ValueError(f"{effect}: parameter {self.name!r} must be in {interval} ({self.unit}), "
+                             f"got {value!r}")
+        if np.isinf(value) and value != self.zero:  # only an "off" value (saturation: limit = inf) may be infinite
+            raise ValueError(f"{effect}: parameter {self.name!r} must be finite, in {interval} ({self.unit}), "
                              f"got {value!r}")
         return value
 

@@ -12,13 +12,9 @@ from gbo_envs import ground_truth
 from gbo_envs.physics.actuator import Saturation
 from gbo_envs.physics.encoder import PositionEncoder, SpeedEncoder
 from gbo_envs.physics.friction import CoulombFriction
+from tests.support import gain_grid
 
 SPEED_STEP = 2 * np.pi / (2048 * 0.020)
-
-
-def _grid(env, resolution):
-    axes = [np.linspace(lo, hi, resolution) for lo, hi in zip(env.action_space.low, env.action_space.high)]
-    return np.column_stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")])
 
 
 def test_registered():
@@ -86,7 +82,8 @@ def test_rig_ground_truth_is_a_common_random_numbers_mean(rig_id):
     assert other[0] != alone[0] and other[0] == pytest.approx(alone[0], rel=0.01)
 
 
-@pytest.mark.parametrize("rig_id", ["gbo_envs/DCMotorRig-v0", "gbo_envs/LinearMotorRig-v0"])
+@pytest.mark.parametrize("rig_id", [pytest.param("gbo_envs/DCMotorRig-v0", marks=pytest.mark.slow),
+                                    "gbo_envs/LinearMotorRig-v0"])
 def test_rig_near_optimal_set_is_one_connected_region(rig_id):
     truth = ground_truth(rig_id, resolution=30)
     inside = truth.costs <= 1.1 * truth.cost
@@ -100,7 +97,7 @@ def test_rig_near_optimal_set_is_one_connected_region(rig_id):
 def test_rig_cost_surface_differs_from_the_identified_model(rig_id, model_id):
     rig = gym.make(rig_id).unwrapped
     model = gym.make(model_id).unwrapped
-    grid = _grid(rig, 15)
+    grid = gain_grid(rig, 15)
     rig_metrics, rig_cost = rig.evaluate(grid)
     model_metrics, model_cost = model.evaluate(grid)
     assert np.max(np.abs(rig_cost - model_cost)) > 0.05
@@ -110,11 +107,12 @@ def test_rig_cost_surface_differs_from_the_identified_model(rig_id, model_id):
     assert rig_metrics[:, 0].max() < 50.0
 
 
+@pytest.mark.slow
 def test_dc_rig_command_limit_winds_up_the_integrator():
     """The 160-unit limit clips the high-gain corner, whose overshoot grows (43 % instead of 35 %)."""
     rig = gym.make("gbo_envs/DCMotorRig-v0").unwrapped
     model = gym.make("gbo_envs/DCMotor-v0").unwrapped
-    grid = _grid(rig, 20)
+    grid = gain_grid(rig, 20)
     rig_os = rig.evaluate(grid)[0][:, 0]
     model_os = model.evaluate(grid)[0][:, 0]
     assert model_os.max() == pytest.approx(35.5, abs=0.5)
@@ -128,7 +126,7 @@ def test_linear_rig_friction_damps_and_leaves_a_small_offset():
     rig = gym.make("gbo_envs/LinearMotorRig-v0", noise=False, sensor_jitter=0.0).unwrapped
     model = gym.make("gbo_envs/LinearMotor-v0", noise=False).unwrapped
     assert not rig.loop.stochastic
-    grid = _grid(rig, 20)
+    grid = gain_grid(rig, 20)
     rig_response = rig.loop.simulate(grid)
     model_response = model.loop.simulate(grid)
     rig_os = rig.loop.metrics(rig_response)[:, 0]

@@ -12,8 +12,7 @@ from evaluation import analysis
 from evaluation.cli import main
 from evaluation.study import load_study, parse_study
 from evaluation.study_runner import RESULTS_DIR, finished_files, plan_batches, run_study
-
-TIMING = ["wall_time", "batch_wall_time"]
+from tests.support import TIMING_COLUMNS as TIMING
 
 
 class _Fragile(Tuner):
@@ -55,6 +54,7 @@ def read(out, name) -> pd.DataFrame:
     return pd.read_parquet(out / RESULTS_DIR / name)
 
 
+@pytest.mark.slow
 def test_smoke_study_end_to_end_and_resume(tmp_path):
     out = tmp_path / "smoke"
     assert main(["bench", "smoke", "--out", str(out), "--workers", "2", "--quiet"]) == 0

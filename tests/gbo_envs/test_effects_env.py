@@ -17,9 +17,9 @@ from gbo_envs.physics import (
     build_effect,
     build_effects,
 )
+from tests.support import U_REST
 
 ISSUE_EFFECTS = {"saturation": {"limit": 150.0}, "coulomb_friction": {"torque": 20.0}}
-U_REST = 245.0 * 4.199 / 9.544  # input that holds the DC motor at 245 rad/s
 
 
 def test_composition_through_gym_make():

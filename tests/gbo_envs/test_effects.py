@@ -14,7 +14,6 @@ from gbo_envs.physics import (
     CoulombFriction,
     DeadZone,
     Drift,
-    EffectBlock,
     Offset,
     Quantization,
     Saturation,
@@ -24,19 +23,12 @@ from gbo_envs.physics import (
     build_effects,
     describe_effect,
 )
+from tests.support import DC_PLANT, U_REST, dc_loop
 
-DC = ContinuousPlant((9.544,), (1.0, 4.145, 4.199), delay=0.002)
 DC_GAINS = np.array([[0.54, 1.16], [1.10, 2.08], [0.11, 0.87]])
-#: input that holds the DC motor at rest at 245 rad/s: 245 * 4.199 / 9.544
-U_REST = 245.0 * 4.199 / 9.544
 #: a double integrator (a slider, position output) with a 1.5 ms (fractional) delay
 SLIDER = ContinuousPlant((1.0,), (1.0, 0.0, 0.0), delay=0.0015, output="position")
 SLIDER_GAINS = np.array([[100.0, 20.0], [400.0, 30.0]])
-
-
-def dc_loop(*effects, duration: float = 5.0, **kwargs) -> ClosedLoop:
-    return ClosedLoop(DC, PIController(), dt=0.002, duration=duration, r1=245.0, r2=306.0,
-                      effects=tuple(effects), **kwargs)
 
 
 def slider_loop(*effects, r2: float = 1.0) -> ClosedLoop:
@@ -177,7 +169,7 @@ def test_coulomb_friction_opposes_motion():
     # in the loop the drive must supply the friction: the command at rest is 20 higher
     rubbing = dc_loop(block, duration=30.0).simulate(DC_GAINS[:2])
     assert np.allclose(rubbing.y[:, -1], 306.0, atol=1e-6)
-    assert np.allclose(rubbing.u[:, -1], 306.0 / DC.dc_gain + 20.0, atol=1e-6)
+    assert np.allclose(rubbing.u[:, -1], 306.0 / DC_PLANT.dc_gain + 20.0, atol=1e-6)
     # a slider pushed from rest moves less far against friction
     free, braked = slider_loop().simulate(SLIDER_GAINS[:1]), slider_loop(CoulombFriction(20.0)).simulate(
         SLIDER_GAINS[:1])
@@ -193,7 +185,7 @@ def test_viscous_friction_scales_with_speed():
     # settled in the loop: the command holds the plant's static input plus the drag at that speed
     damped = dc_loop(block, duration=30.0).simulate(DC_GAINS[:2])
     assert np.allclose(damped.y[:, -1], 306.0, atol=1e-6)
-    assert np.allclose(damped.u[:, -1], (1.0 / DC.dc_gain + 0.05) * 306.0, atol=1e-6)
+    assert np.allclose(damped.u[:, -1], (1.0 / DC_PLANT.dc_gain + 0.05) * 306.0, atol=1e-6)
 
 
 def test_stiction_holds_below_breakaway():
@@ -228,7 +220,7 @@ def test_backlash_shows_hysteresis():
     # lies within half the play of the input the plant needs
     settled = dc_loop(block, duration=30.0).simulate(DC_GAINS[:1])
     assert np.allclose(settled.y[:, -1], 306.0, atol=1e-6)
-    assert np.all(np.abs(settled.u[:, -1] - 306.0 / DC.dc_gain) <= 1.0 + 1e-6)
+    assert np.all(np.abs(settled.u[:, -1] - 306.0 / DC_PLANT.dc_gain) <= 1.0 + 1e-6)
     assert not np.allclose(settled.u[:, :500], dc_loop(duration=30.0).simulate(DC_GAINS[:1]).u[:, :500])
 
 
@@ -254,7 +246,7 @@ def test_offset_shifts(on):
     bare, biased = dc_loop().simulate(DC_GAINS, method="stepping"), dc_loop(block).simulate(DC_GAINS)
     # the loop is linear: the integrator absorbs the bias and the measured response is unchanged,
     # the command is shifted by the bias (actuator) or by the input that moves the true output by it
-    shift = -5.0 if on == "actuator" else -5.0 / DC.dc_gain
+    shift = -5.0 if on == "actuator" else -5.0 / DC_PLANT.dc_gain
     assert np.max(np.abs(biased.y - bare.y)) < 1e-9
     assert np.max(np.abs(biased.u - bare.u - shift)) < 1e-9
 
@@ -284,7 +276,8 @@ def test_time_delay_delays_the_response_by_the_stated_time():
     extra = 0.010  # 5 samples
     loop = dc_loop(TimeDelay(delay=extra))
     assert loop.current_plant.delay == pytest.approx(0.012)
-    same = ClosedLoop(ContinuousPlant(DC.num, DC.den, delay=0.012), PIController(), 0.002, 5.0, 245.0, 306.0)
+    same = ClosedLoop(ContinuousPlant(DC_PLANT.num, DC_PLANT.den, delay=0.012), PIController(), 0.002, 5.0,
+                      245.0, 306.0)
     assert np.array_equal(loop.simulate(DC_GAINS).y, same.simulate(DC_GAINS).y)
 
     def first_move(y):
@@ -304,22 +297,22 @@ def test_time_delay_delays_the_response_by_the_stated_time():
 def test_drift_changes_the_plant_between_experiments():
     block = Drift(rate=-0.01, parameter="gain")
     loop = dc_loop(block)
-    assert loop.current_plant.num == DC.num
+    assert loop.current_plant.num == DC_PLANT.num
     assert loop.at_experiment(10).current_plant.num[0] == pytest.approx(9.544 * 0.90)
-    assert block.current_values(DC, 10) == {"gain": pytest.approx(9.544 * 0.90)}
+    assert block.current_values(DC_PLANT, 10) == {"gain": pytest.approx(9.544 * 0.90)}
     assert not np.allclose(loop.at_experiment(10).simulate(DC_GAINS).y, loop.simulate(DC_GAINS).y)
     expo = Drift(rate=0.02, parameter=("den1", "delay"), mode="exponential")
-    plant = expo.modify_plant(DC, 3)
+    plant = expo.modify_plant(DC_PLANT, 3)
     assert plant.den[1] == pytest.approx(4.145 * 1.02**3) and plant.delay == pytest.approx(0.002 * 1.02**3)
     step = Drift(rate=(0.5, -0.2), parameter=("gain", "den2"), mode="step", start=4)
-    assert step.modify_plant(DC, 3) is DC
-    changed = step.modify_plant(DC, 4)
+    assert step.modify_plant(DC_PLANT, 3) is DC_PLANT
+    changed = step.modify_plant(DC_PLANT, 4)
     assert changed.num[0] == pytest.approx(9.544 * 1.5) and changed.den[2] == pytest.approx(4.199 * 0.8)
-    assert step.modify_plant(DC, 30) == changed
+    assert step.modify_plant(DC_PLANT, 30) == changed
     with pytest.raises(ValueError, match="drift"):
-        Drift(rate=-0.5).modify_plant(DC, 2)
+        Drift(rate=-0.5).modify_plant(DC_PLANT, 2)
     with pytest.raises(ValueError, match="den5"):
-        Drift(rate=0.1, parameter="den5").modify_plant(DC, 1)
+        Drift(rate=0.1, parameter="den5").modify_plant(DC_PLANT, 1)
 
 
 def test_blocks_are_vectorised_and_keep_no_state_between_simulations():
@@ -331,4 +324,3 @@ def test_blocks_are_vectorised_and_keep_no_state_between_simulations():
     for i in range(DC_GAINS.shape[0]):
         single = loop.simulate(DC_GAINS[i])
         assert np.max(np.abs(single.y[0] - batch.y[i])) < 1e-9
-    assert all(isinstance(b, EffectBlock) for b in blocks)

@@ -7,13 +7,9 @@ import numpy as np
 import pytest
 
 from gbo_envs import ClosedLoop, ContinuousPlant, PDT1Controller, PIController
+from tests.support import DC_PLANT, U_REST, dc_loop
 
-DC = ContinuousPlant((9.544,), (1.0, 4.145, 4.199), delay=0.002)
 GAINS = np.array([[0.54, 1.16], [1.10, 2.08], [0.11, 0.87], [0.85, 1.07]])
-
-
-def dc_loop(**kwargs) -> ClosedLoop:
-    return ClosedLoop(DC, PIController(), dt=0.002, duration=5.0, r1=245.0, r2=306.0, **kwargs)
 
 
 @pytest.mark.parametrize("gains", GAINS)
@@ -53,8 +49,7 @@ def test_starts_at_rest_at_r1_with_equilibrium_command():
     response = dc_loop().simulate(GAINS[:1])
     assert response.y[0, 0] == pytest.approx(245.0)
     # before the step the plant rests at u = r1 tau2 / L; the first command adds Kp (r2 - r1)
-    u_rest = 245.0 * 4.199 / 9.544
-    assert response.u[0, 0] == pytest.approx(u_rest + (0.54 + 0.54 * 1.16 * 0.001) * 61.0)
+    assert response.u[0, 0] == pytest.approx(U_REST + (0.54 + 0.54 * 1.16 * 0.001) * 61.0)
 
 
 @pytest.mark.parametrize("delay", [0.0, 0.002, 0.003, 0.0071])
@@ -104,7 +99,7 @@ def test_bad_loop_arguments_are_named(kwargs, match):
     base = {"duration": 5.0, "r1": 245.0, "r2": 306.0}
     base.update(kwargs)
     with pytest.raises(ValueError, match=match):
-        ClosedLoop(DC, PIController(), dt=0.002, **base)
+        ClosedLoop(DC_PLANT, PIController(), dt=0.002, **base)
 
 
 @pytest.mark.parametrize("kwargs, match", [

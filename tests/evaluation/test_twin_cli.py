@@ -1,38 +1,45 @@
-"""``gbo twin``: compare, resid, diagnose --json and report on a CSV with a hidden saturation."""
+"""``gbo twin``: arguments, exit codes, stdout and output files of compare, resid, diagnose and report.
+
+Whether the workbench finds the hidden effect, and with which parameters, is
+tested in ``tests/agents/twin/test_workbench.py``; here the command line: three
+1.5 s experiments (numbered 4, 5, 6) with a hidden saturation, long enough for
+the saturated model to beat the linear one. ``diagnose`` and ``report`` fit every
+catalogue effect, so they are marked slow.
+"""
 
 from __future__ import annotations
 
 import json
 
-import gymnasium as gym
 import numpy as np
 import pytest
 
-import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin.csvio import records_from_loop, write_csv
+from agents.twin.csvio import write_csv
 from evaluation.cli import main
+from gbo_envs.physics import EFFECT_NAMES
+from tests.support import loop_records
 
 
 @pytest.fixture(scope="module")
 def csv_path(tmp_path_factory):
-    env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 150.0}}, output_noise_std=0.1)
-    loop = env.unwrapped.loop.replace(duration=1.5)
     gains = np.array([[0.3, 1.0], [0.9, 1.2], [1.05, 2.0]])
-    records = records_from_loop(loop, gains, rng=np.random.default_rng(0), start_index=4)
+    records = loop_records({"saturation": {"limit": 150.0}}, gains=gains, duration=1.5, start_index=4)
     return write_csv(records, tmp_path_factory.mktemp("twin") / "sat.csv")
 
 
+@pytest.mark.slow
 def test_diagnose_json_is_exactly_one_object(csv_path, capsys):
-    assert main(["twin", "diagnose", str(csv_path), "--json"]) == 0
+    assert main(["twin", "diagnose", str(csv_path), "--json", "--folds", "2"]) == 0
     out = capsys.readouterr().out
     payload = json.loads(out)  # the whole stdout is one JSON object
     assert set(payload) >= {"model", "rmse", "fit_percent", "noise_rmse", "best", "candidates"}
-    assert isinstance(payload["model"], str) and isinstance(payload["rmse"], float)
-    assert isinstance(payload["fit_percent"], float) and isinstance(payload["noise_rmse"], float)
-    assert payload["best"] == "saturation"
+    assert payload["model"] == "linear(2p0z)"
+    assert isinstance(payload["rmse"], float) and isinstance(payload["fit_percent"], float)
+    assert isinstance(payload["noise_rmse"], float)
+    assert {c["effect"] for c in payload["candidates"]} == set(EFFECT_NAMES)  # every catalogue effect ranked
     first = payload["candidates"][0]
     assert set(first) >= {"effect", "rmse", "delta_bic", "params", "evidence"}
-    assert first["params"]["limit"] == pytest.approx(150.0, rel=0.02)
+    assert payload["best"] in (None, first["effect"])
     assert [c["delta_bic"] for c in payload["candidates"]] == sorted(c["delta_bic"] for c in payload["candidates"])
 
 
@@ -59,11 +66,12 @@ def test_resid_reports_whiteness_and_worst_segments(csv_path, tmp_path, capsys):
     assert "worst segments" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_report_is_one_self_contained_page(csv_path, tmp_path, capsys):
     assert main(["twin", "report", str(csv_path), "--out", str(tmp_path), "--max-steps", "1"]) == 0
     page = (tmp_path / "index.html").read_text()
     assert page.count("data:image/png;base64,") >= 4
-    assert "error ladder" in page and "saturation" in page
+    assert "error ladder" in page
     assert "src=\"http" not in page
     assert list(tmp_path.iterdir()) == [tmp_path / "index.html"]
 

@@ -12,18 +12,13 @@ from gbo_envs import ground_truth
 from gbo_envs.envs.linear_motor import LINEAR_MOTOR, vertex_gains
 from gbo_envs.physics.actuator import Saturation
 from gbo_envs.physics.sensor import Quantization
+from tests.support import gain_grid
 
 ENV_ID = "gbo_envs/LinearMotor-v0"
 
 
 def _env(**kwargs):
     return gym.make(ENV_ID, **kwargs).unwrapped
-
-
-def _grid(env, resolution):
-    axes = [np.linspace(lo, hi, resolution) for lo, hi in zip(env.action_space.low, env.action_space.high)]
-    mesh = np.meshgrid(*axes, indexing="ij")
-    return np.column_stack([m.ravel() for m in mesh])
 
 
 def test_registered_with_paper_setup():
@@ -86,7 +81,7 @@ def test_cost_normalised_by_the_four_vertices():
 def test_bare_nominal_model_overshoots():
     """The undamped double integrator overshoots 6-36 % over the set (docs/design.md, "Calibration")."""
     env = _env(noise=False, damping=0.0)
-    metrics, _ = env.evaluate(_grid(env, 20))
+    metrics, _ = env.evaluate(gain_grid(env, 20))
     assert metrics[:, 0].min() > 5.0
     assert metrics[:, 0].max() > 30.0
 
@@ -137,7 +132,7 @@ def _loops(env, gains):
 def test_phase_margin_above_20_degrees_over_the_feasible_set():
     env = _env()
     margins = []
-    for gains in _grid(env, 11):
+    for gains in gain_grid(env, 11):
         continuous, sampled = _loops(env, gains)
         pm_c = ct.stability_margins(continuous)[1]
         pm_d = ct.stability_margins(sampled)[1]

@@ -8,10 +8,10 @@ import pytest
 from evaluation import analysis
 from evaluation.study import parse_study
 from evaluation.study_runner import run_study
+from tests.support import TIMING_COLUMNS
 
 distributed = pytest.importorskip("distributed")
-
-TIMING = ["wall_time", "batch_wall_time"]
+pytestmark = pytest.mark.slow  # a 2-worker cluster per test
 
 
 def study():
@@ -29,8 +29,8 @@ def test_dask_local_cluster_matches_local_backend(tmp_path):
         remote = run_study(spec, tmp_path / "dask", backend="dask", address=cluster.scheduler_address,
                            progress=False)
     assert remote.completed == 2 and not remote.failed
-    a = analysis.load_results(tmp_path / "local", spec).drop(columns=TIMING)
-    b = analysis.load_results(tmp_path / "dask", spec).drop(columns=TIMING)
+    a = analysis.load_results(tmp_path / "local", spec).drop(columns=TIMING_COLUMNS)
+    b = analysis.load_results(tmp_path / "dask", spec).drop(columns=TIMING_COLUMNS)
     assert len(a) == 6 and a["seed"].tolist() == [11, 11, 11, 12, 12, 12]
     pd.testing.assert_frame_equal(a, b)
 

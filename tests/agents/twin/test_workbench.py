@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin.csvio import records_from_loop
 from agents.twin.greybox import GreyData
 from agents.twin.workbench import compare, diagnose, fit_model, noise_floor, quantization_step, residuals
 from gbo_envs.physics import build_effects
 from gbo_envs.physics.open_loop import simulate_open_loop
+from tests.support import loop_records
 
 NOISE = 0.1  # rad/s
 GAINS = np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2], [1.05, 2.0], [0.5, 1.9]])
@@ -36,9 +36,7 @@ HIDDEN = {
 
 
 def _data(effects, step=(245.0, 306.0), n=4, noise=NOISE, seed=0) -> GreyData:
-    env = gym.make("gbo_envs/DCMotor-v0", effects=effects, output_noise_std=noise)
-    loop = env.unwrapped.loop.replace(r1=step[0], r2=step[1], duration=2.0)
-    return GreyData.from_records(records_from_loop(loop, GAINS[:n], rng=np.random.default_rng(seed)))
+    return GreyData.from_records(loop_records(effects, gains=GAINS[:n], step=step, noise=noise, seed=seed))
 
 
 @pytest.fixture(scope="module", params=list(HIDDEN))
@@ -49,6 +47,7 @@ def hidden(request):
     return name, params, data, diagnose(data)
 
 
+@pytest.mark.slow
 def test_diagnose_names_the_hidden_effect(hidden):
     name, params, data, result = hidden
     out = result.to_dict()
@@ -69,6 +68,7 @@ def test_diagnose_names_the_hidden_effect(hidden):
     assert out["candidates"][0]["evidence"]
 
 
+@pytest.mark.slow
 def test_linear_plant_gives_no_best_effect():
     data = _data(None, n=4)
     result = diagnose(data)

@@ -18,6 +18,11 @@ def env_id(request):
     return request.param
 
 
+def test_env_ids_are_exactly_the_registered_ids():
+    registered = [env_id for env_id in gym.registry if env_id.startswith("gbo_envs/")]
+    assert sorted(gbo_envs.ENV_IDS) == sorted(registered) and len(set(gbo_envs.ENV_IDS)) == len(gbo_envs.ENV_IDS)
+
+
 def test_check_env_passes(env_id):
     check_env(gym.make(env_id).unwrapped, skip_render_check=True)
 

@@ -5,10 +5,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from evaluation.runner import default_out_dir
-
 from evaluation.cli import main
 from evaluation.study import load_study
+from evaluation.study_runner import default_out_dir
 
 
 def test_default_output_is_under_the_working_directory_not_the_package():

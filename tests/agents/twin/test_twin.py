@@ -8,11 +8,11 @@ import pytest
 from sklearn.base import clone
 from sklearn.exceptions import NotFittedError
 
-import gbo_envs
 from agents.twin import TwinEnv, TwinEstimator, make_twin_env
 from gbo_envs import ClosedLoop, ContinuousPlant, ControllerTuningEnv, PDT1Controller
+from tests.support import DC_MOTOR_PARAMS, gain_grid
 
-TRUE = np.array([9.544, 4.145, 4.199])
+TRUE = DC_MOTOR_PARAMS
 
 
 def _records(n: int, seed: int = 0, **kwargs) -> tuple[gym.Env, list[dict]]:
@@ -27,12 +27,6 @@ def _records(n: int, seed: int = 0, **kwargs) -> tuple[gym.Env, list[dict]]:
 def clean():
     env, records = _records(3, noise=False)
     return env, records, TwinEstimator().fit(records)
-
-
-def _grid(env, n: int) -> np.ndarray:
-    low, high = env.action_space.low, env.action_space.high
-    kp, ki = np.meshgrid(np.linspace(low[0], high[0], n), np.linspace(low[1], high[1], n))
-    return np.column_stack([kp.ravel(), ki.ravel()])
 
 
 def test_recovers_dc_motor_parameters_on_noise_free_data(clean):
@@ -62,7 +56,7 @@ def test_twin_cost_matches_plant_across_feasible_set(clean):
     np.testing.assert_array_equal(twin_env.weights, env.unwrapped.weights)
     np.testing.assert_array_equal(twin_env.action_space.low, env.action_space.low)
     assert twin_env.loop.effects == () and twin_env.loop.output_noise_std == 0.0
-    gains = _grid(env, 20)
+    gains = gain_grid(env, 20)
     _, plant_cost = env.unwrapped.evaluate(gains)
     _, twin_cost = twin_env.evaluate(gains)
     assert twin_cost.shape == (400,)
@@ -116,7 +110,7 @@ def test_position_loop_with_integrator():
     assert twin.den_[-1] == 0.0 and twin.delay_ == pytest.approx(0.001, abs=1e-4)
     twin_env = TwinEnv(env, twin)
     assert twin_env.plant.output == "position"
-    gains = _grid(env, 5)
+    gains = gain_grid(env, 5)
     np.testing.assert_allclose(twin_env.evaluate(gains)[1], env.evaluate(gains)[1], rtol=0.01)
 
 
@@ -191,6 +185,3 @@ def test_empty_and_malformed_input_raise(clean):
     with pytest.raises(ValueError, match="hold"):
         TwinEstimator(hold="spline").fit(clean[1])
 
-
-def test_env_ids_registered():
-    assert "gbo_envs/DCMotor-v0" in gbo_envs.ENV_IDS

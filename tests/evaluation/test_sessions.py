@@ -69,8 +69,11 @@ class GlobalRandom(Tuner):
         pass
 
 
-agents.register("test-cost-aware", CostAwareRandom)
-agents.register("test-global-random", GlobalRandom)
+@pytest.fixture(autouse=True)
+def _test_tuners(tuner_registry):
+    """The two test tuners above, registered for each test of this module only."""
+    agents.register("test-cost-aware", CostAwareRandom)
+    agents.register("test-global-random", GlobalRandom)
 
 
 class FailAt(gym.Wrapper):
@@ -341,6 +344,7 @@ def test_cli_tune_sessions_export(tmp_path, capsys):
     assert gbo(["export", "--db", db, "--session", "9", "--csv", csv]) == 1
 
 
+@pytest.mark.slow
 def test_concurrent_sessions_in_one_database(tmp_path):
     db = tmp_path / "shared.sqlite"
     procs = [subprocess.Popen([sys.executable, "-m", "evaluation.cli", "tune", "--env", ENV, "--tuner", "random",

@@ -10,6 +10,7 @@ import agents
 import gbo_envs  # noqa: F401
 from agents.bo import BayesianOptimization
 from agents.guided_bo import GuidedBO
+from tests.support import DC_MOTOR_PARAMS
 
 FAST = {"grid_points": 40}
 
@@ -27,6 +28,7 @@ def _drive(tuner, env, budget, seed=0):
     return counts
 
 
+@pytest.mark.slow
 def test_result_marks_twin_rows_and_counts_activations():
     result = GuidedBO(**FAST).run(gym.make("gbo_envs/DCMotor-v0"), budget=6, seed=0)
     frame = result.to_pandas(include_twin=True)
@@ -43,7 +45,7 @@ def test_result_marks_twin_rows_and_counts_activations():
 def test_the_twin_identifies_the_plant_from_the_tuning_records():
     tuner = GuidedBO(**FAST)
     tuner.run(gym.make("gbo_envs/DCMotor-v0"), budget=5, seed=1)
-    np.testing.assert_allclose(tuner.twin_.params_, [9.544, 4.145, 4.199], rtol=0.01)
+    np.testing.assert_allclose(tuner.twin_.params_, DC_MOTOR_PARAMS, rtol=0.01)
     assert tuner.twin_.rmse_ < tuner.eta2_value
 
 
@@ -64,6 +66,7 @@ def test_untrusted_twin_leaves_plain_bo():
     np.testing.assert_allclose(guided.to_pandas()[cols].to_numpy(), plain.to_pandas()[cols].to_numpy())
 
 
+@pytest.mark.slow
 def test_reinitialisation_fires_after_the_plant_changes_and_the_twin_refits():
     env = gym.make("gbo_envs/DCMotorStep-v0", change_at=5, new_params={"gain": 4.0}, noise=False)
     tuner = GuidedBO(eta1=0.0, delta=0.3, **FAST)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -18,13 +17,7 @@ from gbo_envs import PIController
 from gbo_envs.closed_loop import ClosedLoop
 from gbo_envs.envs.dc_motor import dc_motor_plant
 from gbo_envs.envs.external import ExperimentFailed, ExternalPlantEnv
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(scope="module")
-def dc_motor():
-    return gym.make("gbo_envs/DCMotor-v0", noise=False).unwrapped
+from tests.support import DC_MOTOR_PARAMS, REPO_ROOT
 
 
 def _runner(loop: ClosedLoop):
@@ -84,10 +77,10 @@ def test_loop_builds_a_twin(dc_motor):
 
     env = _external(dc_motor)
     model_loop = env.loop.replace(plant=dc_motor.loop.plant)
-    assert isinstance(model_loop, ClosedLoop)
+    assert model_loop.plant is dc_motor.loop.plant and env.loop.plant is not dc_motor.loop.plant
     gains = np.array([[0.5, 1.2], [0.9, 1.9]])
     np.testing.assert_array_equal(model_loop.simulate(gains).y, dc_motor.loop.simulate(gains).y)
-    twin = TwinEnv(env, dc_motor_plant(9.544, 4.145, 4.199, 0.002))
+    twin = TwinEnv(env, dc_motor_plant(*DC_MOTOR_PARAMS, 0.002))
     np.testing.assert_allclose(twin.evaluate(gains)[1], dc_motor.evaluate(gains)[1], rtol=1e-12)
     bare = ExternalPlantEnv(_runner(dc_motor.loop), gain_bounds=[(0.1, 1.0), (0.5, 2.0)], reference=(245, 306),
                             normalizers=dc_motor.normalizers)
@@ -193,8 +186,9 @@ def test_argument_errors(dc_motor):
     assert "ExternalPlantEnv" in gbo_envs.__all__
 
 
+@pytest.mark.slow
 def test_example_runs(tmp_path):
-    out = subprocess.run([sys.executable, str(ROOT / "examples" / "external_plant.py"), "--tuner", "random",
+    out = subprocess.run([sys.executable, str(REPO_ROOT / "examples" / "external_plant.py"), "--tuner", "random",
                           "--budget", "8", "--db", str(tmp_path / "rig.sqlite"), "--csv", str(tmp_path / "rig.csv")],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr

@@ -9,17 +9,17 @@ from __future__ import annotations
 import importlib.util
 import json
 import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.support import REPO_ROOT
 
-pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="SIGKILL and forkserver are POSIX")
+pytestmark = [pytest.mark.skipif(sys.platform == "win32", reason="SIGKILL and forkserver are POSIX"), pytest.mark.slow]
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("bench_kill_resume", ROOT / "benchmarks" / "bench_kill_resume.py")
+    path = REPO_ROOT / "benchmarks" / "bench_kill_resume.py"
+    spec = importlib.util.spec_from_file_location("bench_kill_resume", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
