@@ -20,7 +20,7 @@ from agents.twin.csvio import records_from_loop
 from agents.twin.greybox import GreyData
 from agents.twin.workbench import compare, diagnose, fit_model, noise_floor, quantization_step, residuals
 from gbo_envs.physics import build_effects
-from gbo_envs.physics.open_loop import simulate_open_loop
+from agents.twin.open_loop import simulate_open_loop
 
 NOISE = 0.1  # rad/s
 GAINS = np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2], [1.05, 2.0], [0.5, 1.9]])

@@ -8,7 +8,7 @@ import numpy as np
 from agents.twin.greybox import GreyData, GreyFit
 from agents.twin.residuals import residuals
 
-__all__ = ["SEPARATING_EXPERIMENTS", "separating_experiment"]
+__all__ = ["SEPARATING_EXPERIMENTS", "effect_evidence", "excitation_notes", "separating_experiment"]
 
 
 #: Experiments that separate two effects which explain the data equally well.
@@ -49,8 +49,20 @@ def separating_experiment(a: str, b: str) -> str:
 
 
 
-def _excitation(data: GreyData, output: str) -> dict[str, str]:
-    """Effects the data cannot show, with the reason."""
+def excitation_notes(data: GreyData, output: str) -> dict[str, str]:
+    """Effects the data cannot show, with the reason.
+
+    Parameters
+    ----------
+    data : GreyData
+    output : {"speed", "position"}
+        What ``y`` measures.
+
+    Returns
+    -------
+    dict
+        ``{effect: reason}`` for the effects the records do not excite.
+    """
     speed = data.y if output != "position" else np.gradient(data.y, data.dt, axis=1)
     notes = {}
     reversal = np.any((np.max(np.where(data.mask, speed, -np.inf), axis=1) > 0)
@@ -74,8 +86,24 @@ def _corr(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sum(a * b) / den) if den > 0 else 0.0
 
 
-def _evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit) -> str:
-    """The residual signature of effect ``name`` in the current model's residual."""
+def effect_evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit) -> str:
+    """The residual signature of effect ``name`` in the current model's residual.
+
+    Parameters
+    ----------
+    name : str
+        Catalogue effect.
+    data : GreyData
+    current : GreyFit
+        The model diagnosed.
+    fit : GreyFit
+        ``current`` with ``name`` added.
+
+    Returns
+    -------
+    str
+        One sentence: where the residual shows the effect, and the share of the residual power it explains.
+    """
     m = data.mask
     e = (data.y - current.y_sim)[m]
     delta = (fit.y_sim - current.y_sim)[m]

@@ -1,7 +1,7 @@
 """Grey-box twin: the linear plant and physical effect parameters fitted together by simulation error.
 
 The model of a record is the open-loop replay of its commanded input ``u``
-(:func:`gbo_envs.physics.open_loop.simulate_open_loop`): a continuous-time
+(:func:`agents.twin.open_loop.simulate_open_loop`): a continuous-time
 transfer function ``B(s)/A(s) e^{-s tau}`` (the SRIVC structure of
 :mod:`agents.twin.srivc`) with effect blocks from the catalogue, and per
 record the rest level ``y0_k`` of the measured output and a constant
@@ -31,10 +31,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from agents.twin.fidelity import rmse
+from agents.twin.open_loop import simulate_open_loop
 from agents.twin.records import as_records
 from gbo_envs.physics.effects import EFFECTS, build_effect
 from gbo_envs.physics.lti import ContinuousPlant
-from gbo_envs.physics.open_loop import simulate_open_loop
 
 __all__ = ["FITTED_PARAMETERS", "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "simulate_sets"]
 
@@ -432,10 +433,9 @@ class GreyFit:
     def from_problem(cls, data: GreyData, p: Problem) -> GreyFit:
         """Collect a solved :class:`Problem` (its records must be ``data``'s)."""
         g, k = p.n_global, p.rows.size
-        sq = np.where(data.mask[p.rows], (p.y_sim - data.y[p.rows]) ** 2, 0.0)
-        rmse = float(np.sqrt(np.sum(sq) / data.mask[p.rows].sum())) if np.all(np.isfinite(sq)) else np.inf
         return cls(p.spec, p.theta[:g].copy(), p.spec.plant(p.theta[:g]), p.spec.blocks(p.theta[:g]),
-                   p.theta[g : g + k].copy(), p.theta[g + k :].copy(), p.y_sim, rmse)
+                   p.theta[g : g + k].copy(), p.theta[g + k :].copy(), p.y_sim,
+                   rmse(data.y[p.rows] - p.y_sim, mask=data.mask[p.rows]))
 
     @property
     def effect_params(self) -> dict[str, dict]:
