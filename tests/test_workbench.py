@@ -18,9 +18,9 @@ import pytest
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.csvio import records_from_loop
 from agents.twin.greybox import GreyData
+from agents.twin.open_loop import simulate_open_loop
 from agents.twin.workbench import compare, diagnose, fit_model, noise_floor, quantization_step, residuals
 from gbo_envs.physics import build_effects
-from agents.twin.open_loop import simulate_open_loop
 
 NOISE = 0.1  # rad/s
 GAINS = np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2], [1.05, 2.0], [0.5, 1.9]])

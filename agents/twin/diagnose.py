@@ -283,7 +283,8 @@ def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit
             continue
         n_old = current.theta.size
         theta = fit.theta[:n_old].copy()
-        problem = make_problem(data, current.spec, theta, fit.y0, fit.bias, np.arange(data.n_records), free_global=False)
+        problem = make_problem(data, current.spec, theta, fit.y0, fit.bias, np.arange(data.n_records),
+                               free_global=False)
         problem.free[:] = False
         fit_problems(data, [problem], max_iter=0)
         reduced = GreyFit.from_problem(data, problem)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from agents.twin.fidelity import rmse
 from agents.twin.greybox import GreyData, GreyFit
 from agents.twin.residuals import residuals
 
@@ -115,7 +116,7 @@ def effect_evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit) -
     if name == "saturation":
         limit = params.get("limit", np.inf)
         over = np.abs(data.u[m]) > limit
-        ratio = (np.sqrt(np.mean(e[over] ** 2)) / max(np.sqrt(np.mean(e[~over] ** 2)), 1e-300)) if over.any() and \
+        ratio = (rmse(e[over]) / max(rmse(e[~over]), 1e-300)) if over.any() and \
             (~over).any() else float("nan")
         return (f"command exceeds {limit:.4g} in {100 * over.mean():.1f} % of samples, where the error grows "
                 f"({ratio:.1f}x the rms elsewhere; r={r:.2f})" + tail)

@@ -54,7 +54,7 @@ def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = Tru
 def make_problem(data: GreyData, spec: ModelSpec, theta_global: np.ndarray, y0: np.ndarray, bias: np.ndarray,
                  rows: np.ndarray, lower=None, upper=None, scale=None, free_global: bool = True,
                  tag=None) -> Problem:
-    """A :class:`Problem` of ``spec`` on the records ``rows``, with default bounds for the linear part and the nuisances.
+    """A :class:`Problem` of ``spec`` on the records ``rows``, with default bounds for the linear part and nuisances.
 
     Parameters
     ----------

@@ -37,7 +37,8 @@ from agents.twin.records import as_records
 from gbo_envs.physics.effects import EFFECTS, build_effect
 from gbo_envs.physics.lti import ContinuousPlant
 
-__all__ = ["FITTED_PARAMETERS", "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "simulate_sets"]
+__all__ = ["FITTED_PARAMETERS", "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "residual",
+           "simulate_sets"]
 
 #: Effect parameters the grey-box fit estimates, and whether they are moved by the gradient
 #: iteration (``True``) or chosen on a grid (``False``). Other parameters keep their defaults.
@@ -282,7 +283,17 @@ def simulate_sets(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np
     return out
 
 
-def _residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
+def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
+    """Simulation error ``y_sim - y`` of the records ``rows``, the residual :func:`fit_problems` minimises.
+
+    Padding samples give 0; a non-finite simulated value (a diverged model) gives a large finite
+    penalty, ``1e6 (1 + max |y|)``, so that the cost stays comparable.
+
+    Returns
+    -------
+    ndarray of shape (len(rows), n_steps)
+        In the units of ``y``.
+    """
     err = np.where(data.mask[rows], y_sim - data.y[rows], 0.0)
     return np.where(np.isfinite(err), err, 1e6 * (1.0 + np.abs(data.y[rows]).max()))
 
@@ -306,7 +317,7 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
              for p in problems]
     base_true: dict[int, np.ndarray] = {}
     for p, y in zip(problems, sims):
-        p.y_sim, p.residual = y, _residual(data, p.rows, y)
+        p.y_sim, p.residual = y, residual(data, p.rows, y)
         p.cost = float(np.sum(p.residual**2))
         p.done = not np.any(p.free)
     jac: dict[int, np.ndarray] = {}
@@ -346,13 +357,13 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
                 sims = [smooth[n] if rough[i] else y for n, ((i, _), y) in enumerate(zip(layout, sims))]
                 base = simulate_sets(data, [(problems[i].spec, problems[i].theta, problems[i].rows) for i in need],
                                      true_output=True)
-                base_true.update({i: _residual(data, problems[i].rows, y) for i, y in zip(need, base)})
+                base_true.update({i: residual(data, problems[i].rows, y) for i, y in zip(need, base)})
             columns: dict[int, np.ndarray] = {}
             for (i, (kind, start, h)), y in zip(layout, sims):
                 p = problems[i]
                 mat = columns.setdefault(i, np.zeros((p.residual.size, p.theta.size)))
                 ref = base_true[i] if rough[i] else p.residual
-                diff = (_residual(data, p.rows, y) - ref) / h
+                diff = (residual(data, p.rows, y) - ref) / h
                 if kind == "global":
                     mat[:, start] = diff.ravel()
                 else:
@@ -381,7 +392,7 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
         for (i, theta), y in zip(trials, sims):
             p = problems[i]
             p.n_iter += 1
-            res = _residual(data, p.rows, y)
+            res = residual(data, p.rows, y)
             cost = float(np.sum(res**2))
             if cost < p.cost:
                 gain = (p.cost - cost) / max(p.cost, 1e-300)
