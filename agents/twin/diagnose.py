@@ -167,7 +167,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         (``effect_rms``), so that no effect is credited with a refit of the
         other parameters.
     max_iter : int, default 20
-        Levenberg-Marquardt iterations of the full-data fits.
+        Trial points of the full-data least-squares fits (:func:`agents.twin.greybox.fit_problems`).
 
     Returns
     -------

@@ -36,7 +36,7 @@ def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = Tru
     spec : ModelSpec, optional
         Orders and output kind (its effects are ignored); default 2 poles, no zero.
     refine : bool, default True
-        Polish the SRIVC estimate by Levenberg-Marquardt on the simulation error.
+        Polish the SRIVC estimate by least squares on the simulation error (:func:`fit_problems`).
     """
     spec = ModelSpec() if spec is None else ModelSpec(spec.n_poles, spec.n_zeros, spec.n_integrators, spec.output)
     records = [{"t": data.t[k][data.mask[k]], "r": data.r[k][data.mask[k]], "u": data.u[k][data.mask[k]],

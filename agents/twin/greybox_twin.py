@@ -30,7 +30,7 @@ from gbo_envs.physics.effects import build_effect
 
 __all__ = ["GreyBoxTwin"]
 
-#: Levenberg-Marquardt iterations at most of the refit from complete given effect values.
+#: Trial points at most of the least-squares refit from complete given effect values.
 GIVEN_VALUES_MAX_ITER = 20
 
 
@@ -65,7 +65,7 @@ class GreyBoxTwin(BaseEstimator):
     n_samples : int, optional
         Keep this many uniformly spaced samples per record (>= 2); default the whole record.
     max_iter : int, default 25
-        Levenberg-Marquardt iterations of each effect's fit, >= 0.
+        Trial points of each least-squares fit of the effects (:func:`agents.twin.greybox.fit_problems`), >= 0.
 
     Attributes
     ----------

@@ -281,8 +281,6 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
     True
     """
     orders = check_orders(n_poles, n_zeros, n_integrators)
-    if delay is not None and not np.isfinite(delay):
-        raise ValueError(f"delay: must be None or a finite number of seconds >= 0, got {delay!r}")
     data, batches, signals = prepare_signals(records, orders, n_samples, hold, oversample, offset)
     dt = min(rec.dt for rec in data)
     horizon = min(rec.t[-1] - rec.t[0] for rec in data)
