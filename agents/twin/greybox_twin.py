@@ -95,12 +95,13 @@ class GreyBoxTwin(BaseEstimator):
     Examples
     --------
     >>> import gymnasium as gym, numpy as np, gbo_envs
-    >>> env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 150.0}}, noise=False)
-    >>> _ = env.reset(seed=0)
-    >>> records = [env.step(np.array(g))[4] for g in ([0.9, 1.2], [1.05, 2.0])]
+    >>> env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 150.0}}, output_noise_std=0.05)
+    >>> _ = env.reset(seed=2)
+    >>> rng = np.random.default_rng(2)
+    >>> records = [env.step(rng.uniform(env.action_space.low, env.action_space.high))[4] for _ in range(2)]
     >>> twin = GreyBoxTwin(effects=["saturation"]).fit(records)
-    >>> round(twin.effect_params_["saturation"]["limit"])
-    150
+    >>> bool(abs(twin.effect_params_["saturation"]["limit"] - 150.0) < 3.0)
+    True
     """
 
     _parameter_constraints: dict = {
