@@ -114,7 +114,7 @@ class GuidedBO(BayesianOptimization):
     twin_poles : int, default 2
         Poles of the identified transfer function, which has no zeros (the paper's
         high-fidelity twin has 2 poles, the low-fidelity one 5).
-    twin : TwinEstimator, optional
+    twin : LinearTwin or GreyBoxTwin, optional
         A configured (unfitted) estimator to clone instead of the default
         SRIVC twin, e.g. one with physical effects.
 
@@ -126,7 +126,7 @@ class GuidedBO(BayesianOptimization):
         Twin experiments made.
     reinitializations_ : int
         How often eq. (reinit_DTdataset) emptied the twin data set.
-    twin_ : TwinEstimator or None
+    twin_ : LinearTwin, GreyBoxTwin or None
         The current fitted twin.
     model : str
         Always ``"cost"``: one GP on the cost, as in the paper's Algorithm 1 (the twin's
@@ -304,7 +304,7 @@ class GuidedBO(BayesianOptimization):
         """
         if self._twin_dirty and self.twin_ is not None and self._twin_fitted_on <= len(self._twin_records):
             new = self._twin_records[self._twin_fitted_on:]
-            if not new or self.twin_.rmse(new) <= max(1.5 * self.twin_.rmse_, 0.25 * self.eta2_value):
+            if not new or -self.twin_.score(new) <= max(1.5 * self.twin_.rmse_, 0.25 * self.eta2_value):
                 self._twin_dirty = False
         if self._twin_dirty and self._twin_records:
             from sklearn.base import clone
@@ -331,13 +331,13 @@ class GuidedBO(BayesianOptimization):
         return self._twin_env
 
     def _default_twin(self):
-        from agents.twin import TwinEstimator
+        from agents.twin import LinearTwin
 
         plant = self._plant_env.loop.plant
         integrators = len(plant.den) - len(np.trim_zeros(np.asarray(plant.den), "b"))
-        return TwinEstimator(n_poles=self.twin_poles, n_zeros=0,
-                             n_integrators=min(integrators, self.twin_poles - 1), n_samples=self.n_samples,
-                             output=plant.output, warm_start=True)
+        return LinearTwin(n_poles=self.twin_poles, n_zeros=0,
+                          n_integrators=min(integrators, self.twin_poles - 1), n_samples=self.n_samples,
+                          output=plant.output, warm_start=True)
 
 
 

@@ -2,7 +2,7 @@
 
 Prints one JSON object:
 
-* ``fit_s``: wall time of ``TwinEstimator().fit`` on 1, 5 and 35 noise-free
+* ``fit_s``: wall time of ``LinearTwin().fit`` on 1, 5 and 35 noise-free
   DCMotor-v0 records (2501 samples each, delay searched), for the full records
   and for ``n_samples=100`` (the paper's sampling length), and of a warm-started
   refit after adding the 35th record (``warm_start=True``, as guided BO refits);
@@ -23,7 +23,7 @@ import numpy as np
 from timing import median_time
 
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin import TwinEnv, TwinEstimator
+from agents.twin import LinearTwin, TwinEnv
 from gbo_envs.gain_grid import grid_axes, grid_points
 
 TRUE = np.array([9.544, 4.145, 4.199])
@@ -49,10 +49,10 @@ def main() -> dict:
         fit_s[label] = {}
         for n in (1, 5, 35):
             start = time.perf_counter()
-            twin = TwinEstimator(n_samples=n_samples).fit(records[:n])
+            twin = LinearTwin(n_samples=n_samples).fit(records[:n])
             fit_s[label][str(n)] = time.perf_counter() - start
         twins[label] = twin
-        warm = TwinEstimator(n_samples=n_samples, warm_start=True).fit(records[:34])
+        warm = LinearTwin(n_samples=n_samples, warm_start=True).fit(records[:34])
         start = time.perf_counter()
         warm.fit(records)
         fit_s[label]["35_warm_start"] = time.perf_counter() - start

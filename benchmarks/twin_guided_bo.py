@@ -4,7 +4,7 @@
    workbench's greedy diagnose -> add -> diagnose) names the effects and their
    parameters.
 2. For a few seeds, :class:`agents.guided_bo.GuidedBO` with the default linear
-   SRIVC twin and with ``TwinEstimator(effects=<diagnosed>)`` (the fitted effect
+   SRIVC twin and with ``GreyBoxTwin(effects=<diagnosed>)`` (the fitted effect
    blocks go into the twin's closed loop through ``effects_``), 35 plant
    experiments each, same seeds.
 
@@ -27,7 +27,7 @@ import numpy as np
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.guided_bo import GuidedBO
-from agents.twin import TwinEstimator
+from agents.twin import GreyBoxTwin
 from agents.twin.csvio import records_from_env
 from agents.twin.greybox import GreyData
 from agents.twin.workbench import error_ladder
@@ -48,7 +48,7 @@ def diagnosed_effects(seed: int = 100) -> tuple[dict, list[dict]]:
     return dict(diagnoses[-1].current.effect_params), rungs
 
 
-def run_variant(twin: TwinEstimator | None, seeds: list[int], optimum: float) -> dict:
+def run_variant(twin: GreyBoxTwin | None, seeds: list[int], optimum: float) -> dict:
     to_ratio, activations, rmse, rmse_abs, seconds = [], [], [], [], []
     for seed in seeds:
         env = gym.make(ENV_ID)
@@ -75,7 +75,7 @@ def main(n_seeds: int = 3) -> dict:
     optimum = float(ground_truth(ENV_ID, resolution=40).cost)
     seeds = list(range(n_seeds))
     linear = run_variant(None, seeds, optimum)
-    grey = run_variant(TwinEstimator(effects=effects, n_samples=500), seeds, optimum)
+    grey = run_variant(GreyBoxTwin(effects=effects, n_samples=500), seeds, optimum)
     return {"env": ENV_ID, "budget": BUDGET, "ratio": RATIO, "seeds": seeds, "optimum": optimum,
             "diagnosed_effects": effects, "ladder": rungs, "linear_twin": linear, "diagnosed_twin": grey}
 

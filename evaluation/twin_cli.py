@@ -76,9 +76,12 @@ def _load(args):
 
 
 def _fit(data, spec, effects):
-    from agents.twin.workbench import fit_model
+    """The grey-box fit (:class:`agents.twin.GreyBoxTwin`) of ``spec``'s linear part plus ``effects``."""
+    from agents.twin.workbench import GreyBoxTwin
 
-    return fit_model(data, effects, spec=spec)
+    twin = GreyBoxTwin(effects=effects, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
+                       output=spec.output)
+    return twin.fit(data).greybox_
 
 
 def _run(handler):

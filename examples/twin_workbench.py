@@ -26,7 +26,7 @@ import numpy as np
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.csvio import read_csv, records_from_env, write_csv
 from agents.twin.greybox import GreyData
-from agents.twin.workbench import compare, diagnose, fit_model
+from agents.twin.workbench import GreyBoxTwin, compare, diagnose
 from gbo_envs.experiment import Experiment
 
 STRIDE = 5  # keep every 5th sample of the rig's 2 ms records (dt 10 ms)
@@ -49,7 +49,7 @@ def main() -> None:
     print(f"data: {path} ({data.n_records} experiments of {data.u.shape[1]} samples)")
 
     effects: list[str] = []
-    current = fit_model(data)
+    current = GreyBoxTwin().fit(data).greybox_  # the linear model, fitted by simulation error
     ladder = []
     while True:
         res = compare(data, current)  # compare

@@ -1,7 +1,10 @@
 """Digital twin: identify the plant from closed-loop records and run the closed loop on it.
 
-* :class:`TwinEstimator`: scikit-learn-style SRIVC identification of a
-  continuous-time transfer function with input delay (the paper's DT plant).
+* :func:`identify_linear`: SRIVC identification of a continuous-time transfer
+  function with input delay (the paper's DT plant), as a plain function;
+* :class:`LinearTwin`: the same as a scikit-learn estimator (``fit``, ``predict``, ``score``);
+* :class:`GreyBoxTwin`: the linear part plus physical effects of the catalogue, fitted
+  by simulation error (scikit-learn estimator);
 * :class:`TwinEnv` / :func:`make_twin_env`: the plant env's closed loop and cost
   with the identified plant, noise-free and vectorised.
 """
@@ -12,11 +15,13 @@ from agents.twin.compare import compare
 from agents.twin.csvio import read_csv, write_csv
 from agents.twin.diagnose import diagnose, error_ladder
 from agents.twin.env import TwinEnv, make_twin_env
-from agents.twin.estimator import TwinEstimator
 from agents.twin.fitting import fit_model
 from agents.twin.greybox import GreyData, GreyFit, ModelSpec
+from agents.twin.greybox_twin import GreyBoxTwin
+from agents.twin.identify import identify_linear
+from agents.twin.linear_twin import LinearTwin
 from agents.twin.residuals import residuals
 
-__all__ = ["TwinEnv", "TwinEstimator", "make_twin_env"]
+__all__ = ["GreyBoxTwin", "LinearTwin", "TwinEnv", "identify_linear", "make_twin_env"]
 __all__ += ["GreyData", "GreyFit", "ModelSpec", "compare", "diagnose", "error_ladder", "fit_model", "read_csv",
             "residuals", "write_csv"]

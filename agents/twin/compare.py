@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from agents.twin.fidelity import rmse
 from agents.twin.greybox import GreyData, GreyFit
 
 __all__ = ["CompareResult", "compare"]
@@ -48,8 +49,7 @@ def compare(data: GreyData, fit: GreyFit, experiments: Sequence[int] | None = No
     norm_e = np.sqrt(np.sum(err**2, axis=1))
     norm_d = np.sqrt(np.sum(dev**2, axis=1))
     fitp = 100.0 * (1.0 - norm_e / np.where(norm_d > 0, norm_d, np.nan))
-    rmse = norm_e / np.sqrt(data.mask.sum(axis=1))
+    per_record = np.array([rmse(err[k], mask=data.mask[k]) for k in range(data.n_records)])
     all_fit = 100.0 * (1.0 - np.sqrt(np.sum(err**2)) / max(np.sqrt(np.sum(dev**2)), 1e-300))
     ids = np.asarray(experiments if experiments is not None else data.index, dtype=int)
-    return CompareResult(ids, fitp, rmse, float(all_fit), float(np.sqrt(np.sum(err**2) / data.n_samples)),
-                         fit.spec.label)
+    return CompareResult(ids, fitp, per_record, float(all_fit), rmse(err, mask=data.mask), fit.spec.label)

@@ -15,18 +15,18 @@ import numpy as np
 from agents.jsonable import jsonable
 from agents.thread_limits import single_thread
 from agents.twin.compare import compare
-from agents.twin.evidence import _evidence, _excitation, separating_experiment
+from agents.twin.evidence import effect_evidence, excitation_notes, separating_experiment
+from agents.twin.fidelity import rmse
 from agents.twin.fitting import (
-    _current_effect_bounds,
-    _effect_offset,
-    _problem,
     candidate_problems,
-    fit_model,
-    linear_fit,
+    effect_bounds,
+    effect_offset,
+    make_problem,
     refine_grid_parameters,
 )
 from agents.twin.greybox import FITTED_PARAMETERS, GreyData, GreyFit, ModelSpec, Problem, fit_problems, simulate_sets
-from agents.twin.noise import noise_floor
+from agents.twin.greybox_twin import GreyBoxTwin
+from agents.twin.noise_floor import noise_floor
 from gbo_envs.physics.effects import EFFECT_NAMES, EFFECTS
 
 __all__ = ["Diagnosis", "diagnose", "error_ladder", "heldout_rss"]
@@ -77,11 +77,18 @@ def _refit_problem(data: GreyData, fit: GreyFit, rows: np.ndarray, free_global: 
                    bias=None, tag=None) -> Problem:
     rows = np.asarray(rows, dtype=int)
     n_eff = fit.theta.size - fit.spec.n_linear - 1
-    lower, upper, scale = _current_effect_bounds(data, fit, np.full(n_eff, -np.inf), np.full(n_eff, np.inf),
+    lower, upper, scale = effect_bounds(data, fit, np.full(n_eff, -np.inf), np.full(n_eff, np.inf),
                                                  np.ones(n_eff))
-    return _problem(data, fit.spec, fit.theta if theta is None else theta,
+    return make_problem(data, fit.spec, fit.theta if theta is None else theta,
                     fit.y0[rows] if y0 is None else y0, fit.bias[rows] if bias is None else bias, rows,
                     lower, upper, scale, free_global=free_global, tag=tag)
+
+
+def _grey_box(effects, spec: ModelSpec | None, max_iter: int = 25) -> GreyBoxTwin:
+    """The grey-box twin of ``spec``'s linear part (default 2 poles, no zero) plus ``effects``."""
+    spec = ModelSpec() if spec is None else spec
+    return GreyBoxTwin(effects=() if effects is None else effects, n_poles=spec.n_poles, n_zeros=spec.n_zeros,
+                       n_integrators=spec.n_integrators, output=spec.output, max_iter=max_iter)
 
 
 def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_iter: int = 6) -> np.ndarray:
@@ -149,7 +156,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         (``effect_rms``), so that no effect is credited with a refit of the
         other parameters.
     max_iter : int, default 20
-        Levenberg-Marquardt iterations of the full-data fits.
+        Trial points of the full-data least-squares fits (:func:`agents.twin.greybox.fit_problems`).
 
     Returns
     -------
@@ -168,10 +175,8 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     better fit of parameters the model already has. With one experiment there is nothing to hold
     out: the training RSS is used and ``validation`` says so.
     """
-    base = None
     if current is None:
-        base = linear_fit(data, spec)
-        current = fit_model(data, effects, base=base, max_iter=max_iter)
+        current = _grey_box(effects, spec, max_iter).fit(data).greybox_
     names = [n for n in (candidates or EFFECT_NAMES) if n not in current.spec.effect_names]
     # the current model gets the same iteration budget as the candidates, so that no candidate wins by
     # merely polishing parameters the current model already has
@@ -202,13 +207,13 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         rss = np.array([m.rmse**2 * n for m in models])
         validation = "training error (one experiment: nothing to hold out)"
     bic = n * np.log(np.maximum(rss, 1e-300) / n) + np.array([m.n_params for m in models]) * np.log(n)
-    notes = _excitation(data, current.spec.output)
+    notes = excitation_notes(data, current.spec.output)
     cands = []
     for i, name in enumerate(order, start=1):
         fit = fits[name]
         entry = {"effect": name, "rmse": float(np.sqrt(rss[i] / n)), "delta_bic": float(bic[i] - bic[0]),
                  "params": jsonable(fit.effect_params.get(name, {}), finite=True) if name in fit.effect_params else {},
-                 "evidence": _evidence(name, data, current, fit), "train_rmse": float(fit.rmse),
+                 "evidence": effect_evidence(name, data, current, fit), "train_rmse": float(fit.rmse),
                  "extra_params": int(fit.n_params - current.n_params),
                  "effect_rms": _effect_size(data, fit)}
         if name in notes:
@@ -240,7 +245,7 @@ def _effect_size(data: GreyData, fit: GreyFit) -> float:
     """
     name = fit.spec.effect_names[-1]
     theta0 = fit.theta.copy()
-    pos = fit.spec.n_linear + 1 + _effect_offset(fit.spec, name) if fit.spec.effect_names.count(name) == 1 else \
+    pos = fit.spec.n_linear + 1 + effect_offset(fit.spec, name) if fit.spec.effect_names.count(name) == 1 else \
         fit.theta.size - len(FITTED_PARAMETERS[name])
     cls = EFFECTS[name]
     for j, (pname, _) in enumerate(FITTED_PARAMETERS[name]):
@@ -249,8 +254,8 @@ def _effect_size(data: GreyData, fit: GreyFit) -> float:
     rows = np.arange(data.n_records)
     sims = simulate_sets(data, [(fit.spec, np.concatenate([th, fit.y0, fit.bias]), rows) for th in (fit.theta, theta0)],
                          true_output=cls.side != "sensor")  # a sensor effect only shows in the measurement
-    diff = np.where(data.mask, sims[0] - sims[1], 0.0)
-    return float(np.sqrt(np.sum(diff**2) / data.n_samples)) if np.all(np.isfinite(diff)) else 0.0
+    size = rmse(sims[0] - sims[1], mask=data.mask)
+    return size if np.isfinite(size) else 0.0
 
 
 def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit | None:
@@ -267,7 +272,8 @@ def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit
             continue
         n_old = current.theta.size
         theta = fit.theta[:n_old].copy()
-        problem = _problem(data, current.spec, theta, fit.y0, fit.bias, np.arange(data.n_records), free_global=False)
+        problem = make_problem(data, current.spec, theta, fit.y0, fit.bias, np.arange(data.n_records),
+                               free_global=False)
         problem.free[:] = False
         fit_problems(data, [problem], max_iter=0)
         reduced = GreyFit.from_problem(data, problem)
@@ -287,7 +293,7 @@ def error_ladder(data: GreyData, effects=None, spec: ModelSpec | None = None, ma
     diagnoses : list of Diagnosis
         The diagnosis made at each rung.
     """
-    current = fit_model(data, effects, base=linear_fit(data, spec))
+    current = _grey_box(effects, spec).fit(data).greybox_
     rungs, diagnoses = [], []
     added = None
     for _ in range(max_steps + 1):

@@ -26,7 +26,7 @@ class TwinEnv(ControllerTuningEnv):
     ----------
     plant_env : gymnasium.Env
         The env the twin mirrors (wrappers from ``gym.make`` are looked through).
-    twin : fitted TwinEstimator or gbo_envs.ContinuousPlant
+    twin : fitted LinearTwin or GreyBoxTwin, or gbo_envs.ContinuousPlant
         The identified plant (``twin.plant_``), or a plant directly. A twin with
         ``effects_`` (physical effect blocks) adds them to the loop.
     cost_noise_std : float, default 0.0
@@ -40,7 +40,7 @@ class TwinEnv(ControllerTuningEnv):
 
     Examples
     --------
-    >>> twin_env = TwinEnv(plant_env, TwinEstimator().fit(records))  # doctest: +SKIP
+    >>> twin_env = TwinEnv(plant_env, LinearTwin().fit(records))  # doctest: +SKIP
     >>> metrics, cost = twin_env.evaluate(gains)  # gains of shape (batch, n_gains)  # doctest: +SKIP
     """
 

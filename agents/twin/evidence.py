@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from agents.twin.fidelity import rmse
 from agents.twin.greybox import GreyData, GreyFit
 from agents.twin.residuals import residuals
 
-__all__ = ["SEPARATING_EXPERIMENTS", "separating_experiment"]
+__all__ = ["SEPARATING_EXPERIMENTS", "effect_evidence", "excitation_notes", "separating_experiment"]
 
 
 #: Experiments that separate two effects which explain the data equally well.
@@ -49,8 +50,20 @@ def separating_experiment(a: str, b: str) -> str:
 
 
 
-def _excitation(data: GreyData, output: str) -> dict[str, str]:
-    """Effects the data cannot show, with the reason."""
+def excitation_notes(data: GreyData, output: str) -> dict[str, str]:
+    """Effects the data cannot show, with the reason.
+
+    Parameters
+    ----------
+    data : GreyData
+    output : {"speed", "position"}
+        What ``y`` measures.
+
+    Returns
+    -------
+    dict
+        ``{effect: reason}`` for the effects the records do not excite.
+    """
     speed = data.y if output != "position" else np.gradient(data.y, data.dt, axis=1)
     notes = {}
     reversal = np.any((np.max(np.where(data.mask, speed, -np.inf), axis=1) > 0)
@@ -74,8 +87,24 @@ def _corr(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sum(a * b) / den) if den > 0 else 0.0
 
 
-def _evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit) -> str:
-    """The residual signature of effect ``name`` in the current model's residual."""
+def effect_evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit) -> str:
+    """The residual signature of effect ``name`` in the current model's residual.
+
+    Parameters
+    ----------
+    name : str
+        Catalogue effect.
+    data : GreyData
+    current : GreyFit
+        The model diagnosed.
+    fit : GreyFit
+        ``current`` with ``name`` added.
+
+    Returns
+    -------
+    str
+        One sentence: where the residual shows the effect, and the share of the residual power it explains.
+    """
     m = data.mask
     e = (data.y - current.y_sim)[m]
     delta = (fit.y_sim - current.y_sim)[m]
@@ -87,7 +116,7 @@ def _evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit) -> str:
     if name == "saturation":
         limit = params.get("limit", np.inf)
         over = np.abs(data.u[m]) > limit
-        ratio = (np.sqrt(np.mean(e[over] ** 2)) / max(np.sqrt(np.mean(e[~over] ** 2)), 1e-300)) if over.any() and \
+        ratio = (rmse(e[over]) / max(rmse(e[~over]), 1e-300)) if over.any() and \
             (~over).any() else float("nan")
         return (f"command exceeds {limit:.4g} in {100 * over.mean():.1f} % of samples, where the error grows "
                 f"({ratio:.1f}x the rms elsewhere; r={r:.2f})" + tail)

@@ -13,13 +13,13 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from agents.thread_limits import single_thread
-from agents.twin.estimator import TwinEstimator
 from agents.twin.greybox import FITTED_PARAMETERS, GreyData, GreyFit, ModelSpec, Problem, fit_problems, simulate_sets
-from agents.twin.guesses import _quantization_scan, _rest_command, effect_starts
+from agents.twin.guesses import effect_starts, quantization_scan, rest_command
+from agents.twin.identify import LinearIdentification, identify_linear
 from gbo_envs.physics.effects import EFFECT_NAMES, EFFECTS
 
-__all__ = ["PROFILE_EFFECTS", "candidate_problems", "fit_model", "linear_fit", "refine_grid_parameters"]
-
+__all__ = ["PROFILE_EFFECTS", "candidate_problems", "effect_bounds", "effect_items", "effect_offset", "fit_model",
+           "forward_bias", "linear_fit", "make_problem", "profile", "refine_grid_parameters"]
 
 @single_thread()
 def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = True) -> GreyFit:
@@ -31,24 +31,44 @@ def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = Tru
     spec : ModelSpec, optional
         Orders and output kind (its effects are ignored); default 2 poles, no zero.
     refine : bool, default True
-        Polish the SRIVC estimate by Levenberg-Marquardt on the simulation error.
+        Polish the SRIVC estimate by least squares on the simulation error (:func:`fit_problems`).
     """
     spec = ModelSpec() if spec is None else ModelSpec(spec.n_poles, spec.n_zeros, spec.n_integrators, spec.output)
     records = [{"t": data.t[k][data.mask[k]], "r": data.r[k][data.mask[k]], "u": data.u[k][data.mask[k]],
                 "y": data.y[k][data.mask[k]]} for k in range(data.n_records)]
-    twin = TwinEstimator(n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
-                         max_delay=data.dt, refine_delay=False, output=spec.output).fit(records)
-    theta = np.concatenate([twin.num_, twin.den_[1 : spec.n_poles - spec.n_integrators + 1], [twin.delay_]])
-    y0, u0 = twin.rest_levels_[:, 0], twin.rest_levels_[:, 1]
-    v_rest = twin.plant_.discretize(data.dt).equilibrium(y0)[1]
-    problem = _problem(data, spec, theta, y0, v_rest - u0, np.arange(data.n_records))
+    fit = identify_linear(records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
+                          max_delay=data.dt, refine_delay=False)
+    theta = np.concatenate([fit.params, [fit.delay]])
+    y0, u0 = fit.rest_levels[:, 0], fit.rest_levels[:, 1]
+    v_rest = fit.plant(spec.output).discretize(data.dt).equilibrium(y0)[1]
+    problem = make_problem(data, spec, theta, y0, v_rest - u0, np.arange(data.n_records))
     fit_problems(data, [problem], max_iter=30 if refine else 0)  # the delay is refined here, in [0, dt]
     return GreyFit.from_problem(data, problem)
 
 
-def _problem(data: GreyData, spec: ModelSpec, theta_global: np.ndarray, y0: np.ndarray, bias: np.ndarray,
-             rows: np.ndarray, lower=None, upper=None, scale=None, free_global: bool = True, tag=None) -> Problem:
-    """A :class:`Problem` with default bounds for the linear part and the nuisance parameters."""
+def make_problem(data: GreyData, spec: ModelSpec, theta_global: np.ndarray, y0: np.ndarray, bias: np.ndarray,
+                 rows: np.ndarray, lower=None, upper=None, scale=None, free_global: bool = True,
+                 tag=None) -> Problem:
+    """A :class:`Problem` of ``spec`` on the records ``rows``, with default bounds for the linear part and nuisances.
+
+    Parameters
+    ----------
+    data : GreyData
+    spec : ModelSpec
+    theta_global : ndarray of shape (n_global,)
+        Starting global parameters (``spec.global_names()``).
+    y0, bias : ndarray of shape (len(rows),)
+        Starting rest level (units of ``y``) and plant-input bias (units of ``u``) of each record.
+    rows : ndarray of int
+        Records of ``data`` the problem fits.
+    lower, upper, scale : ndarray of shape (n_global - spec.n_linear - 1,), optional
+        Bounds and scales of the effect parameters (default unbounded, scale 1); the linear
+        part is unbounded, the delay in ``[0, data.dt]``.
+    free_global : bool, default True
+        Whether the iteration moves the global parameters (else only the rest levels and biases).
+    tag : object, optional
+        Caller's label, kept on the problem.
+    """
     g = theta_global.size
     nl = spec.n_linear
     lin = np.abs(theta_global[:nl])
@@ -74,9 +94,18 @@ def _problem(data: GreyData, spec: ModelSpec, theta_global: np.ndarray, y0: np.n
                    free=free, tag=tag)
 
 
-def _forward_bias(data: GreyData, fit: GreyFit, spec: ModelSpec, theta: np.ndarray) -> np.ndarray:
-    """Bias that keeps each record's rest input after adding effect blocks (their map at the rest command)."""
-    u_rest = _rest_command(fit)
+def forward_bias(data: GreyData, fit: GreyFit, spec: ModelSpec, theta: np.ndarray) -> np.ndarray:
+    """Plant-input bias that keeps each record's rest input after adding effect blocks.
+
+    The blocks of ``spec`` at ``theta`` map the rest command (:func:`rest_command` of ``fit``)
+    differently from ``fit``'s blocks; the difference is added to ``fit.bias``.
+
+    Returns
+    -------
+    ndarray of shape (n_records,)
+        In the units of ``u``.
+    """
+    u_rest = rest_command(fit)
     v = u_rest.copy()
     speed = fit.y0 if spec.output != "position" else np.zeros_like(fit.y0)
     try:
@@ -125,12 +154,29 @@ def _records_through(data: GreyData, blocks: Sequence, output: str) -> list[dict
              "y": data.y[k][data.mask[k]]} for k in range(data.n_records)]
 
 
-def _profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, estimator: TwinEstimator,
-             max_delay: float | None = None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float | None = None,
+            max_iter: int = 20, tol: float = 1e-6) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """SRIVC fit of the linear part on the plant input implied by ``spec``'s actuator blocks at ``theta``.
 
-    Returns ``(rmse, theta_global, y0, bias)`` with the linear part (and, with
-    ``max_delay``, the delay) replaced by the SRIVC estimate.
+    Parameters
+    ----------
+    data : GreyData
+    spec : ModelSpec
+    theta : ndarray of shape (n_global,)
+        Global parameters; the effect parameters are kept.
+    max_delay : float, optional
+        Search the delay up to this many s (default: the delay of ``theta`` plus any ``time_delay``, fixed).
+    max_iter, tol
+        SRIVC iterations and tolerance (:func:`agents.twin.identify.identify_linear`).
+
+    Returns
+    -------
+    rmse : float
+        Simulation-error RMSE of the SRIVC fit, units of ``y`` (``inf`` when it fails).
+    theta_global : ndarray
+        ``theta`` with the linear part (and, with ``max_delay``, the delay) replaced by the SRIVC estimate.
+    y0, bias : ndarray of shape (n_records,)
+        Rest levels and plant-input biases of the SRIVC fit.
     """
     try:
         blocks = spec.blocks(theta)
@@ -138,27 +184,35 @@ def _profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, estimator: Twin
         return np.inf, theta, np.zeros(data.n_records), np.zeros(data.n_records)
     nl = spec.n_linear
     if max_delay is None:
-        total = theta[nl] + sum(b.delay for b in blocks if b.name == "time_delay")
-        estimator.set_params(delay=float(total), max_delay=None)
+        delay = float(theta[nl] + sum(b.delay for b in blocks if b.name == "time_delay"))
     else:
-        estimator.set_params(delay=None, max_delay=float(max_delay))
+        delay, max_delay = None, float(max_delay)
     try:
-        twin = estimator.fit(_records_through(data, blocks, spec.output))
+        fit: LinearIdentification = identify_linear(
+            _records_through(data, blocks, spec.output), n_poles=spec.n_poles, n_zeros=spec.n_zeros,
+            n_integrators=spec.n_integrators, delay=delay, max_delay=max_delay, max_iter=max_iter, tol=tol)
     except (ValueError, RuntimeError, np.linalg.LinAlgError):
         return np.inf, theta, np.zeros(data.n_records), np.zeros(data.n_records)
     out = theta.copy()
-    out[: nl] = np.concatenate([twin.num_, twin.den_[1 : spec.n_poles - spec.n_integrators + 1]])
-    y0, u0 = twin.rest_levels_[:, 0], twin.rest_levels_[:, 1]
-    v_rest = twin.plant_.discretize(data.dt).equilibrium(y0)[1]
+    out[: nl] = fit.params
+    y0, u0 = fit.rest_levels[:, 0], fit.rest_levels[:, 1]
+    v_rest = fit.plant(spec.output).discretize(data.dt).equilibrium(y0)[1]
     if max_delay is not None:
-        base_delay = min(float(twin.delay_), data.dt) if "time_delay" in spec.effect_names else float(twin.delay_)
+        base_delay = min(fit.delay, data.dt) if "time_delay" in spec.effect_names else fit.delay
         out[nl] = base_delay
         if "time_delay" in spec.effect_names:
-            out[nl + 1 + _effect_offset(spec, "time_delay")] = float(twin.delay_) - base_delay
-    return float(twin.rmse_abs_), out, y0, v_rest - u0
+            out[nl + 1 + effect_offset(spec, "time_delay")] = fit.delay - base_delay
+    return float(fit.rmse_abs), out, y0, v_rest - u0
 
 
-def _effect_offset(spec: ModelSpec, name: str) -> int:
+def effect_offset(spec: ModelSpec, name: str) -> int:
+    """Position of effect ``name``'s first fitted parameter among ``spec``'s effect parameters (0-based).
+
+    Raises
+    ------
+    KeyError
+        ``name`` is not an effect of ``spec``.
+    """
     pos = 0
     for effect, _ in spec.effects:
         if effect == name:
@@ -171,20 +225,19 @@ def _profile_problems(data, current, spec, name, starts, lo, hi, sc, lower, uppe
     """Starting point on the SRIVC profile of the new effect's parameter(s), then one bounded problem."""
     from scipy.optimize import minimize_scalar
 
-    estimator = TwinEstimator(n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
-                              output=spec.output, max_iter=10, tol=1e-5)
+    settings = {"max_iter": 10, "tol": 1e-5}
     rows = np.arange(data.n_records)
     g0 = current.theta.size
     if name == "time_delay":
         theta = np.concatenate([current.theta, [0.0]])
-        res = _profile(data, spec, theta, estimator, max_delay=float(hi[0]))
+        res = profile(data, spec, theta, max_delay=float(hi[0]), **settings)
     elif not starts:
         return []
     else:
         results = []
         for start in starts:
             theta = np.concatenate([current.theta, np.clip(start, lo, hi)])
-            results.append((theta, _profile(data, spec, theta, estimator)))
+            results.append((theta, profile(data, spec, theta, **settings)))
         best = int(np.argmin([r[1][0] for r in results]))
         res = results[best][1]
         if lo.size == 1 and len(starts) > 1 and np.isfinite(res[0]):
@@ -197,7 +250,7 @@ def _profile_problems(data, current, spec, name, starts, lo, hi, sc, lower, uppe
                 def cost(x: float) -> float:
                     th = results[best][0].copy()
                     th[g0] = x
-                    cache[x] = _profile(data, spec, th, estimator)
+                    cache[x] = profile(data, spec, th, **settings)
                     return cache[x][0]
 
                 minimize_scalar(cost, bounds=(a, b), method="bounded", options={"maxiter": 6,
@@ -208,7 +261,7 @@ def _profile_problems(data, current, spec, name, starts, lo, hi, sc, lower, uppe
     _, theta, y0, bias = res
     if not np.isfinite(res[0]):
         return []
-    return [_problem(data, spec, theta, y0, bias, rows, lower, upper, scale, tag=tag)]
+    return [make_problem(data, spec, theta, y0, bias, rows, lower, upper, scale, tag=tag)]
 
 
 def candidate_problems(data: GreyData, current: GreyFit, name: str, options: Mapping | None = None,
@@ -223,7 +276,7 @@ def candidate_problems(data: GreyData, current: GreyFit, name: str, options: Map
     starts, lo, hi, sc = effect_starts(name, data, current)
     rows = np.arange(data.n_records)
     n_old = current.theta.size - current.spec.n_linear - 1
-    lower, upper, scale = _current_effect_bounds(
+    lower, upper, scale = effect_bounds(
         data, current, np.concatenate([np.full(n_old, -np.inf), lo]), np.concatenate([np.full(n_old, np.inf), hi]),
         np.concatenate([np.ones(n_old), sc]))
     if name in PROFILE_EFFECTS or name == "time_delay" or (name == "drift" and dict(options or {}).get(
@@ -237,7 +290,7 @@ def candidate_problems(data: GreyData, current: GreyFit, name: str, options: Map
         if name == "time_delay":
             theta[spec.n_linear] = current.theta[current.spec.n_linear]
         thetas.append(theta)
-    biases = [_forward_bias(data, current, spec, th) for th in thetas]
+    biases = [forward_bias(data, current, spec, th) for th in thetas]
     sims = simulate_sets(data, [(spec, np.concatenate([th, current.y0, b]), rows) for th, b in zip(thetas, biases)])
     costs = []
     for y in sims:
@@ -246,13 +299,18 @@ def candidate_problems(data: GreyData, current: GreyFit, name: str, options: Map
     order = np.argsort(costs)[:n_keep]
     problems = []
     for i in order:
-        problems.append(_problem(data, spec, thetas[i], current.y0.copy(), biases[i], rows, lower, upper, scale,
-                                 tag=tag))
+        problems.append(make_problem(data, spec, thetas[i], current.y0.copy(), biases[i], rows, lower, upper, scale,
+                                     tag=tag))
     return problems
 
 
-def _current_effect_bounds(data, current: GreyFit, lower, upper, scale):
-    """Bounds of the effects already in ``current`` (their data-based ranges)."""
+def effect_bounds(data: GreyData, current: GreyFit, lower: np.ndarray, upper: np.ndarray,
+                  scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bounds and scales of the effects already in ``current`` (their data-based ranges, :func:`effect_starts`).
+
+    ``lower``, ``upper`` and ``scale`` (one entry per effect parameter, the effects of
+    ``current`` first) are filled in place for those effects and returned.
+    """
     pos = 0
     for name, _ in current.spec.effects:
         _, lo, hi, sc = effect_starts(name, data, current, with_starts=False)
@@ -269,14 +327,14 @@ def refine_grid_parameters(data: GreyData, fit: GreyFit) -> GreyFit:
     rows = np.arange(data.n_records)
     theta = np.concatenate([fit.theta, fit.y0, fit.bias])
     y_true = simulate_sets(data, [(fit.spec, theta, rows)], true_output=True)[0]
-    j = fit.spec.n_linear + 1 + _effect_offset(fit.spec, "quantization")
+    j = fit.spec.n_linear + 1 + effect_offset(fit.spec, "quantization")
     span = float(np.ptp(data.y[data.mask]))
-    steps = _quantization_scan(data, fit, span, n_best=1, y_true=y_true)
+    steps = quantization_scan(data, fit, span, n_best=1, y_true=y_true)
     best = fit
     for q in steps + [fit.theta[j]]:
         th = fit.theta.copy()
         th[j] = q
-        problem = _problem(data, fit.spec, th, fit.y0, fit.bias, rows, free_global=False)
+        problem = make_problem(data, fit.spec, th, fit.y0, fit.bias, rows, free_global=False)
         fit_problems(data, [problem], max_iter=0)
         cand = GreyFit.from_problem(data, problem)
         if cand.rmse < best.rmse:
@@ -294,7 +352,7 @@ def fit_model(data: GreyData, effects: Sequence | Mapping | None = None, spec: M
     refitted together.
     """
     fit = base if base is not None else linear_fit(data, spec)
-    for name, given in _effect_items(effects):
+    for name, given in effect_items(effects):
         options = {k: v for k, v in given.items() if k not in dict(FITTED_PARAMETERS[name])}
         problems = candidate_problems(data, fit, name, options)
         if any(k in dict(FITTED_PARAMETERS[name]) for k in given):
@@ -309,7 +367,14 @@ def fit_model(data: GreyData, effects: Sequence | Mapping | None = None, spec: M
     return fit
 
 
-def _effect_items(effects) -> list[tuple[str, dict]]:
+def effect_items(effects) -> list[tuple[str, dict]]:
+    """``[(name, {parameter: value})]`` of effects given as names, a comma-separated string or ``{name: values}``.
+
+    Raises
+    ------
+    ValueError
+        An effect outside the catalogue :data:`gbo_envs.physics.EFFECT_NAMES`.
+    """
     if effects is None:
         return []
     if isinstance(effects, str):

@@ -1,7 +1,7 @@
 """Grey-box twin: the linear plant and physical effect parameters fitted together by simulation error.
 
 The model of a record is the open-loop replay of its commanded input ``u``
-(:func:`gbo_envs.physics.open_loop.simulate_open_loop`): a continuous-time
+(:func:`agents.twin.open_loop.simulate_open_loop`): a continuous-time
 transfer function ``B(s)/A(s) e^{-s tau}`` (the SRIVC structure of
 :mod:`agents.twin.srivc`) with effect blocks from the catalogue, and per
 record the rest level ``y0_k`` of the measured output and a constant
@@ -11,12 +11,13 @@ linear model it is SRIVC's rest input ``u0_k`` in disguise,
 
 .. math:: V(\\theta) = \\sum_k \\sum_t (y_k(t) - \\hat y_k(t; \\theta))^2
 
-by a bounded Levenberg-Marquardt iteration, started from the SRIVC fit of the
-linear part and data-based guesses of the effect parameters. Many problems
-(candidate models, starts, cross-validation folds) advance in lock-step, so
-that each iteration is one vectorised simulation of all of them; the Jacobian
-is a forward difference in which the per-record nuisance parameters are
-perturbed all at once (each only moves its own record).
+with ``scipy.optimize.least_squares`` (trust-region reflective, within bounds),
+started from the SRIVC fit of the linear part and data-based guesses of the
+effect parameters. The starts of many problems (candidate models, starts,
+cross-validation folds) are simulated in one vectorised pass; the Jacobian is
+a forward difference computed in one vectorised simulation, in which the
+per-record nuisance parameters are perturbed all at once (each only moves its
+own record).
 
 Parameters of effects whose simulation error is not differentiable (the
 quantization step) are not moved by the iteration; they are chosen from a
@@ -30,13 +31,16 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import least_squares
 
+from agents.twin.fidelity import rmse
+from agents.twin.open_loop import simulate_open_loop
 from agents.twin.records import as_records
 from gbo_envs.physics.effects import EFFECTS, build_effect
 from gbo_envs.physics.lti import ContinuousPlant
-from gbo_envs.physics.open_loop import simulate_open_loop
 
-__all__ = ["FITTED_PARAMETERS", "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "simulate_sets"]
+__all__ = ["FITTED_PARAMETERS", "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "residual",
+           "simulate_sets"]
 
 #: Effect parameters the grey-box fit estimates, and whether they are moved by the gradient
 #: iteration (``True``) or chosen on a grid (``False``). Other parameters keep their defaults.
@@ -225,9 +229,7 @@ class Problem:
     free: np.ndarray
     tag: object = None
     cost: float = np.inf
-    lam: float = 1e-3
     n_iter: int = 0
-    done: bool = False
     residual: np.ndarray | None = field(default=None, repr=False)
     y_sim: np.ndarray | None = field(default=None, repr=False)
 
@@ -268,9 +270,14 @@ def simulate_sets(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np
     out = [np.full((rows.size, data.u.shape[1]), np.nan) for _, _, rows in sets]
     if not owner:
         return out
-    with np.errstate(all="ignore"):
-        res = simulate_open_loop(plants, np.concatenate(u), data.dt, chains, y0=np.concatenate(y0),
-                                 bias=np.concatenate(bias), experiment_index=np.concatenate(index))
+    try:
+        with np.errstate(all="ignore"):
+            res = simulate_open_loop(plants, np.concatenate(u), data.dt, chains, y0=np.concatenate(y0),
+                                     bias=np.concatenate(bias), experiment_index=np.concatenate(index))
+    except (np.linalg.LinAlgError, ValueError):  # a plant that cannot be sampled (overflowing coefficients)
+        if len(sets) == 1:
+            return out
+        return [simulate_sets(data, [one], true_output=true_output)[0] for one in sets]
     owner = np.array(owner)
     y = res.y_true if true_output else res.y
     for s in set(owner.tolist()):
@@ -278,121 +285,120 @@ def simulate_sets(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np
     return out
 
 
-def _residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
+def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
+    """Simulation error ``y_sim - y`` of the records ``rows``, the residual :func:`fit_problems` minimises.
+
+    Padding samples give 0; a non-finite simulated value (a diverged model) gives a large finite
+    penalty, ``1e6 (1 + max |y|)``, so that the cost stays comparable.
+
+    Returns
+    -------
+    ndarray of shape (len(rows), n_steps)
+        In the units of ``y``.
+    """
     err = np.where(data.mask[rows], y_sim - data.y[rows], 0.0)
     return np.where(np.isfinite(err), err, 1e6 * (1.0 + np.abs(data.y[rows]).max()))
 
 
 def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7) -> list[Problem]:
-    """Advance bounded Levenberg-Marquardt on all problems in lock-step until each converges.
+    """Solve bounded least-squares problems of the simulation error with ``scipy.optimize.least_squares``.
 
-    Each iteration simulates, in one batch, the forward-difference sets of the
-    problems whose Jacobian is stale, then the trial points of all active
-    problems. The step solves ``(J^T J + lam diag(J^T J)) d = -J^T e`` in the
-    scaled parameters and is clipped to the bounds; ``lam`` falls by 3 on
-    success and grows by 4 on failure.
+    All problems are first simulated at their starts in one vectorised pass; each
+    problem with free parameters is then solved by the trust-region reflective
+    method (``method="trf"``) within its bounds, with the variables scaled by
+    ``scale``, stopping when an accepted step lowers the cost by less than the
+    fraction ``tol`` (``ftol``) or after ``max_iter`` trial points (``max_nfev =
+    max_iter + 1``). The Jacobian is a forward difference computed in one
+    vectorised simulation (:func:`simulate_sets`), with the per-record rest levels
+    (and biases) perturbed all at once, since each only moves its own record; for
+    a model with a quantized output it is taken on the plant output before the
+    sensor, which is smooth in the parameters. ``benchmarks/bench_greybox_solver.py``
+    compares it with the hand-written Levenberg-Marquardt iteration it replaced.
+
+    Parameters
+    ----------
+    data : GreyData
+    problems : list of Problem
+    max_iter : int, default 25
+        Trial points per problem after the start; 0 only simulates the starts.
+    tol : float, default 1e-7
+        Relative cost decrease that ends the iteration.
 
     Returns
     -------
     list of Problem
-        The same objects, with ``theta``, ``cost``, ``residual`` and ``y_sim`` set.
+        The same objects, with ``theta``, ``cost`` (sum of squared residuals, units of ``y`` squared),
+        ``residual``, ``y_sim`` and ``n_iter`` (simulations of trial points) set.
     """
     sims = simulate_sets(data, [(p.spec, p.theta, p.rows) for p in problems])
-    rough = [any(not smooth for name, _ in p.spec.effects for _, smooth in FITTED_PARAMETERS[name])
-             for p in problems]
-    base_true: dict[int, np.ndarray] = {}
     for p, y in zip(problems, sims):
-        p.y_sim, p.residual = y, _residual(data, p.rows, y)
+        p.y_sim, p.residual = y, residual(data, p.rows, y)
         p.cost = float(np.sum(p.residual**2))
-        p.done = not np.any(p.free)
-    jac: dict[int, np.ndarray] = {}
-    for _ in range(max_iter):
-        active = [p for p in problems if not p.done]
-        if not active:
-            break
-        # 1. Jacobians of the problems whose point moved
-        sets, layout = [], []
-        for i, p in enumerate(problems):
-            if p.done or i in jac:
-                continue
-            g = p.n_global
-            cols = [j for j in range(g) if p.free[j]]
-            steps = {}
-            for j in cols:
-                h = 1e-6 * max(abs(p.theta[j]), p.scale[j])
-                h = h if p.theta[j] + h <= p.upper[j] else -h
-                trial = p.theta.copy()
-                trial[j] += h
-                steps[j] = h
-                sets.append((p.spec, trial, p.rows))
-                layout.append((i, ("global", j, h)))
-            for block, start in (("y0", g), ("bias", g + p.rows.size)):
-                if not p.free[start]:
-                    continue
-                h = 1e-6 * max(float(np.max(np.abs(p.theta[start : start + p.rows.size]))), p.scale[start])
-                trial = p.theta.copy()
-                trial[start : start + p.rows.size] += h
-                sets.append((p.spec, trial, p.rows))
-                layout.append((i, (block, start, h)))
-        if sets:
-            sims = simulate_sets(data, sets)
-            need = sorted({i for i, _ in layout if rough[i]})
-            if need:  # quantized output: differentiate the plant output before the sensor instead
-                smooth = simulate_sets(data, sets, true_output=True)
-                sims = [smooth[n] if rough[i] else y for n, ((i, _), y) in enumerate(zip(layout, sims))]
-                base = simulate_sets(data, [(problems[i].spec, problems[i].theta, problems[i].rows) for i in need],
-                                     true_output=True)
-                base_true.update({i: _residual(data, problems[i].rows, y) for i, y in zip(need, base)})
-            columns: dict[int, np.ndarray] = {}
-            for (i, (kind, start, h)), y in zip(layout, sims):
-                p = problems[i]
-                mat = columns.setdefault(i, np.zeros((p.residual.size, p.theta.size)))
-                ref = base_true[i] if rough[i] else p.residual
-                diff = (_residual(data, p.rows, y) - ref) / h
-                if kind == "global":
-                    mat[:, start] = diff.ravel()
-                else:
-                    n = data.u.shape[1]
-                    for r in range(p.rows.size):
-                        mat[r * n : (r + 1) * n, start + r] = diff[r]
-            jac.update(columns)
-        # 2. trial steps
-        trials = []
-        for i, p in enumerate(problems):
-            if p.done:
-                continue
-            J = jac[i][:, p.free] * p.scale[p.free]
-            e = p.residual.ravel()
-            jtj = J.T @ J
-            grad = J.T @ e
-            diag = np.maximum(np.diag(jtj), 1e-12 * max(np.max(np.diag(jtj)), 1e-300))
-            try:
-                d = -np.linalg.solve(jtj + p.lam * np.diag(diag), grad)
-            except np.linalg.LinAlgError:
-                d = -np.linalg.lstsq(jtj + p.lam * np.diag(diag), grad, rcond=None)[0]
-            theta = p.theta.copy()
-            theta[p.free] = np.clip(p.theta[p.free] + d * p.scale[p.free], p.lower[p.free], p.upper[p.free])
-            trials.append((i, theta))
-        sims = simulate_sets(data, [(problems[i].spec, th, problems[i].rows) for i, th in trials])
-        for (i, theta), y in zip(trials, sims):
-            p = problems[i]
-            p.n_iter += 1
-            res = _residual(data, p.rows, y)
-            cost = float(np.sum(res**2))
-            if cost < p.cost:
-                gain = (p.cost - cost) / max(p.cost, 1e-300)
-                p.theta, p.cost, p.residual, p.y_sim = theta, cost, res, y
-                p.lam = max(p.lam / 3.0, 1e-9)
-                jac.pop(i, None)
-                if gain < tol:
-                    p.done = True
-            else:
-                p.lam *= 4.0
-                if p.lam > 1e8:
-                    p.done = True
-            if p.n_iter >= max_iter:
-                p.done = True
+    if max_iter > 0:
+        for p in problems:
+            if np.any(p.free & (p.lower < p.upper)):
+                _solve(data, p, int(max_iter), float(tol))
     return problems
+
+
+def _solve(data: GreyData, p: Problem, max_iter: int, tol: float) -> None:
+    """One :class:`Problem` by ``least_squares`` (trf) from its start; see :func:`fit_problems`."""
+    free = np.flatnonzero(p.free & (p.lower < p.upper))
+    g, k, n = p.n_global, p.rows.size, data.u.shape[1]
+    rough = any(not smooth for name, _ in p.spec.effects for _, smooth in FITTED_PARAMETERS[name])
+    start = p.theta.copy()
+    columns = [[j] for j in free[free < g]]  # one simulation per global parameter
+    columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
+    simulated: dict[bytes, np.ndarray] = {}
+
+    def full(x: np.ndarray) -> np.ndarray:
+        theta = start.copy()
+        theta[free] = x
+        return theta
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        y = simulate_sets(data, [(p.spec, full(x), p.rows)])[0]
+        simulated[x.tobytes()] = y
+        return residual(data, p.rows, y).ravel()
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        theta = full(x)
+        sets, steps = [], []
+        for cols in columns:
+            h = 1e-6 * max(float(np.max(np.abs(theta[cols]))), p.scale[cols[0]])
+            if len(cols) == 1 and theta[cols[0]] + h > p.upper[cols[0]]:
+                h = -h
+            trial = theta.copy()
+            trial[cols] += h
+            sets.append((p.spec, trial, p.rows))
+            steps.append(h)
+        if rough or x.tobytes() not in simulated:  # the smooth output at x itself
+            sets.append((p.spec, theta, p.rows))
+        ys = simulate_sets(data, sets, true_output=rough)
+        base = residual(data, p.rows, ys[-1] if len(ys) > len(columns) else simulated[x.tobytes()])
+        mat = np.zeros((base.size, theta.size))
+        for cols, h, y in zip(columns, steps, ys):
+            diff = (residual(data, p.rows, y) - base) / h
+            if len(cols) == 1:
+                mat[:, cols[0]] = diff.ravel()
+            else:
+                for j in cols:
+                    r = j - (g if j < g + k else g + k)
+                    mat[r * n : (r + 1) * n, j] = diff[r]
+        return mat[:, free]
+
+    scale = np.where(p.scale[free] > 0, p.scale[free], 1.0)
+    sol = least_squares(fun, np.clip(start[free], p.lower[free], p.upper[free]), jac=jac,
+                        bounds=(p.lower[free], p.upper[free]), x_scale=scale, method="trf", ftol=tol, xtol=1e-12,
+                        gtol=1e-12, max_nfev=max_iter + 1)
+    cost = float(np.sum(sol.fun**2))
+    p.n_iter += int(sol.nfev) - 1
+    if cost < p.cost:
+        p.theta = full(sol.x)
+        p.y_sim = simulated[sol.x.tobytes()] if sol.x.tobytes() in simulated else \
+            simulate_sets(data, [(p.spec, p.theta, p.rows)])[0]
+        p.residual = residual(data, p.rows, p.y_sim)
+        p.cost = float(np.sum(p.residual**2))
 
 
 @dataclass(frozen=True, eq=False)
@@ -429,10 +435,9 @@ class GreyFit:
     def from_problem(cls, data: GreyData, p: Problem) -> GreyFit:
         """Collect a solved :class:`Problem` (its records must be ``data``'s)."""
         g, k = p.n_global, p.rows.size
-        sq = np.where(data.mask[p.rows], (p.y_sim - data.y[p.rows]) ** 2, 0.0)
-        rmse = float(np.sqrt(np.sum(sq) / data.mask[p.rows].sum())) if np.all(np.isfinite(sq)) else np.inf
         return cls(p.spec, p.theta[:g].copy(), p.spec.plant(p.theta[:g]), p.spec.blocks(p.theta[:g]),
-                   p.theta[g : g + k].copy(), p.theta[g + k :].copy(), p.y_sim, rmse)
+                   p.theta[g : g + k].copy(), p.theta[g + k :].copy(), p.y_sim,
+                   rmse(data.y[p.rows] - p.y_sim, mask=data.mask[p.rows]))
 
     @property
     def effect_params(self) -> dict[str, dict]:

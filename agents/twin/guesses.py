@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from agents.twin.greybox import GreyData, GreyFit
-from agents.twin.noise import quantization_step
+from agents.twin.noise_floor import quantization_step
 from gbo_envs.physics.effects import EFFECT_NAMES
 
-__all__ = ["data_scales", "effect_starts"]
+__all__ = ["data_scales", "effect_starts", "quantization_scan", "rest_command"]
 
 
 def data_scales(data: GreyData, output: str = "speed") -> dict[str, float]:
@@ -38,7 +38,7 @@ def effect_starts(name: str, data: GreyData, base: GreyFit, with_starts: bool = 
     """
     sc = data_scales(data, base.spec.output)
     u_max, us, speed, horizon, dt = sc["u_max"], sc["u_scale"], sc["speed"], sc["horizon"], data.dt
-    rest = float(np.max(np.abs(_rest_command(base))))
+    rest = float(np.max(np.abs(rest_command(base))))
     fractions = np.array([0.005, 0.015, 0.05, 0.15, 0.4])
     if name == "time_delay":
         top = max(min(0.25 * horizon, 60 * dt), 2 * dt)
@@ -64,7 +64,7 @@ def effect_starts(name: str, data: GreyData, base: GreyFit, with_starts: bool = 
         return starts, np.array([0.0, 0.0]), np.array([us, 0.2 * speed]), np.array([us, 0.05 * speed])
     if name == "quantization":
         q, _ = quantization_step(data.y, data.mask)
-        grid = _quantization_scan(data, base, sc["y_span"]) if with_starts else []
+        grid = quantization_scan(data, base, sc["y_span"]) if with_starts else []
         if q is not None:
             grid = [q] + grid
         grid = grid or [0.01 * sc["y_span"]]
@@ -88,7 +88,7 @@ def effect_starts(name: str, data: GreyData, base: GreyFit, with_starts: bool = 
     raise ValueError(f"unknown effect {name!r}; the catalogue is {EFFECT_NAMES}")
 
 
-def _quantization_scan(data: GreyData, base: GreyFit, span: float, n_best: int = 3,
+def quantization_scan(data: GreyData, base: GreyFit, span: float, n_best: int = 3,
                        y_true: np.ndarray | None = None) -> list[float]:
     """Quantization steps ``q`` that make ``Q_q(y_true)`` of the base model match ``y``, best first.
 
@@ -127,8 +127,17 @@ def _quantization_scan(data: GreyData, base: GreyFit, span: float, n_best: int =
     return [q for _, q in sorted(found)]
 
 
-def _rest_command(fit: GreyFit) -> np.ndarray:
-    """Plant input that holds each record at rest (before the actuator blocks), shape (n_records,)."""
+def rest_command(fit: GreyFit) -> np.ndarray:
+    """Plant input that holds each record at rest, before the actuator blocks.
+
+    The equilibrium input of ``fit.plant`` at each record's rest level ``fit.y0``
+    minus the record's plant-input bias ``fit.bias``.
+
+    Returns
+    -------
+    ndarray of shape (n_records,)
+        In the units of the command ``u``.
+    """
     d = fit.plant.discretize(1.0)
     return d.equilibrium(fit.y0)[1] - fit.bias
 

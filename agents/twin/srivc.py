@@ -71,7 +71,7 @@ from scipy.signal import lfilter
 
 from gbo_envs import ContinuousPlant
 
-__all__ = ["Orders", "Signals", "SrivcResult", "prepare", "lssvf", "srivc", "simulate"]
+__all__ = ["Orders", "Signals", "SrivcResult", "lssvf", "prepare", "simulate", "srivc", "stabilised"]
 
 
 @dataclass(frozen=True)
@@ -252,8 +252,21 @@ def _equations(orders: Orders, batches: list[Signals], den: np.ndarray, delay: f
     return gram, rhs
 
 
-def _stabilised(orders: Orders, theta: np.ndarray) -> np.ndarray:
-    """Mirror unstable roots of the free part of ``A`` into the left half plane."""
+def stabilised(orders: Orders, theta: np.ndarray) -> np.ndarray:
+    """Mirror unstable roots of the free part of ``A`` into the left half plane.
+
+    Parameters
+    ----------
+    orders : Orders
+    theta : ndarray of shape (orders.n_params,)
+        ``[a_1 .. a_{n-k}, b_0 .. b_m]``.
+
+    Returns
+    -------
+    ndarray of shape (orders.n_params,)
+        ``theta`` itself when ``A`` is already stable, else a copy whose ``A`` has the
+        roots with ``Re >= 0`` mirrored to ``-|Re| - 1e-9``.
+    """
     free = np.concatenate([[1.0], theta[: orders.n - orders.k]])
     if free.size == 1:
         return theta
@@ -274,16 +287,16 @@ def lssvf(orders: Orders, batches: list[Signals], delay: float, bandwidth: float
     """
     den = np.real(np.poly(np.full(orders.n, -float(bandwidth))))
     gram, rhs = _equations(orders, batches, den, delay, None, offset, free_offsets=True)
-    return _stabilised(orders, _solve(gram, rhs))
+    return stabilised(orders, _solve(gram, rhs))
 
 
 def srivc(orders: Orders, batches: list[Signals], delay: float, theta0: np.ndarray, max_iter: int = 50,
           tol: float = 1e-8, offset: bool = True) -> SrivcResult:
     """Iterate (S1)-(S4) from ``theta0`` at a fixed input delay ``delay`` (s)."""
-    theta = _stabilised(orders, np.asarray(theta0, dtype=float))
+    theta = stabilised(orders, np.asarray(theta0, dtype=float))
     for it in range(1, max_iter + 1):
         gram, rhs = _equations(orders, batches, orders.den(theta), delay, theta, offset)
-        new = _stabilised(orders, _solve(gram, rhs))
+        new = stabilised(orders, _solve(gram, rhs))
         change = np.linalg.norm(new - theta) / max(np.linalg.norm(new), 1e-300)
         theta = new
         if not np.all(np.isfinite(theta)):

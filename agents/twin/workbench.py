@@ -6,12 +6,12 @@
 * :func:`compare`: fit % (NRMSE as MATLAB's ``compare``) and RMSE per experiment and overall
   (:mod:`agents.twin.compare`);
 * :func:`residuals`: whiteness, input cross-correlation and where the model fails (:mod:`agents.twin.residuals`);
-* :func:`noise_floor`: the measurement's noise or quantization floor (:mod:`agents.twin.noise`);
+* :func:`noise_floor`: the measurement's noise or quantization floor (:mod:`agents.twin.noise_floor`);
 * :func:`diagnose`: every catalogued effect tried as an addition, ranked on held-out experiments;
 * :func:`error_ladder`: add the best effect, diagnose again, until nothing helps
   (:mod:`agents.twin.diagnose`, with the evidence of :mod:`agents.twin.evidence`);
-* :func:`fit_twin_effects` and friends: the :class:`~agents.twin.TwinEstimator` with effects
-  (:mod:`agents.twin.effect_estimator`).
+* :class:`GreyBoxTwin`: the grey-box fit as a scikit-learn estimator (:mod:`agents.twin.greybox_twin`),
+  and :class:`LinearTwin`, the paper's linear twin by SRIVC (:mod:`agents.twin.linear_twin`).
 
 This module gathers their public functions in one place.
 
@@ -26,15 +26,15 @@ from __future__ import annotations
 
 from agents.twin.compare import CompareResult, compare
 from agents.twin.diagnose import Diagnosis, diagnose, error_ladder, heldout_rss
-from agents.twin.effect_estimator import fit_twin_effects, predict_twin_effects, rmse_twin_effects
 from agents.twin.evidence import SEPARATING_EXPERIMENTS, separating_experiment
 from agents.twin.fitting import PROFILE_EFFECTS, candidate_problems, fit_model, linear_fit, refine_grid_parameters
+from agents.twin.greybox_twin import GreyBoxTwin
 from agents.twin.guesses import data_scales, effect_starts
-from agents.twin.noise import noise_floor, quantization_step
+from agents.twin.linear_twin import LinearTwin
+from agents.twin.noise_floor import noise_floor, quantization_step
 from agents.twin.residuals import ResidualAnalysis, residuals
 
-__all__ = ["CompareResult", "Diagnosis", "ResidualAnalysis", "SEPARATING_EXPERIMENTS", "compare", "data_scales",
-           "diagnose", "effect_starts", "error_ladder", "fit_model", "heldout_rss", "linear_fit", "noise_floor",
-           "fit_twin_effects", "predict_twin_effects", "quantization_step", "residuals", "rmse_twin_effects",
-           "separating_experiment"]
+__all__ = ["CompareResult", "Diagnosis", "GreyBoxTwin", "LinearTwin", "ResidualAnalysis", "SEPARATING_EXPERIMENTS",
+           "compare", "data_scales", "diagnose", "effect_starts", "error_ladder", "fit_model", "heldout_rss",
+           "linear_fit", "noise_floor", "quantization_step", "residuals", "separating_experiment"]
 __all__ += ["PROFILE_EFFECTS", "candidate_problems", "refine_grid_parameters"]

@@ -8,7 +8,7 @@ import pytest
 from sklearn.base import clone
 from sklearn.exceptions import NotFittedError
 
-from agents.twin import TwinEnv, TwinEstimator, make_twin_env
+from agents.twin import LinearTwin, TwinEnv, make_twin_env
 from gbo_envs import ClosedLoop, ContinuousPlant, ControllerTuningEnv, PDT1Controller
 from tests.support import DC_MOTOR_PARAMS, gain_grid
 
@@ -26,7 +26,7 @@ def _records(n: int, seed: int = 0, **kwargs) -> tuple[gym.Env, list[dict]]:
 @pytest.fixture(scope="module")
 def clean():
     env, records = _records(3, noise=False)
-    return env, records, TwinEstimator().fit(records)
+    return env, records, LinearTwin().fit(records)
 
 
 def test_recovers_dc_motor_parameters_on_noise_free_data(clean):
@@ -44,7 +44,7 @@ def test_recovers_dc_motor_parameters_on_noise_free_data(clean):
 
 def test_single_experiment_is_enough_without_noise():
     _, records = _records(1, seed=3, noise=False)
-    twin = TwinEstimator().fit(records[0])  # a single record mapping is accepted
+    twin = LinearTwin().fit(records[0])  # a single record mapping is accepted
     np.testing.assert_allclose(twin.params_, TRUE, rtol=1e-2)
 
 
@@ -75,14 +75,14 @@ def test_twin_env_steps_like_the_plant_env(clean):
 
 def test_delay_is_recovered_within_one_sample():
     _, records = _records(2, seed=1, noise=False, delay=0.007)
-    twin = TwinEstimator().fit(records)
+    twin = LinearTwin().fit(records)
     assert abs(twin.delay_ - 0.007) < 0.002
     np.testing.assert_allclose(twin.params_, TRUE, rtol=1e-2)
 
 
 def test_fixed_delay_and_decimated_records(clean):
     _, records, _ = clean
-    twin = TwinEstimator(delay=0.002, n_samples=100).fit(records)
+    twin = LinearTwin(delay=0.002, n_samples=100).fit(records)
     assert twin.delay_ == 0.002 and twin.n_samples_ == 100
     assert twin.dt_ == pytest.approx(0.05)
     np.testing.assert_allclose(twin.params_, TRUE, rtol=1e-2)
@@ -91,7 +91,7 @@ def test_fixed_delay_and_decimated_records(clean):
 
 def test_sensor_noise_gives_noise_floor_rmse():
     _, records = _records(5, seed=2, output_noise_std=0.5)
-    twin = TwinEstimator(max_delay=0.01).fit(records)
+    twin = LinearTwin(max_delay=0.01).fit(records)
     np.testing.assert_allclose(twin.params_, TRUE, rtol=0.03)
     assert twin.rmse_ == pytest.approx(0.5 / 61.0, rel=0.1)  # white noise of 0.5 rad/s on a 61 rad/s step
     assert twin.rmse_abs_ == pytest.approx(0.5, rel=0.1)
@@ -105,7 +105,7 @@ def test_position_loop_with_integrator():
                               reference_gains=np.linspace(low, high, 5))
     env.reset(seed=0)
     records = [env.step(g)[4] for g in np.linspace(low, high, 2)]
-    twin = TwinEstimator(n_integrators=1, output="position", max_delay=0.005).fit(records)
+    twin = LinearTwin(n_integrators=1, output="position", max_delay=0.005).fit(records)
     np.testing.assert_allclose(twin.params_, (0.44262 / 0.070983, 15.0), rtol=1e-3)
     assert twin.den_[-1] == 0.0 and twin.delay_ == pytest.approx(0.001, abs=1e-4)
     twin_env = TwinEnv(env, twin)
@@ -116,41 +116,41 @@ def test_position_loop_with_integrator():
 
 def test_warm_start_refit_and_polish_safeguard(clean):
     _, records, reference = clean
-    est = TwinEstimator(warm_start=True).fit(records[:1])
+    est = LinearTwin(warm_start=True).fit(records[:1])
     assert est.fit(records) is est and est.n_records_ == 3
     np.testing.assert_allclose(est.params_, TRUE, rtol=1e-3)
     _, noisy = _records(2, seed=4, output_noise_std=0.5)
-    plain = TwinEstimator(max_delay=0.006).fit(noisy)
-    polished = TwinEstimator(max_delay=0.006, polish=True).fit(noisy)
+    plain = LinearTwin(max_delay=0.006).fit(noisy)
+    polished = LinearTwin(max_delay=0.006, polish=True).fit(noisy)
     assert polished.rmse_ <= plain.rmse_
 
 
 # -- scikit-learn conventions -----------------------------------------------------------------------
 def test_sklearn_conventions(clean):
     _, records, _ = clean
-    est = TwinEstimator(n_poles=2, max_delay=0.004)
+    est = LinearTwin(n_poles=2, max_delay=0.004)
     assert est.get_params()["n_poles"] == 2 and est.get_params()["max_delay"] == 0.004
     assert not hasattr(est, "params_")
     with pytest.raises(NotFittedError):
         est.predict(records)
     with pytest.raises(NotFittedError):
-        est.rmse(records)
+        est.score(records)
     assert est.fit(records) is est
     assert clone(est).get_params() == est.get_params() and not hasattr(clone(est), "plant_")
     assert est.set_params(n_zeros=1) is est and est.n_zeros == 1
     with pytest.raises(ValueError, match="not fitted"):
-        TwinEnv(gym.make("gbo_envs/DCMotor-v0"), TwinEstimator())
+        TwinEnv(gym.make("gbo_envs/DCMotor-v0"), LinearTwin())
 
 
 def test_fit_accepts_arrays_and_dataframes(clean):
     _, records, twin = clean
     arrays = [np.column_stack([rec["t"], rec["r"], rec["u"], rec["y"]]) for rec in records]
-    np.testing.assert_allclose(TwinEstimator(delay=0.002).fit(arrays).params_, twin.params_, rtol=1e-6)
+    np.testing.assert_allclose(LinearTwin(delay=0.002).fit(arrays).params_, twin.params_, rtol=1e-6)
     pd = pytest.importorskip("pandas")
     frame = pd.concat([pd.DataFrame({"experiment": i, "t": r["t"], "r": r["r"], "u": r["u"], "y": r["y"]})
                        for i, r in enumerate(records)])
-    np.testing.assert_allclose(TwinEstimator(delay=0.002).fit(frame).params_, twin.params_, rtol=1e-6)
-    assert TwinEstimator(delay=0.002).fit(frame).rmse(records) < 1e-6
+    np.testing.assert_allclose(LinearTwin(delay=0.002).fit(frame).params_, twin.params_, rtol=1e-6)
+    assert -1e-6 < LinearTwin(delay=0.002).fit(frame).score(records) <= 0.0
 
 
 # -- bad input --------------------------------------------------------------------------------------
@@ -172,16 +172,16 @@ def test_bad_records_raise_clear_value_errors(clean, mutate, message):
     rec = _one(clean)
     mutate(rec)
     with pytest.raises(ValueError, match=message):
-        TwinEstimator(delay=0.002).fit([rec])
+        LinearTwin(delay=0.002).fit([rec])
 
 
 def test_empty_and_malformed_input_raise(clean):
     with pytest.raises(ValueError, match="at least one"):
-        TwinEstimator().fit([])
+        LinearTwin().fit([])
     with pytest.raises(ValueError, match="shape"):
-        TwinEstimator().fit([np.zeros((10, 3))])
+        LinearTwin().fit([np.zeros((10, 3))])
     with pytest.raises(ValueError, match="n_zeros"):
-        TwinEstimator(n_zeros=2).fit(clean[1])
+        LinearTwin(n_zeros=2).fit(clean[1])
     with pytest.raises(ValueError, match="hold"):
-        TwinEstimator(hold="spline").fit(clean[1])
+        LinearTwin(hold="spline").fit(clean[1])
 

@@ -17,9 +17,9 @@ import pytest
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.greybox import GreyData
+from agents.twin.open_loop import simulate_open_loop
 from agents.twin.workbench import compare, diagnose, fit_model, noise_floor, quantization_step, residuals
 from gbo_envs.physics import build_effects
-from gbo_envs.physics.open_loop import simulate_open_loop
 from tests.support import loop_records
 
 NOISE = 0.1  # rad/s

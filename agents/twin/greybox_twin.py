@@ -1,0 +1,271 @@
+"""The grey-box digital twin as a scikit-learn estimator: linear part plus catalogue effects, by simulation error."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from numbers import Integral
+
+import numpy as np
+from sklearn.base import BaseEstimator
+from sklearn.utils._param_validation import Interval, StrOptions
+from sklearn.utils.validation import check_is_fitted
+
+from agents.thread_limits import single_thread
+from agents.twin.fidelity import rmse
+from agents.twin.fitting import (
+    effect_bounds,
+    effect_items,
+    fit_model,
+    forward_bias,
+    linear_fit,
+    make_problem,
+    profile,
+    refine_grid_parameters,
+)
+from agents.twin.greybox import FITTED_PARAMETERS, GreyData, GreyFit, ModelSpec, fit_problems
+from agents.twin.guesses import rest_command
+from agents.twin.identify import LINEAR_CONSTRAINTS, check_orders
+from agents.twin.records import as_records, decimate
+from gbo_envs.physics.effects import build_effect
+
+__all__ = ["GreyBoxTwin"]
+
+#: Trial points at most of the least-squares refit from complete given effect values.
+GIVEN_VALUES_MAX_ITER = 20
+
+
+class GreyBoxTwin(BaseEstimator):
+    r"""A linear transfer function with delay plus physical effects, all fitted by simulation error.
+
+    The model of a record is the open-loop replay of its command ``u``
+    (:mod:`agents.twin.greybox`): ``B(s)/A(s) e^{-s tau}`` with ``A`` monic of degree
+    ``n_poles`` and an input delay of at most one sample (a longer dead time is the
+    ``time_delay`` effect), the catalogue's effect blocks, and per record a rest level
+    and a plant-input bias. ``fit`` starts from the SRIVC fit of the linear part
+    (:func:`agents.twin.fitting.linear_fit`), adds the effects one at a time from
+    data-based starts and refits all parameters (:func:`agents.twin.fitting.fit_model`).
+
+    Parameters
+    ----------
+    effects : list of str, str or dict, default ()
+        Physical effects from the catalogue (:data:`gbo_envs.physics.EFFECT_NAMES`):
+        names, a comma-separated string, or ``{name: {parameter: value}}`` with
+        initial values. When every fitted parameter of every effect is given, the
+        linear part is profiled at those values and everything refitted from there
+        (at most ``min(max_iter, 20)`` iterations); missing values are found from the
+        data. ``()`` fits the linear model alone by simulation error.
+    n_poles : int, default 2
+        Degree ``n`` of ``A(s)``, >= 1.
+    n_zeros : int, default 0
+        Degree of ``B(s)``, ``0 <= n_zeros < n_poles``.
+    n_integrators : int, default 0
+        Known poles at ``s = 0``, ``0 <= n_integrators < n_poles``.
+    output : {"speed", "position"}, default "speed"
+        What ``y`` measures (friction acts on ``y`` or on ``dy/dt``).
+    n_samples : int, optional
+        Keep this many uniformly spaced samples per record (>= 2); default the whole record.
+    max_iter : int, default 25
+        Trial points of each least-squares fit of the effects (:func:`agents.twin.greybox.fit_problems`), >= 0.
+
+    Attributes
+    ----------
+    plant_ : gbo_envs.ContinuousPlant
+        Linear part with its delay (without the ``time_delay`` effect).
+    effects_ : tuple of EffectBlock
+        Fitted effect blocks, in the order the twin's loop applies them
+        (:class:`agents.twin.TwinEnv`); after an actuator effect, an ``offset`` block with
+        the median plant-input bias and a saturation limit raised to hold every rest level.
+    effect_params_ : dict
+        ``{effect: {parameter: value}}``.
+    greybox_ : GreyFit
+        The grey-box fit (parameters, rest levels, biases, simulated outputs).
+    num_, den_, params_, param_names_, delay_
+        Linear part as in :class:`agents.twin.LinearTwin`.
+    rmse_ : float
+        Eq. (RMSE) on the fitted data, normalised by each record's step height ``|r2 - y0|``.
+    rmse_abs_ : float
+        The same in the units of ``y``.
+    rest_levels_ : ndarray of shape (n_records, 2)
+        Rest level of ``y`` and rest command of each record.
+    n_records_, n_samples_ : int
+        Records fitted and samples of the longest.
+    dt_ : float
+        Sample time in s.
+
+    Examples
+    --------
+    >>> import gymnasium as gym, numpy as np, gbo_envs
+    >>> env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 150.0}}, output_noise_std=0.05)
+    >>> _ = env.reset(seed=2)
+    >>> rng = np.random.default_rng(2)
+    >>> records = [env.step(rng.uniform(env.action_space.low, env.action_space.high))[4] for _ in range(2)]
+    >>> twin = GreyBoxTwin(effects=["saturation"]).fit(records)
+    >>> bool(abs(twin.effect_params_["saturation"]["limit"] - 150.0) < 3.0)
+    True
+    """
+
+    _parameter_constraints: dict = {
+        "effects": [list, tuple, dict, str],
+        "n_poles": LINEAR_CONSTRAINTS["n_poles"],
+        "n_zeros": LINEAR_CONSTRAINTS["n_zeros"],
+        "n_integrators": LINEAR_CONSTRAINTS["n_integrators"],
+        "output": [StrOptions({"speed", "position"})],
+        "n_samples": LINEAR_CONSTRAINTS["n_samples"],
+        "max_iter": [Interval(Integral, 0, None, closed="left")],
+    }
+
+    def __init__(self, effects=(), *, n_poles: int = 2, n_zeros: int = 0, n_integrators: int = 0,
+                 output: str = "speed", n_samples: int | None = None, max_iter: int = 25) -> None:
+        self.effects = effects
+        self.n_poles = n_poles
+        self.n_zeros = n_zeros
+        self.n_integrators = n_integrators
+        self.output = output
+        self.n_samples = n_samples
+        self.max_iter = max_iter
+
+    @single_thread()
+    def fit(self, records, y=None) -> GreyBoxTwin:
+        """Fit the linear part and the effect parameters to closed-loop records.
+
+        Parameters
+        ----------
+        records : GreyData, mapping, sequence of mappings or of arrays (n_steps, 4), or DataFrame
+            Experiment records with ``t, r, u, y`` (see :func:`agents.twin.records.as_records`),
+            or already stacked :class:`agents.twin.greybox.GreyData`.
+        y : None
+            Ignored (scikit-learn signature).
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        ValueError
+            A parameter outside its allowed range (named), an effect outside the catalogue, or bad records.
+        """
+        self._validate_params()
+        orders = check_orders(self.n_poles, self.n_zeros, self.n_integrators)
+        data = self._data(records)
+        spec = ModelSpec(orders.n, orders.m, orders.k, self.output)
+        items = effect_items(self.effects)
+        base = linear_fit(data, spec)
+        complete = all(all(p in given for p, _ in FITTED_PARAMETERS[name]) for name, given in items)
+        if complete and items:
+            fit = self._fit_from_given_values(data, spec, items, base)
+        else:
+            fit = fit_model(data, self.effects, base=base, max_iter=self.max_iter)
+        self._store(data, fit)
+        return self
+
+    @single_thread()
+    def predict(self, records) -> list[np.ndarray]:
+        """Simulated outputs of the fitted model, with only each record's rest level and bias fitted.
+
+        Returns
+        -------
+        list of ndarray of shape (n_steps,)
+            In the units of ``y``.
+        """
+        data, fit = self._refit_rest(records)
+        return [fit.y_sim[k][data.mask[k]] for k in range(data.n_records)]
+
+    @single_thread()
+    def score(self, records, y=None) -> float:
+        """Negative eq. (RMSE) of the fitted model on ``records``, normalised by each record's step height.
+
+        Higher is better (scikit-learn's convention, as its ``neg_root_mean_squared_error``):
+        0 is a perfect replay, ``-0.01`` an RMS error of 1 % of the step height. Only the
+        records' rest levels and biases are fitted.
+
+        Returns
+        -------
+        float
+            Dimensionless, ``<= 0``.
+        """
+        data, fit = self._refit_rest(records)
+        return -_normalised_rmse(data, fit)
+
+    def __sklearn_is_fitted__(self) -> bool:
+        return hasattr(self, "plant_")
+
+    def _data(self, records) -> GreyData:
+        """The records stacked (decimated to ``n_samples``; their ``experiment_index`` kept)."""
+        if isinstance(records, GreyData):
+            if self.n_samples is not None:
+                raise ValueError("n_samples: must be None when the records are given as GreyData (already stacked)")
+            return records
+        kept = [decimate(rec, self.n_samples) for rec in as_records(records, min_steps=3)]
+        items = records if isinstance(records, (list, tuple)) else None
+        index = None
+        if items and all(isinstance(it, Mapping) and it.get("experiment_index") is not None for it in items):
+            index = [int(it["experiment_index"]) for it in items]
+        return GreyData.from_records([{"t": r.t, "r": r.r, "u": r.u, "y": r.y} for r in kept],
+                                     experiment_index=index)
+
+    def _fit_from_given_values(self, data: GreyData, spec: ModelSpec, items, base: GreyFit) -> GreyFit:
+        """All effect values given: the linear part profiled at them, then everything refitted from there."""
+        for name, given in items:
+            options = {k: v for k, v in given.items() if k not in dict(FITTED_PARAMETERS[name])}
+            spec = spec.with_effect(name, options)
+        values = [float(given[p]) for name, given in items for p, _ in FITTED_PARAMETERS[name]]
+        theta = np.concatenate([base.theta, values])
+        cost, theta_p, y0, bias = profile(data, spec, theta)  # linear part consistent with the effects
+        if np.isfinite(cost):
+            theta = theta_p
+        else:
+            y0, bias = base.y0, forward_bias(data, base, spec, theta)
+        n_eff = theta.size - spec.n_linear - 1
+        start = GreyFit(spec, theta, spec.plant(theta), spec.blocks(theta), y0, bias, base.y_sim, base.rmse)
+        lower, upper, scale = effect_bounds(data, start, np.zeros(n_eff), np.zeros(n_eff), np.zeros(n_eff))
+        problem = make_problem(data, spec, theta, y0, bias, np.arange(data.n_records), lower, upper, scale)
+        fit_problems(data, [problem], max_iter=min(int(self.max_iter), GIVEN_VALUES_MAX_ITER))
+        return refine_grid_parameters(data, GreyFit.from_problem(data, problem))
+
+    def _store(self, data: GreyData, fit: GreyFit) -> None:
+        spec = fit.spec
+        nl = spec.n_linear
+        nb = spec.n_zeros + 1
+        self.greybox_ = fit
+        self.num_ = np.asarray(fit.theta[:nb], dtype=float)
+        self.den_ = np.concatenate([[1.0], fit.theta[nb:nl], np.zeros(spec.n_integrators)])
+        self.params_ = np.asarray(fit.theta[:nl], dtype=float)
+        self.param_names_ = tuple(spec.global_names()[:nl])
+        self.delay_ = float(fit.theta[nl])
+        self.plant_ = fit.plant
+        blocks = fit.blocks
+        if any(b.side == "actuator" for b in blocks):  # the plant-input bias matters after a nonlinearity
+            blocks = blocks + (build_effect("offset", {"value": float(np.median(fit.bias))}),)
+            # the twin's loop must be able to hold the rest levels of the data: a limit below the largest
+            # fitted rest command (a poorly determined rest on few or short records) is raised to it
+            need = 1.02 * float(np.max(np.abs(rest_command(fit))))
+            blocks = tuple(build_effect("saturation", {"limit": need}) if b.name == "saturation" and b.limit < need
+                           else b for b in blocks)
+        self.effects_ = blocks
+        self.effect_params_ = fit.effect_params
+        self.rmse_abs_ = float(fit.rmse)
+        self.rmse_ = _normalised_rmse(data, fit)
+        self.rest_levels_ = np.column_stack([fit.y0, rest_command(fit)])
+        self.n_records_ = data.n_records
+        self.n_samples_ = int(data.u.shape[1])
+        self.dt_ = float(data.dt)
+
+    def _refit_rest(self, records) -> tuple[GreyData, GreyFit]:
+        """The fitted model on new records: only their rest levels and biases are fitted."""
+        check_is_fitted(self)
+        data = self._data(records)
+        fit = self.greybox_
+        rows = np.arange(data.n_records)
+        y0 = data.y[:, 0].copy()
+        v_rest = fit.plant.discretize(data.dt).equilibrium(y0)[1]
+        bias = v_rest - data.u[:, 0]
+        problem = make_problem(data, fit.spec, fit.theta, y0, bias, rows, free_global=False)
+        fit_problems(data, [problem], max_iter=10)
+        return data, GreyFit.from_problem(data, problem)
+
+
+def _normalised_rmse(data: GreyData, fit: GreyFit) -> float:
+    """Eq. (RMSE) of ``fit`` on ``data`` normalised by each record's step height ``|r2 - y0|``."""
+    height = np.abs(data.r[np.arange(data.n_records), data.mask.sum(axis=1) - 1] - fit.y0)
+    return rmse(data.y - fit.y_sim, mask=data.mask, height=height)

@@ -1,0 +1,153 @@
+"""Twin estimators: identify_linear, LinearTwin and GreyBoxTwin conventions, the one RMSE, and the grey-box solver
+against a plain ``scipy.optimize.least_squares`` call."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+from sklearn.base import clone
+from sklearn.exceptions import NotFittedError
+
+import gbo_envs  # noqa: F401  (registers the envs)
+from agents.twin import GreyBoxTwin, LinearTwin, TwinEnv, identify_linear
+from agents.twin.csvio import records_from_loop
+from agents.twin.fidelity import rmse
+from agents.twin.fitting import linear_fit, make_problem
+from agents.twin.greybox import GreyData, ModelSpec, fit_problems, residual, simulate_sets
+
+TRUE = np.array([9.544, 4.145, 4.199])
+
+
+@pytest.fixture(scope="module")
+def clean_records():
+    env = gym.make("gbo_envs/DCMotor-v0", noise=False)
+    env.reset(seed=0)
+    return [env.step(np.array(g))[4] for g in ([0.5, 1.2], [0.9, 2.0])]
+
+
+@pytest.fixture(scope="module")
+def saturating():
+    """Records of a DC motor whose command saturates at 150 V, and a grey-box twin fitted on two of them."""
+    env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 150.0}}, output_noise_std=0.05)
+    env.reset(seed=2)
+    rng = np.random.default_rng(2)
+    records = [env.step(rng.uniform(env.action_space.low, env.action_space.high))[4] for _ in range(3)]
+    return env, records, GreyBoxTwin(effects=["saturation"]).fit(records[:2])
+
+
+def test_identify_linear_is_what_linear_twin_fits(clean_records):
+    fit = identify_linear(clean_records, max_delay=0.006)
+    twin = LinearTwin(max_delay=0.006).fit(clean_records)
+    np.testing.assert_allclose(fit.params, TRUE, rtol=1e-3)
+    np.testing.assert_array_equal(twin.params_, fit.params)
+    assert twin.delay_ == fit.delay and twin.rmse_ == fit.rmse and fit.param_names == ("b0", "a1", "a2")
+    assert twin.plant_.output == "speed" and fit.plant("position").output == "position"
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"n_poles": 0}, r"'n_poles' parameter .* range \[1, inf\)"),
+    ({"tol": 0.0}, r"'tol' parameter .* range \(0.0, inf\)"),
+    ({"hold": "spline"}, r"'hold' parameter .* \{.*'foh'.*\}"),
+    ({"delay": -0.001}, r"'delay' parameter .* range \[0.0, inf\)"),
+    ({"delay": np.inf}, r"'delay' parameter .* range \[0.0, inf\)\. Got inf"),
+    ({"n_zeros": 2}, r"n_zeros: must be an integer with 0 <= n_zeros < n_poles = 2"),
+    ({"n_integrators": 2}, r"n_integrators: must be an integer with 0 <= n_integrators < n_poles = 2"),
+])
+def test_bad_settings_name_the_parameter_and_its_range(clean_records, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        LinearTwin(**kwargs).fit(clean_records)
+    with pytest.raises(ValueError, match=message):
+        identify_linear(clean_records, **kwargs)
+
+
+def test_linear_twin_rejects_a_bad_output(clean_records):
+    with pytest.raises(ValueError, match=r"'output' parameter of LinearTwin"):
+        LinearTwin(output="torque").fit(clean_records)
+
+
+def test_score_is_the_negative_normalised_rmse(clean_records):
+    env = gym.make("gbo_envs/DCMotor-v0", output_noise_std=0.5)
+    env.reset(seed=3)
+    noisy = [env.step(np.array(g))[4] for g in ([0.5, 1.2], [0.9, 2.0], [0.7, 1.0])]
+    twin = LinearTwin(max_delay=0.006).fit(noisy[:2])
+    assert twin.score(noisy[:2]) == pytest.approx(-twin.rmse_, rel=1e-12)
+    held_out = twin.score(noisy[2:])
+    assert -0.02 < held_out < -0.004  # white noise of 0.5 rad/s on a step of about 61 rad/s
+    assert twin.score(clean_records) > held_out  # noise-free records replay better
+
+
+def test_greybox_twin_finds_the_saturation_limit(saturating):
+    env, records, twin = saturating
+    assert twin.effect_params_["saturation"]["limit"] == pytest.approx(150.0, rel=0.02)
+    np.testing.assert_allclose(twin.params_, TRUE, rtol=0.05)
+    assert twin.param_names_ == ("b0", "a1", "a2") and twin.greybox_.spec.effect_names == ("saturation",)
+    assert twin.rmse_abs_ == pytest.approx(0.05, rel=0.3)  # the sensor-noise floor
+    assert twin.score(records[:2]) == pytest.approx(-twin.rmse_, rel=1e-6)
+    assert twin.score(records[2:]) > -3 * twin.rmse_  # the held-out record replays as well
+    assert [len(y) for y in twin.predict(records)] == [len(r["y"]) for r in records]
+    loop = TwinEnv(env, twin).loop
+    assert [b.name for b in loop.effects] == ["saturation", "offset"]
+
+
+def test_greybox_twin_follows_sklearn_conventions(saturating):
+    _, records, twin = saturating
+    est = GreyBoxTwin(effects=["saturation"], n_samples=200)
+    assert est.get_params() == {"effects": ["saturation"], "max_iter": 25, "n_integrators": 0, "n_poles": 2,
+                                "n_samples": 200, "n_zeros": 0, "output": "speed"}
+    with pytest.raises(NotFittedError):
+        est.predict(records)
+    with pytest.raises(NotFittedError):
+        est.score(records)
+    assert not hasattr(clone(twin), "plant_") and clone(twin).get_params() == twin.get_params()
+    with pytest.raises(ValueError, match="unknown effect 'backlsh'"):
+        GreyBoxTwin(effects=["backlsh"]).fit(records)
+    with pytest.raises(ValueError, match=r"'max_iter' parameter of GreyBoxTwin .* range \[0, inf\)"):
+        GreyBoxTwin(max_iter=-1).fit(records)
+    with pytest.raises(ValueError, match="n_samples: must be None"):
+        GreyBoxTwin(n_samples=100).fit(GreyData.from_records(records))
+
+
+def test_rmse_masks_normalises_and_flags_divergence():
+    error = np.array([[3.0, 4.0, 99.0], [1.0, 1.0, 1.0]])
+    mask = np.array([[True, True, False], [True, True, True]])
+    assert rmse(error, mask=mask) == pytest.approx(np.sqrt((9 + 16 + 3) / 5))
+    assert rmse(error, mask=mask, height=np.array([5.0, 1.0])) == pytest.approx(np.sqrt((9 / 25 + 16 / 25 + 3) / 5))
+    assert rmse(np.array([1.0, -1.0])) == 1.0
+    assert rmse(np.array([1.0, np.nan])) == np.inf
+    assert rmse(error[:1, :2], height=np.array([0.0])) == np.inf  # a record without a step
+
+
+def test_fit_problems_matches_a_plain_least_squares_call():
+    """fit_problems (grouped forward-difference Jacobian, free mask) lands where scipy's own 2-point call does."""
+    env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 150.0}}, output_noise_std=0.05)
+    loop = env.unwrapped.loop.replace(duration=1.5)
+    gains = np.array([[0.3, 1.0], [0.9, 1.2], [1.05, 2.0]])
+    data = GreyData.from_records(records_from_loop(loop, gains, rng=np.random.default_rng(1)))
+    base = linear_fit(data, refine=False)
+    spec = ModelSpec().with_effect("saturation")
+    rows = np.arange(data.n_records)
+    start = np.concatenate([base.theta, [140.0]])
+    ours = make_problem(data, spec, start, base.y0, base.bias, rows, np.array([100.0]), np.array([300.0]),
+                        np.array([50.0]))
+    free = np.flatnonzero(ours.free)
+    x0, theta0 = ours.theta[free].copy(), ours.theta.copy()
+
+    def full(x):
+        theta = theta0.copy()
+        theta[free] = x
+        return theta
+
+    def fun(x):
+        return residual(data, rows, simulate_sets(data, [(spec, full(x), rows)])[0]).ravel()
+
+    plain = least_squares(fun, x0, bounds=(ours.lower[free], ours.upper[free]), x_scale=ours.scale[free],
+                          method="trf", ftol=1e-9, xtol=1e-12, gtol=1e-12, max_nfev=80)
+    fit_problems(data, [ours], max_iter=79, tol=1e-9)
+    assert ours.cost < 0.2 * float(np.sum(fun(x0) ** 2))
+    assert ours.cost == pytest.approx(float(np.sum(plain.fun**2)), rel=1e-3)
+    tolerance = 0.03 * np.maximum(np.abs(plain.x), ours.scale[free])
+    assert np.all(np.abs(ours.theta[free] - plain.x) <= tolerance)
+    assert ours.theta[spec.n_linear + 1] == pytest.approx(150.0, rel=0.01)  # the saturation limit
+    np.testing.assert_allclose(ours.theta[:3], TRUE, rtol=0.01)
