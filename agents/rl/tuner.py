@@ -9,6 +9,7 @@ import gymnasium as gym
 import numpy as np
 
 from agents.base import Tuner
+from agents.parameters import HasMethods, Interval, Options, validate_params
 from agents.rl.learners import IsolatedRNG, make_driver
 from agents.rl.mdp import TuningMDPEnv, TuningObserver, default_horizon, rescaled
 from agents.utils import env_id, progress_bar
@@ -19,6 +20,15 @@ __all__ = ["RLTuner", "ALGORITHMS", "MODES"]
 ALGORITHMS = ("sac", "ppo")
 #: Where the policy learns: on the plant only, or on a model first.
 MODES = ("plant", "twin")
+
+#: SB3 hyperparameters of each algorithm (SB3's names), overridden by ``algorithm_kwargs``. Few, costly
+#: experiments: a high learning rate, many gradient steps per experiment (SAC) and short rollouts (PPO).
+HYPERPARAMETERS = {
+    "sac": {"learning_rate": 3e-3, "gamma": 0.5, "batch_size": 32, "tau": 0.02, "train_freq": 1,
+            "learning_starts": 5, "buffer_size": 100_000, "policy_kwargs": {"net_arch": [64, 64]}},
+    "ppo": {"learning_rate": 3e-3, "gamma": 0.5, "n_steps": 8, "batch_size": 32, "n_epochs": 10,
+            "gae_lambda": 0.95, "policy_kwargs": {"net_arch": [64, 64]}},
+}
 
 
 class RLTuner(Tuner):
@@ -54,7 +64,8 @@ class RLTuner(Tuner):
     Modes
     -----
     ``mode="plant"``: the agent learns on the plant from scratch; the first
-    ``learning_starts`` experiments are uniform random gains (SAC's warm-up).
+    ``learning_starts`` experiments (5, see ``algorithm_kwargs``) are uniform random
+    gains (SAC's warm-up).
 
     ``mode="twin"`` (train-on-twin, the sim-to-real baseline): before the
     first plant experiment, the policy is trained for ``pretrain_steps``
@@ -62,36 +73,12 @@ class RLTuner(Tuner):
     any plant-like env). Those are not plant experiments: they are counted in
     ``result.info["model_experiments"]``. The first plant experiment is the
     trained policy's deterministic action (the deployed controller); afterwards
-    the agent fine-tunes on plant data (``finetune=True``, sampled actions) or
-    keeps acting deterministically (``finetune=False``).
+    the agent fine-tunes on plant data with sampled actions.
 
     Parameters
     ----------
     algorithm : {"sac", "ppo"}, default "sac"
     mode : {"plant", "twin"}, default "plant"
-    horizon : int, optional
-        Episode length ``H`` in experiments (default: the env's ``max_episode_steps``).
-    gamma : float, default 0.5
-        Discount. The plant carries no state from one experiment to the next,
-        so an action's value is mostly its own reward; a short horizon of
-        credit learns faster from few experiments.
-    learning_rate : float, default 3e-3
-    net_arch : sequence of int, default (64, 64)
-        Hidden layers of the actor and the critic.
-    learning_starts : int, default 5
-        SAC: random warm-up experiments (plant mode) and transitions before the first update.
-    train_freq : int, default 1
-        SAC: train after every ``train_freq`` experiments.
-    gradient_steps : int, default 32
-        SAC: gradient steps per training call (many, as data is scarce and costly).
-    batch_size : int, default 32
-        SAC: minibatch size; PPO: minibatch size of each epoch.
-    tau : float, default 0.02
-        SAC: target-network soft-update rate.
-    n_steps : int, default 8
-        PPO: experiments per rollout (one policy update per rollout).
-    n_epochs : int, default 10
-        PPO: epochs per update.
     model_env : gymnasium.Env, str or callable, optional
         ``mode="twin"``: the model to train on: an env, an env id (made with
         ``model_kwargs``), or ``callable(plant_env) -> env``. Default: the
@@ -104,109 +91,81 @@ class RLTuner(Tuner):
         cost ``normalizers`` are passed too unless given here, so that model and
         plant costs share one scale).
     pretrain_steps : int, default 2000
-        ``mode="twin"``: model experiments before deployment.
-    pretrain_gradient_steps : int, default 1
-        SAC, ``mode="twin"``: gradient steps per model experiment (model data is
-        cheap, so the usual one update per step).
-    finetune : bool, default True
-        ``mode="twin"``: keep learning from plant experiments.
-    device : str, default "cpu"
-    torch_threads : int or None, default 1
-        torch threads while the tuner trains or acts (restored afterwards);
-        one is fastest for these small networks. ``None`` leaves torch's setting.
+        ``mode="twin"``: model experiments before deployment (SAC: one gradient
+        step per model experiment, as model data is cheap).
+    gradient_steps : int, default 32
+        SAC: gradient steps per training call on plant data (many, as plant data
+        is scarce and costly).
     algorithm_kwargs : dict, optional
-        Extra keyword arguments for the SB3 algorithm (override the above).
+        stable-baselines3 hyperparameters, by SB3's names, overriding
+        :data:`HYPERPARAMETERS` (e.g. ``{"batch_size": 8, "learning_starts": 3}``).
+        SAC's ``learning_starts`` is the number of random warm-up experiments
+        (plant mode) and of transitions before the first update; ``train_freq``
+        and ``batch_size`` also pace the tuner's own updates. PPO's
+        ``batch_size`` is capped at ``n_steps``.
     progress : bool, default False
         Show a progress bar over the model pre-training.
+
+    Notes
+    -----
+    The episode length ``H`` is the env's ``max_episode_steps``; the discount
+    ``gamma = 0.5`` is short because the plant carries no state from one
+    experiment to the next, so an action's value is mostly its own reward.
+    torch runs with one thread while the tuner trains or acts (fastest for
+    these small networks), on the CPU.
     """
 
     name = "rl"
 
-    def __init__(
-        self,
-        *,
-        algorithm: str = "sac",
-        mode: str = "plant",
-        horizon: int | None = None,
-        gamma: float = 0.5,
-        learning_rate: float = 3e-3,
-        net_arch=(64, 64),
-        learning_starts: int = 5,
-        train_freq: int = 1,
-        gradient_steps: int = 32,
-        batch_size: int = 32,
-        tau: float = 0.02,
-        n_steps: int = 8,
-        n_epochs: int = 10,
-        model_env=None,
-        model_kwargs: dict | None = None,
-        pretrain_steps: int = 2000,
-        pretrain_gradient_steps: int = 1,
-        finetune: bool = True,
-        device: str = "cpu",
-        torch_threads: int | None = 1,
-        algorithm_kwargs: dict | None = None,
-        progress: bool = False,
-    ) -> None:
-        if algorithm not in ALGORITHMS:
-            raise ValueError(f"algorithm: must be one of {ALGORITHMS}, got {algorithm!r}")
-        if mode not in MODES:
-            raise ValueError(f"mode: must be one of {MODES}, got {mode!r}")
-        if horizon is not None and int(horizon) < 1:
-            raise ValueError(f"horizon: must be an integer >= 1, got {horizon}")
-        if int(pretrain_steps) < 0:
-            raise ValueError(f"pretrain_steps: must be >= 0, got {pretrain_steps}")
-        for label, value in (("learning_starts", learning_starts), ("gradient_steps", gradient_steps),
-                             ("pretrain_gradient_steps", pretrain_gradient_steps)):
-            if int(value) < 0:
-                raise ValueError(f"{label}: must be >= 0, got {value}")
-        for label, value in (("train_freq", train_freq), ("batch_size", batch_size), ("n_steps", n_steps),
-                             ("n_epochs", n_epochs)):
-            if int(value) < 1:
-                raise ValueError(f"{label}: must be >= 1, got {value}")
+    _parameter_constraints = {
+        "algorithm": [Options(ALGORITHMS)],
+        "mode": [Options(MODES)],
+        "model_kwargs": [None, HasMethods(("keys",))],
+        "pretrain_steps": [Interval(int, 0, None)],
+        "gradient_steps": [Interval(int, 1, None)],
+        "algorithm_kwargs": [None, HasMethods(("keys",))],
+    }
+
+    def __init__(self, *, algorithm: str = "sac", mode: str = "plant", model_env=None, model_kwargs: dict | None = None,
+                 pretrain_steps: int = 2000, gradient_steps: int = 32, algorithm_kwargs: dict | None = None,
+                 progress: bool = False) -> None:
+        checked = validate_params(self._parameter_constraints, {
+            "algorithm": algorithm, "mode": mode, "model_kwargs": model_kwargs, "pretrain_steps": pretrain_steps,
+            "gradient_steps": gradient_steps, "algorithm_kwargs": algorithm_kwargs})
+        if not (model_env is None or isinstance(model_env, (str, gym.Env)) or callable(model_env)):
+            raise ValueError(f"model_env: must be None, an env, an env id or a callable, got {model_env!r}")
         self.algorithm = algorithm
         self.mode = mode
-        self.horizon = horizon
-        self.gamma = float(gamma)
-        self.learning_rate = float(learning_rate)
-        self.net_arch = tuple(int(n) for n in net_arch)
-        self.learning_starts = int(learning_starts)
-        self.train_freq = int(train_freq)
-        self.gradient_steps = int(gradient_steps)
-        self.batch_size = int(batch_size)
-        self.tau = float(tau)
-        self.n_steps = int(n_steps)
-        self.n_epochs = int(n_epochs)
         self.model_env = model_env
         self.model_kwargs = dict(model_kwargs or {})
-        self.pretrain_steps = int(pretrain_steps)
-        self.pretrain_gradient_steps = int(pretrain_gradient_steps)
-        self.finetune = bool(finetune)
-        self.device = device
-        self.torch_threads = None if torch_threads is None else int(torch_threads)
+        self.pretrain_steps = checked["pretrain_steps"]
+        self.gradient_steps = checked["gradient_steps"]
         self.algorithm_kwargs = dict(algorithm_kwargs or {})
         self.progress = bool(progress)
+        self._hyper = {**HYPERPARAMETERS[algorithm],
+                                 **({"gradient_steps": self.gradient_steps} if algorithm == "sac" else {}),
+                                 **self.algorithm_kwargs}
+        for name in ("learning_starts", "train_freq", "batch_size", "n_steps", "n_epochs", "gradient_steps"):
+            value = self._hyper.get(name)
+            low = 0 if name == "learning_starts" else 1
+            if value is not None and not Interval(int, low, None).admits(value):
+                raise ValueError(f"algorithm_kwargs[{name!r}]: must be an int in [{low}, inf), got {value!r}")
         self._params = {
-            "algorithm": algorithm, "mode": mode, "horizon": horizon, "gamma": self.gamma,
-            "learning_rate": self.learning_rate, "net_arch": list(self.net_arch),
-            "learning_starts": self.learning_starts, "train_freq": self.train_freq,
-            "gradient_steps": self.gradient_steps, "batch_size": self.batch_size, "tau": self.tau,
-            "n_steps": self.n_steps, "n_epochs": self.n_epochs,
+            "algorithm": algorithm, "mode": mode,
             "model_env": model_env if isinstance(model_env, str) or model_env is None else repr(model_env),
             "model_kwargs": self.model_kwargs, "pretrain_steps": self.pretrain_steps,
-            "pretrain_gradient_steps": self.pretrain_gradient_steps, "finetune": self.finetune,
-            "device": device, "torch_threads": self.torch_threads, "algorithm_kwargs": self.algorithm_kwargs,
+            "gradient_steps": self.gradient_steps, "algorithm_kwargs": self.algorithm_kwargs,
         }
 
     # -- session set-up ----------------------------------------------------------------------------
     def _setup(self) -> None:
         if self.env is None:
             raise ValueError("RLTuner needs the plant env: use run(env, budget) or setup(space, seed, env=env)")
-        horizon = default_horizon(self.env) if self.horizon is None else int(self.horizon)
+        horizon = default_horizon(self.env)
         self._observer = TuningObserver.for_env(self.env, horizon=horizon)
         self._rescale = rescaled(self.env)
         self._sb3_seed = int(self.seed) if self.seed is not None else int(self.rng.integers(2**31 - 1))
-        self._rng_state = IsolatedRNG(self.torch_threads)
+        self._rng_state = IsolatedRNG(1)
         self._n_plant = 0
         self._model_experiments = 0
         self._pretrain_time = 0.0
@@ -214,31 +173,25 @@ class RLTuner(Tuner):
         with self._rng_state.active():
             self._model = self._build_algorithm(TuningMDPEnv(train_env, horizon=horizon,
                                                              normalizers=self._observer.normalizers))
-            self._driver = make_driver(self._model, self.learning_starts, self.train_freq, self.gradient_steps,
-                                       self.batch_size)
+            self._driver = make_driver(self._model, self._hyper.get("learning_starts", 0),
+                                       self._hyper.get("train_freq", 1), self._hyper.get("gradient_steps", 1),
+                                       self._hyper["batch_size"])
         if self.mode == "twin" and self.pretrain_steps:
             self._pretrain(train_env, horizon)
         self._observation = self._observer.reset()
 
     def _build_algorithm(self, mdp_env: TuningMDPEnv):
         """The SB3 model; it reads its spaces from the tuning MDP env (which it never steps)."""
-        policy_kwargs = {"net_arch": list(self.net_arch)}
+        kwargs = dict(self._hyper)
         if self.algorithm == "sac":
             from stable_baselines3 import SAC
 
-            kwargs = {"learning_rate": self.learning_rate, "buffer_size": 100_000, "learning_starts": 0,
-                      "batch_size": self.batch_size, "tau": self.tau, "gamma": self.gamma,
-                      "train_freq": self.train_freq, "gradient_steps": self.gradient_steps,
-                      "policy_kwargs": policy_kwargs}
-            kwargs.update(self.algorithm_kwargs)
-            return SAC("MlpPolicy", mdp_env, seed=self._sb3_seed, device=self.device, verbose=0, **kwargs)
+            kwargs["learning_starts"] = 0  # the warm-up is the tuner's (random gains), the driver paces updates
+            return SAC("MlpPolicy", mdp_env, seed=self._sb3_seed, **{"device": "cpu", "verbose": 0, **kwargs})
         from stable_baselines3 import PPO
 
-        kwargs = {"learning_rate": self.learning_rate, "n_steps": self.n_steps,
-                  "batch_size": min(self.batch_size, self.n_steps), "n_epochs": self.n_epochs, "gamma": self.gamma,
-                  "gae_lambda": 0.95, "policy_kwargs": policy_kwargs}
-        kwargs.update(self.algorithm_kwargs)
-        return PPO("MlpPolicy", mdp_env, seed=self._sb3_seed, device=self.device, verbose=0, **kwargs)
+        kwargs["batch_size"] = min(kwargs["batch_size"], kwargs["n_steps"])
+        return PPO("MlpPolicy", mdp_env, seed=self._sb3_seed, **{"device": "cpu", "verbose": 0, **kwargs})
 
     def _build_model_env(self) -> gym.Env:
         """The model the policy pre-trains on (``mode="twin"``)."""
@@ -273,13 +226,13 @@ class RLTuner(Tuner):
         start = time.perf_counter()
         plant_gradient_steps = getattr(self._driver, "gradient_steps", None)
         if plant_gradient_steps is not None:
-            self._driver.gradient_steps = self.pretrain_gradient_steps
+            self._driver.gradient_steps = 1
         bar = progress_bar(self.pretrain_steps, f"rl pre-training on {env_id(model_env)}", self.progress)
         observation, _ = mdp.reset(seed=self._sb3_seed)
         try:
             for step in range(self.pretrain_steps):
                 with self._rng_state.active():
-                    if self.algorithm == "sac" and step < self.learning_starts:
+                    if self.algorithm == "sac" and step < self._hyper["learning_starts"]:
                         action = self.rng.uniform(-1.0, 1.0, self._observer.low.size)
                     else:
                         action = self._driver.act(observation, deterministic=False)
@@ -299,10 +252,10 @@ class RLTuner(Tuner):
     def _acts_deterministically(self) -> bool:
         if self.mode == "plant":
             return False
-        return self._n_plant == 0 or not self.finetune
+        return self._n_plant == 0
 
     def _ask(self) -> np.ndarray:
-        warmup = self.mode == "plant" and self.algorithm == "sac" and self._n_plant < self.learning_starts
+        warmup = self.mode == "plant" and self.algorithm == "sac" and self._n_plant < self._hyper["learning_starts"]
         if warmup:
             action = self.rng.uniform(-1.0, 1.0, self._observer.low.size)
         else:
@@ -316,10 +269,8 @@ class RLTuner(Tuner):
             metrics = np.full(4, np.nan)
         action = self._observer.to_action(gains)
         next_observation, reward, truncated = self._observer.update(gains, cost, metrics)
-        learns = self.mode == "plant" or self.finetune
-        if learns:
-            with self._rng_state.active():
-                self._driver.observe(self._observation, action, reward, next_observation, truncated)
+        with self._rng_state.active():
+            self._driver.observe(self._observation, action, reward, next_observation, truncated)
         self._n_plant += 1
         self._observation = self._observer.reset() if truncated else next_observation
 
