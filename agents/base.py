@@ -17,8 +17,8 @@ import numpy as np
 
 from agents.recorder import ExperimentRecorder
 from agents.result import TuningResult
+from agents.run_display import env_id, progress_bar
 from agents.space import GainSpace
-from agents.utils import env_id, progress_bar
 from gbo_envs.envs.external import ExperimentFailed
 from gbo_envs.experiment import Experiment
 

@@ -12,7 +12,7 @@ from agents.base import Tuner
 from agents.parameters import HasMethods, Interval, Options, validate_params
 from agents.rl.learners import IsolatedRNG, make_driver
 from agents.rl.mdp import TuningMDPEnv, TuningObserver, default_horizon, rescaled
-from agents.utils import env_id, progress_bar
+from agents.run_display import env_id, progress_bar
 
 __all__ = ["RLTuner", "ALGORITHMS", "MODES"]
 

@@ -19,8 +19,8 @@ import numpy as np
 
 from agents.base import TuningInterrupted, TuningStopped
 from agents.jsonable import to_json
+from agents.run_display import env_id as env_name
 from agents.space import GainSpace
-from agents.utils import env_id as env_name
 from evaluation.sessions.recorder import CRASH_POLICIES, SessionRecorder
 from evaluation.sessions.store import SessionStore
 

@@ -1,4 +1,4 @@
-"""Small helpers shared by the tuning loops (base ``run``, RL pre-training, crash-safe sessions)."""
+"""How a tuning run shows itself: the env's display name and the progress bar (tuning loop, RL pre-training, sessions)."""
 
 from __future__ import annotations
 
