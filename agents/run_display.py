@@ -1,4 +1,4 @@
-"""How a tuning run shows itself: the env's display name and the progress bar (tuning loop, RL pre-training, sessions)."""
+"""How a tuning run shows itself: the env's display name and the progress bar (loop, RL pre-training)."""
 
 from __future__ import annotations
 
