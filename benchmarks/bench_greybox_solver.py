@@ -31,7 +31,8 @@ import numpy as np
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.csvio import records_from_loop
-from agents.twin.fitting import candidate_problems, linear_fit, make_problem, single_thread
+from agents.thread_limits import single_thread
+from agents.twin.fitting import candidate_problems, linear_fit, make_problem
 from agents.twin.greybox import FITTED_PARAMETERS, GreyData, Problem, fit_problems, residual, simulate_sets
 
 EFFECTS = ("saturation", "coulomb_friction", "dead_zone", "viscous_friction", "backlash", "stiction", "offset",
@@ -184,7 +185,7 @@ def _timed(solve, data: GreyData, problems: list[Problem], max_iter: int, lockst
     return time.perf_counter() - start, fits
 
 
-@single_thread
+@single_thread()
 def main() -> dict:
     data, problems = diagnose_problems()
     result = {"n_problems": len(problems), "n_samples": data.n_samples, "tol": TOL}
