@@ -30,8 +30,8 @@ import gymnasium as gym
 import numpy as np
 
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin.csvio import records_from_loop
 from agents.thread_limits import single_thread
+from agents.twin.csvio import records_from_loop
 from agents.twin.fitting import candidate_problems, linear_fit, make_problem
 from agents.twin.greybox import FITTED_PARAMETERS, GreyData, Problem, fit_problems, residual, simulate_sets
 
