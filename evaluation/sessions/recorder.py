@@ -162,8 +162,8 @@ def env_state(env) -> dict[str, Any]:
     state: dict[str, Any] = {"np_random": plant.np_random.bit_generator.state}
     if hasattr(plant, "experiment_index"):
         state["experiment_index"] = int(plant.experiment_index)
-    if hasattr(plant, "_best_cost"):
-        state["best_cost"] = float(plant._best_cost)
+    if hasattr(plant, "best_cost"):
+        state["best_cost"] = float(plant.best_cost)
     return state
 
 
@@ -178,4 +178,4 @@ def restore_env_state(env, state: dict[str, Any]) -> None:
     if "experiment_index" in state:
         plant.experiment_index = int(state["experiment_index"])
     if "best_cost" in state:
-        plant._best_cost = float(state["best_cost"])
+        plant.best_cost = float(state["best_cost"])

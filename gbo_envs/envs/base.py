@@ -63,6 +63,14 @@ class ControllerTuningEnv(gym.Env):
     expectation_seed : int, default 0
         Seed of those draws (common random numbers: every gain sees the same
         ``K`` noise realisations), ``>= 0``.
+
+    Attributes
+    ----------
+    experiment_index : int
+        Experiments run since the last :meth:`reset` (what time-varying plants count).
+    best_cost : float
+        Lowest cost measured since the last :meth:`reset` (``inf`` before the first
+        experiment), part of the observation; a resumed session restores both.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 1}
@@ -128,7 +136,7 @@ class ControllerTuningEnv(gym.Env):
                              f"got {render_mode!r}")
         self.render_mode = render_mode
         self.experiment_index = 0
-        self._best_cost = np.inf
+        self.best_cost = np.inf
         self._last_response: StepResponse | None = None
         self._last_obs = self._observation(None, None, None)
 
@@ -137,7 +145,7 @@ class ControllerTuningEnv(gym.Env):
         """Start a new tuning session (experiment counter and best cost reset)."""
         super().reset(seed=seed)
         self.experiment_index = 0
-        self._best_cost = np.inf
+        self.best_cost = np.inf
         self._last_response = None
         self._last_obs = self._observation(None, None, None)
         return self._last_obs.copy(), {"experiment_index": 0}
@@ -172,7 +180,7 @@ class ControllerTuningEnv(gym.Env):
                 cost += self.cost_noise_std * self.np_random.standard_normal()
         else:  # noise=False on a noisy loop: the expectation, with the record of draw 0
             metrics, cost, unstable = expected_metrics[0], true_cost, bool(response.unstable[0])
-        self._best_cost = min(self._best_cost, cost)
+        self.best_cost = min(self.best_cost, cost)
         self._last_response = response
         info = {
             "t": response.t.copy(),
@@ -292,7 +300,7 @@ class ControllerTuningEnv(gym.Env):
         if gains is None:
             low, high = self.action_space.low, self.action_space.high
             return np.concatenate([(low + high) / 2.0, np.zeros(len(METRIC_NAMES) + 3)])
-        best = self._best_cost
+        best = self.best_cost
         done = self.experiment_index / self.max_experiments
         return np.concatenate([gains, metrics / self.normalizers, [cost, best, done]]).astype(np.float64)
 

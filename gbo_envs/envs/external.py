@@ -337,7 +337,7 @@ class ExternalPlantEnv(ControllerTuningEnv):
             metrics, cost = np.zeros(len(METRIC_NAMES)), self.failure_cost
             info["cost"] = cost
         info["experiment"] = Experiment.from_mapping(info, source=self.experiment_source)
-        self._best_cost = min(self._best_cost, cost)
+        self.best_cost = min(self.best_cost, cost)
         self._last_obs = self._observation(gains, metrics, cost)
         return self._last_obs.copy(), -cost, False, False, info
 
