@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from agents.base import Tuner
+from agents.parameters import HasMethods, Options, validate_params
 
 __all__ = ["OptunaTuner", "OptunaGP", "OptunaTPE", "SAMPLERS"]
 
@@ -37,9 +38,13 @@ class OptunaTuner(Tuner):
 
     name = "optuna"
 
+    _parameter_constraints = {
+        "sampler": [Options(tuple(SAMPLERS)), HasMethods(("__call__",)), HasMethods(("sample_relative",))],
+        "sampler_kwargs": [None, HasMethods(("keys",))],
+    }
+
     def __init__(self, *, sampler: Any = "tpe", sampler_kwargs: dict | None = None) -> None:
-        if isinstance(sampler, str) and sampler not in SAMPLERS:
-            raise ValueError(f"sampler: unknown name {sampler!r}; choose from {sorted(SAMPLERS)}")
+        validate_params(self._parameter_constraints, {"sampler": sampler, "sampler_kwargs": sampler_kwargs})
         self.sampler = sampler
         self.sampler_kwargs = dict(sampler_kwargs or {})
         self._params = {"sampler": sampler if isinstance(sampler, str) else repr(sampler),

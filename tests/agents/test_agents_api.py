@@ -18,7 +18,7 @@ EXAMPLE = REPO_ROOT / "examples" / "custom_tuner.py"
 def test_registry_has_the_short_names():
     assert {"bo", "random", "grid", "nominal", "optuna-gp", "optuna-tpe"} <= set(agents.registered_names())
     assert isinstance(agents.make("bo"), agents.BayesianOptimization)
-    assert isinstance(agents.make("grid", order="serpentine"), agents.GridSearch)
+    assert isinstance(agents.make("grid", budget=16), agents.GridSearch)
     assert agents.make("optuna-gp").name == "optuna-gp"
 
 

@@ -28,23 +28,20 @@ def test_grid_is_sized_to_the_budget_and_visits_distinct_cell_centres():
     assert len(np.unique(gains, axis=0)) == 35  # 6 x 6 grid, 35 of its 36 points
     unit = SPACE.to_unit(gains) * 6 - 0.5
     np.testing.assert_allclose(unit, np.round(unit), atol=1e-9)
-    assert result.info["params"]["order"] == "shuffled"
+    assert result.info["params"] == {"budget": 35}
 
 
-def test_grid_orders():
-    serpentine = agents.GridSearch(points_per_gain=4, order="serpentine")
-    serpentine.setup(SPACE, seed=0)
-    steps = np.abs(np.diff(np.round(SPACE.to_unit(serpentine.points) * 4 - 0.5), axis=0)).sum(axis=1)
-    np.testing.assert_array_equal(steps, np.ones(15))  # every move is to a neighbouring cell
-    shuffled = [agents.GridSearch(points_per_gain=4), agents.GridSearch(points_per_gain=4)]
+def test_grid_order_is_a_seeded_permutation_that_starts_over():
+    shuffled = [agents.GridSearch(budget=16), agents.GridSearch(budget=16)]
     for tuner, seed in zip(shuffled, (1, 2)):
         tuner.setup(SPACE, seed=seed)
     assert not np.array_equal(shuffled[0].points, shuffled[1].points)
     assert np.array_equal(np.sort(shuffled[0].points, axis=0), np.sort(shuffled[1].points, axis=0))
+    assert len(shuffled[0].points) == 16  # 4 x 4
     # after the whole grid the sequence starts over
     np.testing.assert_array_equal(_asks(shuffled[0], 17)[16], shuffled[0].points[0])
-    with pytest.raises(ValueError, match="order"):
-        agents.GridSearch(order="spiral")
+    with pytest.raises(ValueError, match=r"budget: must be an int in \[1, inf\)"):
+        agents.GridSearch(budget=0)
 
 
 def test_random_search_is_uniform_over_the_set():
