@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 
 from gbo_envs import ClosedLoop, ContinuousPlant, PIController
@@ -60,3 +61,17 @@ def _dc_motor_space():
 
 #: the DC motor's feasible PI gains (Kp, Ki): the paper's box
 DC_MOTOR_SPACE = _dc_motor_space()
+
+
+class RaiseAt(gym.Wrapper):
+    """Raises ``error`` on the given (1-based) ``step`` calls; the other calls reach the env."""
+
+    def __init__(self, env, calls, error) -> None:
+        super().__init__(env)
+        self.calls, self.error, self.count = set(calls), error, 0
+
+    def step(self, action):
+        self.count += 1
+        if self.count in self.calls:
+            raise self.error
+        return self.env.step(action)

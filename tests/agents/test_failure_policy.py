@@ -11,6 +11,7 @@ from agents.base import Tuner, TuningStopped
 from evaluation.sessions import SessionStore, TuningSession
 from gbo_envs import PIController
 from gbo_envs.envs.external import ExternalPlantEnv
+from tests.support import RaiseAt
 
 ENV = "gbo_envs/DCMotor-v0"
 MODES = ("run", "session")
@@ -47,20 +48,6 @@ class EditInfo(gym.Wrapper):
         if self.count in self.calls:
             info = {**info, **self.changes}
         return observation, reward, terminated, truncated, info
-
-
-class RaiseAt(gym.Wrapper):
-    """Raises ``error`` on the given (1-based) step calls."""
-
-    def __init__(self, env, calls, error) -> None:
-        super().__init__(env)
-        self.calls, self.error, self.count = set(calls), error, 0
-
-    def step(self, action):
-        self.count += 1
-        if self.count in self.calls:
-            raise self.error
-        return self.env.step(action)
 
 
 def _rig(fail_calls, on_failure):

@@ -27,6 +27,7 @@ from evaluation.sessions import (
 from evaluation.sessions import store as store_module
 from gbo_envs import PIController
 from gbo_envs.envs.external import ExternalPlantEnv
+from tests.support import RaiseAt
 
 ENV = "gbo_envs/DCMotor-v0"
 
@@ -74,20 +75,6 @@ def _test_tuners(tuner_registry):
     """The two test tuners above, registered for each test of this module only."""
     agents.register("test-cost-aware", CostAwareRandom)
     agents.register("test-global-random", GlobalRandom)
-
-
-class FailAt(gym.Wrapper):
-    """Raises ``error`` on the given (0-based) step calls."""
-
-    def __init__(self, env, calls, error) -> None:
-        super().__init__(env)
-        self.calls, self.error, self.count = set(calls), error, 0
-
-    def step(self, action):
-        self.count += 1
-        if self.count - 1 in self.calls:
-            raise self.error
-        return self.env.step(action)
 
 
 class _Crash(BaseException):
@@ -147,7 +134,7 @@ def test_session_matches_tuner_run_and_stores_records(tmp_path):
 def test_rerun_of_a_finished_session_runs_nothing(tmp_path):
     db = tmp_path / "runs.sqlite"
     first = TuningSession(db, ENV, "test-cost-aware", budget=5, seed=1).run()
-    counting = FailAt(gym.make(ENV), calls=range(100), error=AssertionError("the plant must not run"))
+    counting = RaiseAt(gym.make(ENV), calls=range(1, 101), error=AssertionError("the plant must not run"))
     session = TuningSession(db, counting, "test-cost-aware", budget=5, seed=1, env_id=ENV)
     again = session.run()
     assert session.n_replayed == 5 and counting.count == 0
@@ -163,7 +150,7 @@ def test_resume_after_an_interruption_equals_an_uninterrupted_run(tmp_path, monk
     uninterrupted = TuningSession(tmp_path / "ref.sqlite", ENV, "test-cost-aware", budget=8, seed=5).run()
     db = tmp_path / "cut.sqlite"
     if cut == "ctrl-c":
-        env = FailAt(gym.make(ENV), calls=[3], error=KeyboardInterrupt())
+        env = RaiseAt(gym.make(ENV), calls=[4], error=KeyboardInterrupt())
         with pytest.raises(KeyboardInterrupt):
             TuningSession(db, env, "test-cost-aware", budget=8, seed=5, env_id=ENV).run()
         statuses = ["interrupted"]
@@ -216,7 +203,7 @@ def test_a_nondeterministic_or_tampered_session_fails_loudly(tmp_path):
     conn.close()
     with pytest.raises(ReplayMismatch, match="not deterministic"):
         TuningSession(db, ENV, "random", budget=3, seed=0).run()
-    env = FailAt(gym.make(ENV), calls=[2], error=KeyboardInterrupt())
+    env = RaiseAt(gym.make(ENV), calls=[3], error=KeyboardInterrupt())
     with pytest.raises(KeyboardInterrupt):
         TuningSession(db, env, "test-global-random", budget=4, seed=0, env_id=ENV).run()
     with pytest.raises(ReplayMismatch):
@@ -225,7 +212,7 @@ def test_a_nondeterministic_or_tampered_session_fails_loudly(tmp_path):
 
 def test_env_error_is_recorded_and_the_session_can_go_on(tmp_path):
     db = tmp_path / "runs.sqlite"
-    env = FailAt(gym.make(ENV), calls=[2], error=RuntimeError("amplifier tripped"))
+    env = RaiseAt(gym.make(ENV), calls=[3], error=RuntimeError("amplifier tripped"))
     with pytest.raises(RuntimeError, match="amplifier"):
         TuningSession(db, env, "random", budget=5, seed=0, env_id=ENV).run()
     failed = _plant(db, told=False)
