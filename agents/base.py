@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.recorder import ExperimentRecorder
+from agents.recorder import ExperimentRecorder, InMemory
 from agents.result import TuningResult
 from agents.run_display import env_id, progress_bar
 from agents.space import GainSpace
@@ -230,7 +230,8 @@ class Tuner(abc.ABC):
         space = GainSpace.from_env(env)
         self.setup(space, seed=seed, env=env)
         env.reset(seed=seed)
-        told, skips = recorder.resume(self, env) if recorder is not None else (0, 0)
+        recorder = InMemory() if recorder is None else recorder
+        told, skips = recorder.resume(self, env)
         name = env_id(env)
         result = TuningResult(tuner=self.name, env_id=name, gain_names=space.names, seed=seed,
                               info={"params": self.get_params()}, gain_units=space.units)
@@ -245,12 +246,11 @@ class Tuner(abc.ABC):
                 experiment = told + 1
                 gains = self.ask()
                 proposing = self.drain_twin_log()
-                handle = None if recorder is None else recorder.begin(experiment, gains, proposing)
+                handle = recorder.begin(experiment, gains, proposing)
                 try:
                     _, _, _, _, info = env.step(np.asarray(gains, dtype=np.float64))
                 except ExperimentFailed as failure:
-                    if recorder is not None:
-                        recorder.finish(handle, failure.record, failed=True, reason=failure.reason, told_cost=None)
+                    recorder.finish(handle, failure.record, failed=True, reason=failure.reason, told_cost=None)
                     if failure.policy == "stop":
                         raise TuningStopped(f"experiment {experiment} failed ({failure.reason}); the failure "
                                             "policy is 'stop'. Rerun to resume.", result) from failure
@@ -259,28 +259,23 @@ class Tuner(abc.ABC):
                                  failure.reason)
                     continue
                 except KeyboardInterrupt:
-                    if recorder is not None:
-                        recorder.abandon(handle, "Ctrl-C during the experiment; it is run again")
+                    recorder.abandon(handle, "Ctrl-C during the experiment; it is run again")
                     raise
                 except Exception as exc:
-                    if recorder is not None:
-                        recorder.finish(handle, {"gains": gains}, failed=True, reason=f"{type(exc).__name__}: {exc}",
-                                        told_cost=None)
+                    recorder.finish(handle, {"gains": gains}, failed=True, reason=f"{type(exc).__name__}: {exc}",
+                                    told_cost=None)
                     raise
                 cost = float(info["cost"])
                 if not np.isfinite(cost):
                     reason = f"env.step reported a non-finite cost ({cost})"
-                    if recorder is not None:
-                        recorder.finish(handle, info, failed=True, reason=reason, told_cost=None)
+                    recorder.finish(handle, info, failed=True, reason=reason, told_cost=None)
                     raise ValueError(f"experiment {experiment}: {reason}; the env must report a finite cost")
                 failed = bool(info.get("failed", False))
-                if recorder is not None:
-                    recorder.finish(handle, info, failed=failed, told_cost=cost,
-                                    reason=str(info.get("failure_reason")) if failed else None)
+                recorder.finish(handle, info, failed=failed, told_cost=cost,
+                                reason=str(info.get("failure_reason")) if failed else None)
                 self.tell(gains, cost, None if failed else info)
                 learning = self.drain_twin_log()
-                if recorder is not None:
-                    recorder.add_twins(handle, learning)
+                recorder.add_twins(handle, learning)
                 told, skips = told + 1, 0
                 for twin in proposing + learning:
                     result.add(Experiment.from_mapping(twin, source="twin", index=experiment - 1), experiment,

@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
-__all__ = ["ExperimentRecorder"]
+__all__ = ["ExperimentRecorder", "InMemory"]
 
 
 class ExperimentRecorder(Protocol):
@@ -64,3 +64,23 @@ class ExperimentRecorder(Protocol):
 
     def add_twins(self, handle: Any, twins: list[dict]) -> None:
         """Commit the twin evaluations the tuner made while learning from the experiment ``handle``."""
+
+
+class InMemory:
+    """The recorder of a plain run: nothing to resume, nothing to commit (the result keeps the rows)."""
+
+    def resume(self, tuner, env) -> tuple[int, int]:
+        return 0, 0
+
+    def begin(self, experiment: int, gains: Sequence[float], twins: list[dict]) -> None:
+        return None
+
+    def finish(self, handle: Any, record: Mapping, *, failed: bool, reason: str | None,
+               told_cost: float | None) -> None:
+        pass
+
+    def abandon(self, handle: Any, reason: str) -> None:
+        pass
+
+    def add_twins(self, handle: Any, twins: list[dict]) -> None:
+        pass

@@ -216,7 +216,8 @@ class Experiment:
             gains, cost, metrics = record.get("gains"), record.get("cost"), record.get("metrics")
             found = cls(gains=() if gains is None else gains, **{name: record.get(name) for name in SIGNALS},
                         cost=math.nan if cost is None else cost, metrics={} if metrics is None else metrics,
-                        source=record.get("source", "plant"), index=record.get("experiment_index", 0))
+                        source=record.get("source", "plant") if source is None else source,
+                        index=record.get("experiment_index", 0) if index is None else index)
         if (source is None or source == found.source) and (index is None or index == found.index):
             return found
         return found.replace(source=found.source if source is None else source,

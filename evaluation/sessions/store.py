@@ -169,14 +169,15 @@ class ExperimentRow:
         """The stored ``t, r, u, y`` arrays (those present), each of shape (n_steps,)."""
         return {name: array_from_blob(blob) for name, blob in self.blobs.items() if blob is not None}
 
-    def to_experiment(self) -> Experiment:
+    def to_experiment(self, arrays: dict[str, np.ndarray] | None = None) -> Experiment:
         """The stored experiment as the record type.
 
         Signals when all four were stored; ``cost`` the measured cost, else the
         cost the tuner was told (a penalised failure), else NaN; ``index`` the
         env's ``experiment_index`` when stored, else ``experiment - 1``.
+        ``arrays`` are this row's :meth:`arrays` when the caller has decoded them already.
         """
-        arrays = self.arrays()
+        arrays = self.arrays() if arrays is None else arrays
         signals = {name: arrays[name] for name in ARRAY_FIELDS} if all(name in arrays for name in ARRAY_FIELDS) \
             else {}
         cost = self.cost if self.cost is not None else self.told_cost
@@ -191,7 +192,8 @@ class ExperimentRow:
         (:meth:`to_experiment`), beside the flat keys.
         """
         record: dict[str, Any] = dict(self.extra)
-        record.update(self.arrays())
+        arrays = self.arrays()
+        record.update(arrays)
         record["gains"] = np.asarray(self.gains, dtype=float)
         if self.metrics is not None:
             record["metrics"] = dict(self.metrics)
@@ -201,7 +203,7 @@ class ExperimentRow:
             record["true_cost"] = self.true_cost
         if self.unstable is not None:
             record["unstable"] = bool(self.unstable)
-        record["experiment"] = self.to_experiment()
+        record["experiment"] = self.to_experiment(arrays)
         return record
 
 

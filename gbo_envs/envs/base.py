@@ -170,16 +170,15 @@ class ControllerTuningEnv(gym.Env):
         loop = self.loop_for_experiment(self.experiment_index)
         expected_metrics, expected_cost, response = self._expected(loop, gains[None, :])
         true_cost = float(expected_cost[0])
-        if self.noise or not loop.stochastic:
-            if loop.stochastic:  # one experiment: one realisation of the measurement noise
-                response = loop.simulate(gains[None, :], rng=self.np_random)
+        if self.noise and loop.stochastic:  # one experiment: one realisation of the measurement noise
+            response = loop.simulate(gains[None, :], rng=self.np_random)
             metrics = loop.metrics(response)[0]
             unstable = bool(response.unstable[0])
             cost = self.unstable_cost if unstable else float(self.cost(metrics))
-            if not unstable and self.cost_noise_std:
-                cost += self.cost_noise_std * self.np_random.standard_normal()
-        else:  # noise=False on a noisy loop: the expectation, with the record of draw 0
+        else:  # the expectation (a noise-free loop's one simulation), with the record of draw 0
             metrics, cost, unstable = expected_metrics[0], true_cost, bool(response.unstable[0])
+        if self.noise and not unstable and self.cost_noise_std:
+            cost += self.cost_noise_std * self.np_random.standard_normal()
         self.best_cost = min(self.best_cost, cost)
         self._last_response = response
         info = {

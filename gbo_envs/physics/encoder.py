@@ -59,7 +59,6 @@ class PositionEncoder(EffectBlock):
     def __init__(self, resolution: float, jitter: float = 0.0) -> None:
         self._set_params(resolution=resolution, jitter=jitter)
         validated_finite("resolution", self.resolution, "output units", positive=True, owner=self.name)
-        validated_finite("jitter", self.jitter, "output units", owner=self.name)
         self._noise: RowNoise | None = None
 
     @property
@@ -122,7 +121,6 @@ class SpeedEncoder(EffectBlock):
         window = validated_count("window", window, owner=self.name)
         self._set_params(lines=lines, window=window, jitter=jitter)
         self.lines, self.window = lines, window
-        validated_finite("jitter", self.jitter, "rad", owner=self.name)
         self._noise: RowNoise | None = None
 
     @property
