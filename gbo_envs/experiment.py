@@ -10,6 +10,7 @@ bad record fails the same way, naming the field and the rule, wherever it enters
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 from collections.abc import Mapping
@@ -225,9 +226,7 @@ class Experiment:
 
     def replace(self, **changes) -> Experiment:
         """A copy with ``changes`` applied (validated again)."""
-        fields = {name: getattr(self, name) for name in self.__dataclass_fields__}
-        fields.update(changes)
-        return type(self)(**fields)
+        return dataclasses.replace(self, **changes)
 
     @property
     def has_signals(self) -> bool:

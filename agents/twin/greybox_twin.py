@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from numbers import Integral
 
 import numpy as np
@@ -191,18 +190,12 @@ class GreyBoxTwin(BaseEstimator):
         return hasattr(self, "plant_")
 
     def _data(self, records) -> GreyData:
-        """The records stacked (decimated to ``n_samples``; their ``experiment_index`` kept)."""
+        """The records stacked (decimated to ``n_samples``; their :attr:`~gbo_envs.Experiment.index` kept)."""
         if isinstance(records, GreyData):
             if self.n_samples is not None:
                 raise ValueError("n_samples: must be None when the records are given as GreyData (already stacked)")
             return records
-        kept = [decimate(rec, self.n_samples) for rec in as_records(records, min_steps=3)]
-        items = records if isinstance(records, (list, tuple)) else None
-        index = None
-        if items and all(isinstance(it, Mapping) and it.get("experiment_index") is not None for it in items):
-            index = [int(it["experiment_index"]) for it in items]
-        return GreyData.from_records([{"t": r.t, "r": r.r, "u": r.u, "y": r.y} for r in kept],
-                                     experiment_index=index)
+        return GreyData.from_records([decimate(rec, self.n_samples) for rec in as_records(records, min_steps=3)])
 
     def _fit_from_given_values(self, data: GreyData, spec: ModelSpec, items, base: GreyFit) -> GreyFit:
         """All effect values given: the linear part profiled at them, then everything refitted from there."""
@@ -235,18 +228,19 @@ class GreyBoxTwin(BaseEstimator):
         self.delay_ = float(fit.theta[nl])
         self.plant_ = fit.plant
         blocks = fit.blocks
+        rest = rest_command(fit)
         if any(b.side == "actuator" for b in blocks):  # the plant-input bias matters after a nonlinearity
             blocks = blocks + (build_effect("offset", {"value": float(np.median(fit.bias))}),)
             # the twin's loop must be able to hold the rest levels of the data: a limit below the largest
             # fitted rest command (a poorly determined rest on few or short records) is raised to it
-            need = 1.02 * float(np.max(np.abs(rest_command(fit))))
+            need = 1.02 * float(np.max(np.abs(rest)))
             blocks = tuple(build_effect("saturation", {"limit": need}) if b.name == "saturation" and b.limit < need
                            else b for b in blocks)
         self.effects_ = blocks
         self.effect_params_ = fit.effect_params
         self.rmse_abs_ = float(fit.rmse)
         self.rmse_ = _normalised_rmse(data, fit)
-        self.rest_levels_ = np.column_stack([fit.y0, rest_command(fit)])
+        self.rest_levels_ = np.column_stack([fit.y0, rest])
         self.n_records_ = data.n_records
         self.n_samples_ = int(data.u.shape[1])
         self.dt_ = float(data.dt)
