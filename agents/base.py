@@ -86,6 +86,7 @@ class Tuner(abc.ABC):
         self.rng = np.random.default_rng(seed)
         self.env = env
         self._twin_log: list[dict] = []
+        self._events: list[str] = []
         self._setup()
 
     def ask(self) -> tuple[float, ...]:
@@ -138,6 +139,15 @@ class Tuner(abc.ABC):
         row = {"gains": np.asarray(gains, dtype=float), "cost": float(cost), "metrics": metrics}
         row.update(extra)
         self._twin_log.append(row)
+
+    def log_event(self, text: str) -> None:
+        """Announce a change of the tuner's state (e.g. a refitted twin); :meth:`run` shows it once."""
+        self._events.append(str(text))
+
+    def drain_events(self) -> list[str]:
+        """The events logged since the last call (see :meth:`log_event`), emptying the list."""
+        events, self._events = self._events, []
+        return events
 
     def drain_twin_log(self) -> list[dict]:
         """The twin evaluations logged since the last call (see :meth:`log_twin`), emptying the log."""
@@ -245,6 +255,7 @@ class Tuner(abc.ABC):
                                         result)
                 experiment = told + 1
                 gains = self.ask()
+                _announce(self.drain_events(), bar, self.name)
                 proposing = self.drain_twin_log()
                 handle = recorder.begin(experiment, gains, proposing)
                 try:
@@ -274,6 +285,7 @@ class Tuner(abc.ABC):
                 recorder.finish(handle, info, failed=failed, told_cost=cost,
                                 reason=str(info.get("failure_reason")) if failed else None)
                 self.tell(gains, cost, None if failed else info)
+                _announce(self.drain_events(), bar, self.name)
                 learning = self.drain_twin_log()
                 recorder.add_twins(handle, learning)
                 told, skips = told + 1, 0
@@ -306,3 +318,11 @@ class Tuner(abc.ABC):
         args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
         return f"{type(self).__name__}({args})"
 
+
+def _announce(events: list[str], bar, tuner: str) -> None:
+    """Print events above the progress bar, or log them at INFO without one."""
+    for text in events:
+        if hasattr(bar, "write"):
+            bar.write(text)
+        else:
+            _log.info("%s: %s", tuner, text)

@@ -17,7 +17,7 @@ from agents.bo import BayesianOptimization
 from agents.parameters import HasMethods, Interval, Options, validate_params
 from gbo_envs import METRIC_NAMES
 
-__all__ = ["GuidedBO", "ACTIVATION_RULES", "MIN_TWIN_ITERATIONS", "TWIN_REFIT_EVERY"]
+__all__ = ["GuidedBO", "ACTIVATION_RULES", "MIN_TWIN_ITERATIONS", "TWIN_CHOICES", "TWIN_REFIT_EVERY"]
 
 #: How the twin is switched on: the paper's uncertainty test eq. (DT_activation), or every
 #: ``period`` plant experiments for ``n_ei`` twin iterations (the twin-fidelity study, Sec. V-A).
@@ -30,6 +30,22 @@ MIN_TWIN_ITERATIONS = 10
 #: the iterations in between only re-condition the GP on the new point.
 TWIN_REFIT_EVERY = 5
 
+#: ``twin`` by name: the workbench-diagnosed grey-box twin, or the paper's linear SRIVC twin.
+TWIN_CHOICES = ("auto", "linear")
+
+#: Effects at most in a diagnosed twin (the workbench's ladder, two rungs).
+MAX_TWIN_EFFECTS = 2
+
+#: Noise draws ``K`` of the twin's expected cost (:class:`agents.twin.TwinEnv`).
+TWIN_NOISE_DRAWS = 8
+
+#: The twin reproduces the measurement noise when its floor exceeds this fraction of the step height.
+SIMULATED_NOISE_FLOOR = 1e-4
+
+#: Lower bound of the noise floor in eq. (DT_rmse1), as a fraction of the step height: with
+#: ``eta2 = 3`` a plant quieter than this gets the paper's absolute threshold 0.003.
+RMSE_FLOOR = 1e-3
+
 
 class GuidedBO(BayesianOptimization):
     r"""Guided BO, Algorithm 1 of the paper, on top of :class:`~agents.bo.BayesianOptimization`.
@@ -37,14 +53,55 @@ class GuidedBO(BayesianOptimization):
     Every ``ask`` after the initial design:
 
     1. fit the GP on the plant data ``D`` and find ``theta+ = argmax a_EI`` (eq. (EI));
-    2. activate the twin if ``sqrt(v_n(theta+)) > eta1 sigma_eps`` (eq. (eta1)) and
-       ``e_RMSE < eta2`` (eq. (DT_rmse1));
+    2. activate the twin if ``sqrt(v_n(theta+)) > eta1 sigma_eps`` (eq. (eta1)),
+       ``e_RMSE < eta2`` (eq. (DT_rmse1)) and the twin is trusted (below);
     3. while active: evaluate the twin at ``theta+``, add ``(theta+, J^_twin(theta+))``
        to ``D`` (line D_in_DT), refit, propose again; stop when for ``n_ei`` consecutive
        twin iterations ``a_EI,i <= eta3 max_j a_EI,j`` (eq. (DT_stop_a)) or after
        ``max_twin_iterations`` (eq. (DT_stop_b));
     4. query the plant at the best point of ``D`` (line theta_plus), then remove the
        twin data from ``D`` (line remove_DT_data).
+
+    **Which twin.** ``twin="auto"`` (the default) starts from the paper's linear
+    SRIVC twin and adds what the records evidence. The twin is fitted when the first
+    twin is needed after the initial design, and refitted whenever it mispredicts a
+    new plant experiment: its normalised RMSE on the new record exceeds
+    ``max(1.5 rmse_, 2 max(s, 10^-3))``, 1.5 times its own fit error or twice the
+    noise floor ``s`` (below; ``10^-3`` of the step height on a quiet plant). A refit
+    keeps the twin's structure and starts from its previous values (warm start). If
+    the refitted twin's own RMSE is beyond what the noise explains,
+    ``2 max(s, 10^-3)``, the records are diagnosed with the workbench's decision rule
+    (:func:`agents.twin.selection.diagnosed_twin`, the error ladder of ``gbo twin
+    diagnose``), and the twin becomes the linear model plus every effect they
+    evidence, at most two, as a :class:`~agents.twin.GreyBoxTwin`, if that fits
+    better. A diagnosis is repeated only when the records have doubled since the
+    last one (1, 2, 4, 8, ... records).
+    ``twin="linear"`` is the paper's Algorithm 1 unchanged: the SRIVC
+    transfer function of ``twin_poles`` poles, noise-free, ``eta2 = 3 sigma_eps``
+    by default, always trusted. A :class:`~agents.twin.LinearTwin` or
+    :class:`~agents.twin.GreyBoxTwin` (or any estimator with ``fit`` and
+    ``plant_``) may be passed instead: unfitted, it is fitted on the records as
+    above; fitted, it is used as given until it mispredicts, then refitted.
+
+    **Noise.** With ``"auto"`` or a given twin, the twin reproduces the plant's
+    measurement noise: ``s``, the median noise floor of the plant records
+    (:func:`agents.twin.noise_floor.noise_floor`, normalised by the step height
+    ``|r2 - r1|``), is added as white output noise and the twin's cost is the
+    expectation over :data:`TWIN_NOISE_DRAWS` fixed draws, as the plant's ground
+    truth is (when ``s`` exceeds :data:`SIMULATED_NOISE_FLOOR`). The activation
+    threshold is relative to it: ``eta2 = 3 max(s, 10^-3)`` by default, so a twin
+    as good as the noise allows is used on any plant, and on a quiet plant the
+    threshold is the paper's 0.003.
+
+    **Trust.** After a plant experiment at a twin-proposed point ``theta_T``, the
+    improvement the twin promised over the plant incumbent ``theta_I`` (lowest
+    measured cost), ``J^(theta_I) - J^(theta_T)``, is compared with the one measured,
+    ``mu(theta_I) - J(theta_T)`` (``mu``: the GP's posterior mean on the plant data; the
+    lowest measurement itself is biased low by the noise). If the plant delivers less than promised by more
+    than ``2 sqrt(2) sigma_eps`` (two standard deviations of a difference of two
+    measurements), the twin is not used again until it has been refitted and the
+    refitted twin no longer promises that improvement; meanwhile guided BO is BO,
+    and the twin is refitted (and the records diagnosed) once they have doubled.
 
     Choices where the paper leaves room (their measured effect on DCMotor-v0 is in
     benchmarks/README.md):
@@ -61,7 +118,7 @@ class GuidedBO(BayesianOptimization):
       with ``sigma_eps`` comparable to the gap to the optimum, noisy twin costs hide the
       thin optimal strip from the GP;
     * "the best point of ``D``" (line theta_plus) is the twin point of this activation
-      with the lowest noise-free twin cost, so every plant experiment tests a new point
+      with the lowest twin cost, so every plant experiment tests a new point
       the twin rates best instead of re-measuring the plant incumbent;
     * during twin iterations EI uses the posterior-mean incumbent (the plant data in
       ``D`` stay noisy) and its grid maximiser is refined by L-BFGS-B, and the GP
@@ -72,8 +129,9 @@ class GuidedBO(BayesianOptimization):
     Every ``tell``: predict the experiment's cost with the last fitted twin, add
     the record to the twin data set ``D~`` (eq. (Ds)), and re-initialise ``D~``
     with this record alone when ``|J - J~| / J > delta`` (eq. (reinit_DTdataset)).
-    The twin is refitted on ``D~`` when an activation is due (Algorithm 1,
-    "Update DT plant model"), warm-started from its previous fit.
+    An unstable experiment's record is not added (a diverging response identifies
+    nothing). The twin is refitted on ``D~`` when an activation is due (Algorithm 1,
+    "Update DT plant model").
 
     Parameters
     ----------
@@ -94,7 +152,8 @@ class GuidedBO(BayesianOptimization):
         it to the noise level makes the same value work on every plant.)
     eta2 : float, optional
         Twin RMSE threshold of eq. (DT_rmse1) for the twin's ``rmse_`` (normalised
-        by the step height); default ``3 sigma_eps`` as in the paper.
+        by the step height). Default: ``3 max(s, 10^-3)`` with ``s`` the normalised
+        noise floor of the records; with ``twin="linear"``, ``3 sigma_eps`` as in the paper.
     eta3 : float, default 0.2
         Stopping threshold of eq. (DT_stop_a); ``inf`` runs exactly ``n_ei`` iterations.
     n_ei : int, default 3
@@ -112,11 +171,10 @@ class GuidedBO(BayesianOptimization):
     period : int, default 1
         ``N_G`` of the periodic rule.
     twin_poles : int, default 2
-        Poles of the identified transfer function, which has no zeros (the paper's
+        Poles of the twin's transfer function, which has no zeros (the paper's
         high-fidelity twin has 2 poles, the low-fidelity one 5).
-    twin : LinearTwin or GreyBoxTwin, optional
-        A configured (unfitted) estimator to clone instead of the default
-        SRIVC twin, e.g. one with physical effects.
+    twin : {"auto", "linear"} or estimator, default "auto"
+        The digital twin, see "Which twin" above.
 
     Attributes
     ----------
@@ -126,8 +184,16 @@ class GuidedBO(BayesianOptimization):
         Twin experiments made.
     reinitializations_ : int
         How often eq. (reinit_DTdataset) emptied the twin data set.
+    distrusts_ : int
+        How often a twin-proposed experiment disappointed and the twin lost trust.
     twin_ : LinearTwin, GreyBoxTwin or None
         The current fitted twin.
+    twin_changes_ : list of dict
+        One entry per twin fit: ``experiment`` (plant experiments told), ``effects``,
+        ``params``, ``rmse`` (normalised, on ``D~``), ``previous_rmse`` (the former twin on
+        the new records, ``None`` for the first) and ``text`` (one line, as ``gbo tune`` prints it).
+    noise_floor_ : float
+        ``s``: the median normalised noise floor of the plant records.
     model : str
         Always ``"cost"``: one GP on the cost, as in the paper's Algorithm 1 (the twin's
         points enter ``D`` as costs, line D_in_DT).
@@ -147,13 +213,13 @@ class GuidedBO(BayesianOptimization):
         "activation": [Options(ACTIVATION_RULES)],
         "period": [Interval(int, 1, None)],
         "twin_poles": [Interval(int, 1, None)],
-        "twin": [None, HasMethods(("fit", "get_params"))],
+        "twin": [Options(TWIN_CHOICES), HasMethods(("fit", "get_params"))],
     }
 
     def __init__(self, *, n_initial: int = 1, grid_points: int = 100, noise_std: float | None = None,
                  eta1: float = 3.0, eta2: float | None = None, eta3: float = 0.2, n_ei: int = 3,
                  delta: float = 2.0, max_twin_iterations: int = 20, n_samples: int | None = 100,
-                 activation: str = "uncertainty", period: int = 1, twin_poles: int = 2, twin=None) -> None:
+                 activation: str = "uncertainty", period: int = 1, twin_poles: int = 2, twin="auto") -> None:
         # one GP on the cost: the twin's points enter D as costs (Algorithm 1, line D_in_DT)
         super().__init__(n_initial=n_initial, grid_points=grid_points, noise_std=noise_std, model="cost")
         params = validate_params(self._parameter_constraints, {
@@ -166,9 +232,10 @@ class GuidedBO(BayesianOptimization):
         self.n_samples = params["n_samples"]
         self.activation, self.period = params["activation"], params["period"]
         self.twin_poles = params["twin_poles"]
-        self.twin_template = twin
+        self.twin = twin
         self._params = {"n_initial": self.n_initial, "grid_points": self.grid_points, "noise_std": self.noise_std,
-                        **{name: value for name, value in params.items() if name != "twin"}}
+                        **{name: value for name, value in params.items() if name != "twin"},
+                        "twin": twin if isinstance(twin, str) else type(twin).__name__}
 
     # -- Tuner hooks ---------------------------------------------------------------------------------
     def _setup(self) -> None:
@@ -178,14 +245,25 @@ class GuidedBO(BayesianOptimization):
             raise ValueError("env: guided BO needs the plant env (with its closed loop) to simulate a twin; "
                              "use run(env, ...) or setup(space, seed, env=env)")
         self._plant_env = plant_env
+        self._step_height = abs(float(plant_env.loop.r2) - float(plant_env.loop.r1)) or 1.0
         self._twin_records: list[dict] = []
         self._twin_fitted_on = 0  # records in D~ when the twin was last fitted
         self._twin_dirty = False
+        self._diagnosed_on = 0  # records in D~ at the last diagnosis (twin="auto")
+        self._noise_floors: list[float] = []
+        self._promise = None  # (theta_T, theta_I, J(theta_I), promised improvement) of the last twin proposal
+        self._broken = None  # (theta_T, theta_I, delivered improvement) that cost the twin its trust
         self.twin_ = None
         self._twin_env = None
+        if not isinstance(self.twin, str) and hasattr(self.twin, "plant_"):
+            self.twin_ = self.twin  # a fitted twin: used as given until it mispredicts
         self.activations_ = 0
         self.twin_evaluations_ = 0
         self.reinitializations_ = 0
+        self.distrusts_ = 0
+        self.twin_changes_: list[dict] = []
+        if self.twin_ is not None:
+            self._record_twin_change(None)
         # periodic rule (Sec. V-A): the twin is used right after the initial data, then every N_G experiments
         self._since_activation = self.period
 
@@ -202,26 +280,38 @@ class GuidedBO(BayesianOptimization):
 
     def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:
         super()._tell(gains, cost, record)
-        if record is None or not all(key in record for key in ("t", "r", "u", "y")):
-            return
+        self._check_promise(gains, cost)
+        if record is None or record.get("unstable", False) or not all(key in record for key in ("t", "r", "u", "y")):
+            return  # nothing to identify from (or a diverging response)
         new = {key: np.asarray(record[key], dtype=float) for key in ("t", "r", "u", "y")}
+        if not all(np.all(np.isfinite(v)) for v in new.values()):
+            return
+        if self.twin != "linear":
+            from agents.twin.selection import measurement_noise
+
+            self._noise_floors.append(measurement_noise(new) / self._step_height)
         if self._twin_env is not None:
             # eq. (reinit_DTdataset): the last fitted twin's estimate of this experiment against the
             # measurement (Algorithm 1 refits the twin only when it is activated)
             predicted = float(self._twin_env.evaluate(gains[None, :])[1][0])
-            if abs(cost - predicted) / max(abs(cost), 1e-12) > self.delta:
+            if not np.isfinite(predicted) or abs(cost - predicted) / max(abs(cost), 1e-12) > self.delta:
                 self._twin_records = []
                 self._twin_fitted_on = 0
+                self._diagnosed_on = 0
                 self.reinitializations_ += 1
         self._twin_records.append(new)  # eq. (Ds): D~ <- D~ u {(u_i, y_i)}
         self._twin_dirty = True
 
     def run_summary(self) -> dict[str, Any]:
         summary = super().run_summary()
+        twin = self.twin_
         summary.update({"activations": self.activations_, "twin_evaluations": self.twin_evaluations_,
-                        "reinitializations": self.reinitializations_,
-                        "twin_rmse": self.twin_.rmse_ if self.twin_ is not None else None,
-                        "twin_params": None if self.twin_ is None else [float(p) for p in self.twin_.params_]})
+                        "reinitializations": self.reinitializations_, "distrusts": self.distrusts_,
+                        "twin_rmse": twin.rmse_ if twin is not None else None,
+                        "twin_params": None if twin is None else [float(p) for p in twin.params_],
+                        "twin_effects": None if twin is None else _effect_values(twin),
+                        "twin_changes": [{k: v for k, v in c.items() if k != "text"} for c in self.twin_changes_],
+                        "noise_floor": self.noise_floor_})
         return summary
 
     # -- Algorithm 1 ---------------------------------------------------------------------------------
@@ -237,12 +327,26 @@ class GuidedBO(BayesianOptimization):
         return 0.01 * float(np.mean(np.abs(y))) if y.size else 0.01
 
     @property
+    def noise_floor_(self) -> float:
+        """``s``: median noise floor of the plant records over the step height (0 before any record)."""
+        return float(np.median(self._noise_floors)) if self._noise_floors else 0.0
+
+    @property
     def eta2_value(self) -> float:
-        """RMSE threshold of eq. (DT_rmse1): ``eta2`` or ``3 sigma_eps``."""
-        return float(self.eta2) if self.eta2 is not None else 3.0 * self.sigma_eps
+        """RMSE threshold of eq. (DT_rmse1): ``eta2``, else ``3 max(s, 10^-3)`` (linear twin: ``3 sigma_eps``)."""
+        if self.eta2 is not None:
+            return float(self.eta2)
+        if self.twin == "linear":
+            return 3.0 * self.sigma_eps
+        return 3.0 * max(self.noise_floor_, RMSE_FLOOR)
+
+    @property
+    def trusted(self) -> bool:
+        """Whether the twin may propose plant experiments (see "Trust" in the class doc)."""
+        return self._broken is None
 
     def _activate(self, std: float) -> bool:
-        """Twin activation test, eq. (DT_activation) (or the periodic rule)."""
+        """Twin activation test, eq. (DT_activation) (or the periodic rule), and trust."""
         if self.activation == "periodic":
             due = self._since_activation >= self.period
         else:
@@ -250,7 +354,9 @@ class GuidedBO(BayesianOptimization):
         if not due:
             return False
         twin = self._current_twin()
-        return twin is not None and twin.rmse_ < self.eta2_value  # eq. (DT_rmse1)
+        if twin is None or not np.isfinite(twin.rmse_) or twin.rmse_ >= self.eta2_value:  # eq. (DT_rmse1)
+            return False
+        return self.trusted
 
     def _explore_on_twin(self, gains: np.ndarray, ei: float) -> np.ndarray:
         """BO iterations on the twin until eq. (DT_stop) holds; returns the best point of ``D``."""
@@ -263,24 +369,34 @@ class GuidedBO(BayesianOptimization):
         # twin iterations: posterior-mean incumbent (the plant data in D are noisy), polished EI maximiser
         self.incumbent_rule, self.polish = "posterior_mean", True
         try:
-            best = self._twin_iterations(twin_env, gains, ei, cap, periodic)
+            best, best_cost = self._twin_iterations(twin_env, gains, ei, cap, periodic)
         finally:
             self._optimize_hyperparameters = True
             self.incumbent_rule, self.polish = saved
         self.remove_data("twin")  # line remove_DT_data
+        if self.twin != "linear":
+            incumbent = self._plant_incumbent()
+            if incumbent is not None:
+                promised = self._twin_cost(twin_env, incumbent) - best_cost
+                # the GP's mean at the incumbent, not its lowest measurement (biased low by the noise)
+                reference = float(self.posterior(incumbent[None, :])[0][0])
+                self._promise = (best.copy(), incumbent, reference, promised)
         return best
 
-    def _twin_iterations(self, twin_env, gains: np.ndarray, ei: float, cap: int, periodic: bool) -> np.ndarray:
-        """Lines 9-16 of Algorithm 1; returns the best point of ``D`` (line theta_plus)."""
+    def _twin_iterations(self, twin_env, gains: np.ndarray, ei: float, cap: int,
+                         periodic: bool) -> tuple[np.ndarray, float]:
+        """Lines 9-16 of Algorithm 1; returns the best point of ``D`` (line theta_plus) and its twin cost."""
         eis, calm = [ei], 0
         twin_X, twin_J = [], []
+        described = self._twin_description()
         for iteration in range(1, cap + 1):
             metrics, clean = twin_env.evaluate(gains[None, :])
+            cost = float(clean[0]) if np.isfinite(clean[0]) else float(twin_env.unstable_cost)
             twin_X.append(gains.copy())
-            twin_J.append(float(clean[0]))
-            self.add_data(gains, float(clean[0]), source="twin")  # line D_in_DT, without the paper's eps
-            self.log_twin(gains, float(clean[0]), dict(zip(METRIC_NAMES, metrics[0])), activation=self.activations_,
-                          twin_iteration=iteration, twin_true_cost=float(clean[0]))
+            twin_J.append(cost)
+            self.add_data(gains, cost, source="twin")  # line D_in_DT, without the paper's eps
+            self.log_twin(gains, cost, dict(zip(METRIC_NAMES, metrics[0])), activation=self.activations_,
+                          twin_iteration=iteration, twin_true_cost=cost, **described)
             self.twin_evaluations_ += 1
             # Algorithm 1, line 12: hyperparameters re-fitted on every TWIN_REFIT_EVERY-th twin iteration
             self._optimize_hyperparameters = (iteration - 1) % TWIN_REFIT_EVERY == 0
@@ -291,53 +407,178 @@ class GuidedBO(BayesianOptimization):
                 eis.append(ei)
                 if calm >= self.n_ei and iteration >= MIN_TWIN_ITERATIONS:
                     break
-        # line theta_plus: the twin point of this activation with the lowest noise-free twin cost
-        return twin_X[int(np.argmin(twin_J))]
+        # line theta_plus: the twin point of this activation with the lowest twin cost
+        best = int(np.argmin(twin_J))
+        return twin_X[best], twin_J[best]
+
+    # -- trust -------------------------------------------------------------------------------------
+    def _plant_incumbent(self) -> np.ndarray | None:
+        """``theta_I``: the gains of the plant experiment with the lowest measured cost."""
+        if not self._plant_y:
+            return None
+        return self.space.from_unit(np.asarray(self._plant_X[int(np.argmin(self._plant_y))]))
+
+    @staticmethod
+    def _twin_cost(twin_env, gains: np.ndarray) -> float:
+        cost = float(twin_env.evaluate(np.asarray(gains, dtype=float)[None, :])[1][0])
+        return cost if np.isfinite(cost) else float(twin_env.unstable_cost)
+
+    def _check_promise(self, gains: np.ndarray, cost: float) -> None:
+        """Compare the improvement the twin promised at ``gains`` with the one measured (see "Trust")."""
+        promise, self._promise = self._promise, None
+        if promise is None or not np.allclose(gains, promise[0]):
+            return
+        _, inc_gains, inc_cost, promised = promise
+        delivered = inc_cost - float(cost)
+        if delivered < promised - 2.0 * np.sqrt(2.0) * self.sigma_eps:
+            self._broken = (promise[0], inc_gains, delivered)
+            self.distrusts_ += 1
+
+    def _restore_trust(self) -> None:
+        """After a refit: trusted again if the new twin no longer promises the improvement that failed."""
+        if self._broken is None or self._twin_env is None:
+            return
+        failed, inc_gains, delivered = self._broken
+        promised = self._twin_cost(self._twin_env, inc_gains) - self._twin_cost(self._twin_env, failed)
+        if promised <= delivered + 2.0 * np.sqrt(2.0) * self.sigma_eps:
+            self._broken = None
+
+    # -- the twin ----------------------------------------------------------------------------------
+    def _mispredicts(self, new: list[dict]) -> bool:
+        """Whether the current twin's RMSE on new records exceeds what noise and its own fit error explain."""
+        if not new:
+            return False
+        try:
+            error = -self.twin_.score(new)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+            return True
+        if self.twin == "linear":
+            return not error <= max(1.5 * self.twin_.rmse_, 0.25 * self.eta2_value)
+        return not error <= max(1.5 * self.twin_.rmse_, self._explained_rmse())
+
+    def _explained_rmse(self) -> float:
+        """The normalised RMSE that measurement noise explains: ``2 max(s, 10^-3)``."""
+        return 2.0 * max(self.noise_floor_, RMSE_FLOOR)
 
     def _current_twin(self):
         """The twin fitted on ``D~``, refitted only when it mispredicts records added since its last fit.
 
-        Refitting SRIVC costs far more than a BO iteration; a twin that already
-        simulates the new records within ``max(1.5 rmse_, eta2 / 4)`` (normalised
-        RMSE) has nothing to learn from them, so it is kept (Algorithm 1 refits at
+        Refitting costs far more than a BO iteration; a twin that already
+        simulates the new records within the noise (see "Which twin" in the class
+        doc) has nothing to learn from them, so it is kept (Algorithm 1 refits at
         every activation; the result is the same up to that tolerance).
         """
         if self._twin_dirty and self.twin_ is not None and self._twin_fitted_on <= len(self._twin_records):
-            new = self._twin_records[self._twin_fitted_on:]
-            if not new or -self.twin_.score(new) <= max(1.5 * self.twin_.rmse_, 0.25 * self.eta2_value):
+            # a distrusted twin is refitted when the records have doubled since its fit (more excitation)
+            if (len(self._twin_records) < 2 * self._twin_fitted_on if not self.trusted
+                    else not self._mispredicts(self._twin_records[self._twin_fitted_on:])):
                 self._twin_dirty = False
         if self._twin_dirty and self._twin_records:
-            from sklearn.base import clone
-
-            template = self.twin_template if self.twin_template is not None else self._default_twin()
-            twin = self.twin_ if self.twin_ is not None else clone(template)  # warm start from the last fit
+            previous = self.twin_
+            previous_rmse = None
+            if previous is not None and self._twin_fitted_on < len(self._twin_records):
+                try:
+                    previous_rmse = float(-previous.score(self._twin_records[self._twin_fitted_on:]))
+                except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+                    previous_rmse = None
             try:
-                self.twin_ = twin.fit(self._twin_records)
-            except (ValueError, np.linalg.LinAlgError):
+                twin = self._fit_twin(previous)
+                self.twin_ = twin if twin is not None and np.isfinite(twin.rmse_) else None
+            except (ValueError, FloatingPointError, np.linalg.LinAlgError):
                 self.twin_ = None  # too little excitation to identify: no twin this time
             self._twin_env = None
             self._twin_dirty = False
             self._twin_fitted_on = len(self._twin_records)
+            if self.twin_ is not None:
+                self._record_twin_change(previous_rmse)
+                self._current_twin_env()
+                self._restore_trust()
         return self.twin_
 
+    def _fit_twin(self, previous):
+        """A twin fitted on ``D~``: diagnosed (``"auto"``), the paper's linear one, or the given estimator."""
+        from sklearn.base import clone
+
+        if self.twin == "auto":
+            effects = getattr(previous, "effect_params_", None) or {}
+            # the current structure first: the paper's SRIVC twin, or the diagnosed effects from their last values
+            twin = clone(previous).fit(self._twin_records) if effects else self._default_twin().fit(self._twin_records)
+            due = self._diagnosed_on == 0 or len(self._twin_records) >= 2 * self._diagnosed_on
+            if due and not twin.rmse_ <= self._explained_rmse():  # an error the noise does not explain
+                from agents.twin.greybox import ModelSpec
+                from agents.twin.selection import diagnosed_twin
+
+                spec = ModelSpec(n_poles=self.twin_poles, n_integrators=self._integrators(),
+                                 output=self._plant_env.loop.plant.output)
+                self._diagnosed_on = len(self._twin_records)
+                diagnosed = diagnosed_twin(self._twin_records, spec, effects=effects, max_effects=MAX_TWIN_EFFECTS,
+                                           n_samples=self.n_samples)[0]
+                if diagnosed.rmse_ < twin.rmse_:
+                    twin = diagnosed
+            return twin
+        if self.twin == "linear":
+            template = self._default_twin()
+        else:
+            template = self.twin
+        twin = previous if previous is not None and previous is not self.twin else clone(template)
+        return twin.fit(self._twin_records)  # warm start from the last fit
+
     def _current_twin_env(self):
-        twin = self._current_twin()
+        twin = self._current_twin() if self._twin_env is None else self.twin_
         if twin is None:
             return None
         if self._twin_env is None:
             from agents.twin import make_twin_env
 
-            self._twin_env = make_twin_env(self._plant_env, twin)
+            floor = self.noise_floor_
+            noise = floor * self._step_height if self.twin != "linear" and floor > SIMULATED_NOISE_FLOOR else 0.0
+            self._twin_env = make_twin_env(self._plant_env, twin, measurement_noise_std=noise,
+                                           draws=TWIN_NOISE_DRAWS)
         return self._twin_env
+
+    def _integrators(self) -> int:
+        plant = self._plant_env.loop.plant
+        integrators = len(plant.den) - len(np.trim_zeros(np.asarray(plant.den), "b"))
+        return min(integrators, self.twin_poles - 1)
 
     def _default_twin(self):
         from agents.twin import LinearTwin
 
-        plant = self._plant_env.loop.plant
-        integrators = len(plant.den) - len(np.trim_zeros(np.asarray(plant.den), "b"))
-        return LinearTwin(n_poles=self.twin_poles, n_zeros=0,
-                          n_integrators=min(integrators, self.twin_poles - 1), n_samples=self.n_samples,
-                          output=plant.output, warm_start=True)
+        return LinearTwin(n_poles=self.twin_poles, n_zeros=0, n_integrators=self._integrators(),
+                          n_samples=self.n_samples, output=self._plant_env.loop.plant.output, warm_start=True)
+
+    # -- what the run shows ------------------------------------------------------------------------
+    def _twin_description(self) -> dict[str, Any]:
+        """Which twin drives the twin iterations: its effects, parameters and RMSE (logged per twin row)."""
+        twin = self.twin_
+        return {"twin_effects": ",".join(_effect_values(twin)) or "linear",
+                "twin_params": json_params(twin), "twin_rmse": float(twin.rmse_)}
+
+    def _record_twin_change(self, previous_rmse: float | None) -> None:
+        twin = self.twin_
+        effects = _effect_values(twin)
+        change = {"experiment": self.n_observations, "effects": effects, "params": [float(p) for p in twin.params_],
+                  "rmse": float(twin.rmse_), "previous_rmse": previous_rmse}
+        named = ", ".join(f"+ {name} ({_format_values(values)})" for name, values in effects.items()) or "linear"
+        before = f"{previous_rmse:.3g} -> " if previous_rmse is not None else ""
+        change["text"] = f"twin: {named}, RMSE {before}{twin.rmse_:.3g} (after {self.n_observations} experiments)"
+        self.twin_changes_.append(change)
+        self.log_event(change["text"])
 
 
+def _effect_values(twin) -> dict[str, dict[str, float]]:
+    """``{effect: {parameter: value}}`` of a twin (empty for a linear one), finite values only."""
+    params = getattr(twin, "effect_params_", None) or {}
+    return {name: {k: float(v) for k, v in values.items() if isinstance(v, (int, float)) and np.isfinite(v)}
+            for name, values in params.items()}
 
+
+def _format_values(values: dict[str, float]) -> str:
+    return ", ".join(f"{k} {v:.4g}" for k, v in values.items())
+
+
+def json_params(twin) -> str:
+    """The twin's linear parameters and effect values as one compact JSON string (one per twin row)."""
+    import json
+
+    return json.dumps({"linear": [float(p) for p in twin.params_], **_effect_values(twin)})

@@ -234,8 +234,15 @@ class TuningResult:
         ax.step(experiments, [row["best_cost"] for row in rows], where="post", label="best measured cost")
         if optimum is not None:
             ax.axhline(optimum, color="k", ls="--", lw=1, label="ground-truth optimum")
+        # twin refits (guided BO): after experiment n the twin shown in the label drives the twin iterations
+        for k, change in enumerate(self.info.get("twin_changes", [])):
+            effects = "+".join(change.get("effects", {})) or "linear"
+            ax.axvline(change["experiment"] + 0.5, color="tab:green", ls=":", lw=1,
+                       label="twin refitted" if k == 0 else None)
+            ax.annotate(effects, (change["experiment"] + 0.5, 1.0), xycoords=("data", "axes fraction"),
+                        rotation=90, va="top", ha="right", fontsize=7, color="tab:green")
         ax.set_xlabel("plant experiments")
-        ax.set_ylabel("cost J")
+        ax.set_ylabel("cost J (-)")
         ax.set_title(f"{self.tuner} on {self.env_id}")
         ax.legend(fontsize=8)
         return ax

@@ -158,6 +158,19 @@ class GreyBoxTwin(BaseEstimator):
         self._store(data, fit)
         return self
 
+    @classmethod
+    def from_fit(cls, fit: GreyFit, data: GreyData, n_samples: int | None = None, max_iter: int = 25) -> GreyBoxTwin:
+        """A fitted twin from a grey-box fit already made on ``data`` (e.g. a diagnosis's), without refitting.
+
+        Its ``effects`` are the fit's effect values, so ``clone(twin).fit(records)`` starts from them;
+        ``n_samples`` and ``max_iter`` are stored as given (they apply to later ``fit`` and ``score`` calls).
+        """
+        spec = fit.spec
+        twin = cls(effects=dict(fit.effect_params), n_poles=spec.n_poles, n_zeros=spec.n_zeros,
+                   n_integrators=spec.n_integrators, output=spec.output, n_samples=n_samples, max_iter=max_iter)
+        twin._store(data, fit)
+        return twin
+
     @single_thread()
     def predict(self, records) -> list[np.ndarray]:
         """Simulated outputs of the fitted model, with only each record's rest level and bias fitted.

@@ -84,7 +84,7 @@ def test_reinitialisation_fires_after_the_plant_changes_and_the_twin_refits():
     ({"eta1": -1.0}, "eta1"), ({"eta2": 0.0}, "eta2"), ({"n_ei": 0}, "n_ei"),
     ({"activation": "always"}, "activation"), ({"period": 0}, "period"), ({"n_samples": 3}, "n_samples"),
     ({"twin_poles": 0}, r"twin_poles: must be an int in \[1, inf\), got 0"), ({"eta3": float("nan")}, "eta3"),
-    ({"twin": object()}, r"twin: must be None or an object with method\(s\) fit, get_params"),
+    ({"twin": object()}, r"twin: must be one of \('auto', 'linear'\) or an object with method\(s\) fit, get_params"),
     ({"n_initial": 0}, "n_initial"), ({"grid_points": 1}, "grid_points"),
 ])
 def test_bad_parameters_are_named(kwargs, match):
@@ -95,7 +95,8 @@ def test_bad_parameters_are_named(kwargs, match):
 def test_params_are_the_constructor_keywords_and_rebuild_the_tuner():
     tuner = GuidedBO(eta1=2, eta3=np.inf, activation="periodic", **FAST)
     params = tuner.get_params()
-    assert set(params) == set(GuidedBO._parameter_constraints) - {"model", "settling_model", "twin"}
+    assert set(params) == set(GuidedBO._parameter_constraints) - {"model", "settling_model"}
+    assert params["twin"] == "auto"
     assert params["eta1"] == 2.0 and type(params["eta1"]) is float and params["grid_points"] == 40
     assert agents.make("guided-bo", **params).get_params() == params
     assert tuner.model == "cost"  # one GP on the cost (Algorithm 1)

@@ -1,0 +1,74 @@
+"""The twin the data call for: the workbench's error ladder run on a tuner's records, as a fitted grey-box twin.
+
+Guided BO with ``twin="auto"`` (:class:`agents.guided_bo.GuidedBO`) asks this
+module which twin to simulate: the linear model, or the linear model plus the
+physical effects the records evidence, with the same decision rule as
+``gbo twin diagnose`` (:func:`agents.twin.diagnose.diagnose`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from agents.twin.diagnose import error_ladder
+from agents.twin.greybox import GreyData, ModelSpec
+from agents.twin.greybox_twin import GreyBoxTwin
+from agents.twin.noise_floor import noise_floor
+from agents.twin.records import as_records, decimate
+from gbo_envs.physics.effects import EFFECTS
+
+__all__ = ["TWIN_CANDIDATES", "diagnosed_twin", "measurement_noise"]
+
+#: Effects a tuning twin is built from: those its closed loop simulates the same at every experiment.
+#: Sensor effects are left to the twin's measurement noise (a quantizer with noise in front of it is, in
+#: expectation, the identity plus noise of variance ``q^2 / 12``, which the records' noise floor
+#: contains), and ``drift`` to eq. (reinit_DTdataset), which restarts the twin data when the plant changes.
+TWIN_CANDIDATES = tuple(name for name, cls in EFFECTS.items() if cls.side != "sensor" and name != "drift")
+
+
+def diagnosed_twin(records: Sequence, spec: ModelSpec, effects: Mapping | None = None, max_effects: int = 2,
+                   n_samples: int | None = 100) -> tuple[GreyBoxTwin, list[dict]]:
+    """Diagnose the records and fit the twin with every effect they evidence, up to ``max_effects``.
+
+    The workbench's error ladder (:func:`agents.twin.diagnose.error_ladder`): starting
+    from ``effects`` (a previous twin's ``{effect: {parameter: value}}``, which warm-starts
+    the fit), the best-ranked effect is added while :func:`~agents.twin.diagnose.diagnose`
+    evidences one (held-out delta BIC, gain and effect-size tests). The candidates are
+    :data:`TWIN_CANDIDATES`.
+
+    Parameters
+    ----------
+    records : sequence of Experiment or mappings
+        Plant experiments with ``t, r, u, y``.
+    spec : ModelSpec
+        Orders and output kind of the linear part.
+    effects : dict, optional
+        Effects already in the model, with their values.
+    max_effects : int, default 2
+        Effects at most in the twin (the ladder's rungs beyond ``effects``).
+    n_samples : int, optional
+        Uniformly spaced samples kept per record (the paper's ``n~`` of eq. (Ds)).
+
+    Returns
+    -------
+    twin : GreyBoxTwin
+        Fitted on the records (its ``effects`` hold the fitted values).
+    rungs : list of dict
+        The ladder: ``{"model", "added", "rmse", "fit_percent", "heldout_rmse", "params"}`` per rung.
+    """
+    data = GreyData.from_records([decimate(rec, n_samples) for rec in as_records(records, min_steps=3)])
+    steps = max(int(max_effects) - len(effects or {}), 0)
+    rungs, diagnoses = error_ladder(data, effects=dict(effects or {}), spec=spec, max_steps=steps,
+                                    candidates=TWIN_CANDIDATES)
+    return GreyBoxTwin.from_fit(diagnoses[-1].current, data, n_samples=n_samples), rungs
+
+
+def measurement_noise(record) -> float:
+    """Noise floor of one record's measured output, in output units (:func:`agents.twin.noise_floor.noise_floor`).
+
+    ``0.0`` when it cannot be estimated (too short, or quantized without visible noise and no common step).
+    """
+    floor = noise_floor(GreyData.from_records([record]))
+    return float(floor) if floor is not None and np.isfinite(floor) else 0.0
