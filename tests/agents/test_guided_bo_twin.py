@@ -1,0 +1,192 @@
+"""Effect-aware guided BO: which twin, the noise-aware twin env, trust, guards against non-finite values."""
+
+from __future__ import annotations
+
+import logging
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import agents
+import gbo_envs  # noqa: F401
+from agents.guided_bo import GuidedBO
+from agents.twin import LinearTwin, make_twin_env
+
+FAST = {"grid_points": 40, "max_twin_iterations": 12}
+
+
+def _records(env, gains_list, seed=0):
+    env.reset(seed=seed)
+    return [env.step(np.asarray(g, dtype=float))[4] for g in gains_list]
+
+
+def _setup(tuner, env, seed=0):
+    tuner.setup(agents.GainSpace.from_env(env), seed=seed, env=env)
+    env.reset(seed=seed)
+    return tuner
+
+
+# -- which twin ----------------------------------------------------------------------------------------
+@pytest.mark.slow
+def test_auto_twin_picks_up_a_known_effect_within_ten_experiments():
+    # a 138-unit drive limit (holding 306 rad/s takes 134.6) clips every transient of DCMotor-v0
+    env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 138.0}})
+    tuner = GuidedBO(**FAST)
+    tuner.run(env, budget=10, seed=0)
+    found = [c for c in tuner.twin_changes_ if "saturation" in c["effects"]]
+    assert found, [c["text"] for c in tuner.twin_changes_]
+    assert found[0]["experiment"] <= 10
+    assert abs(found[0]["effects"]["saturation"]["limit"] - 138.0) < 3.0
+
+
+def test_auto_twin_stays_linear_on_a_linear_plant():
+    tuner = GuidedBO(**FAST)
+    tuner.run(gym.make("gbo_envs/DCMotor-v0"), budget=4, seed=1)
+    assert tuner.twin_changes_, "the twin was never fitted"
+    assert all(change["effects"] == {} for change in tuner.twin_changes_)
+    assert isinstance(tuner.twin_, LinearTwin)
+    assert tuner.activations_ >= 1
+
+
+def test_linear_twin_is_the_papers_algorithm():
+    tuner = GuidedBO(twin="linear", **FAST)
+    tuner.run(gym.make("gbo_envs/DCMotorRig-v0"), budget=3, seed=0)
+    assert isinstance(tuner.twin_, LinearTwin)
+    assert tuner.noise_floor_ == 0.0  # the paper's twin simulates no measurement noise
+    assert tuner.eta2_value == pytest.approx(3.0 * tuner.sigma_eps)
+    assert tuner._current_twin_env().loop.output_noise_std == 0.0
+
+
+def test_eta2_is_relative_to_the_noise_floor():
+    rig = _setup(GuidedBO(**FAST), gym.make("gbo_envs/DCMotorRig-v0"))
+    for info in _records(gym.make("gbo_envs/DCMotorRig-v0"), [[0.5, 1.2], [0.8, 1.0]]):
+        rig.tell(info["gains"], info["cost"], info)
+    # the rig's speed noise is about 0.09 rad/s on a 61 rad/s step
+    assert 5e-4 < rig.noise_floor_ < 5e-3
+    assert rig.eta2_value == pytest.approx(3.0 * rig.noise_floor_)
+    quiet = _setup(GuidedBO(**FAST), gym.make("gbo_envs/DCMotor-v0"))
+    info = _records(gym.make("gbo_envs/DCMotor-v0"), [[0.5, 1.2]])[0]
+    quiet.tell(info["gains"], info["cost"], info)
+    assert quiet.eta2_value == pytest.approx(0.003)  # the paper's absolute threshold on a quiet plant
+
+
+def test_twin_changes_are_announced_logged_and_plotted(caplog):
+    with caplog.at_level(logging.INFO, logger="agents.base"):
+        result = GuidedBO(**FAST).run(gym.make("gbo_envs/DCMotor-v0"), budget=3, seed=1)
+    changes = result.info["twin_changes"]
+    assert changes and changes[0]["experiment"] == 1
+    assert any("twin: linear, RMSE" in message for message in caplog.messages)
+    twin_rows = result.to_pandas(include_twin=True).query("source == 'twin'")
+    assert set(twin_rows["twin_effects"]) == {"linear"}
+    assert np.all(np.isfinite(twin_rows["twin_rmse"]))
+    ax = result.plot()
+    marks = [line for line in ax.get_lines() if line.get_label() == "twin refitted"]
+    assert len(marks) == 1
+    assert ax.get_ylabel() == "cost J (-)"
+
+
+# -- the noise-aware twin env --------------------------------------------------------------------------
+def test_twin_env_averages_its_measurement_noise_deterministically():
+    env = gym.make("gbo_envs/DCMotor-v0")
+    plant = env.unwrapped.loop.plant
+    gains = np.array([[0.5, 1.2], [0.9, 1.6]])
+    quiet = make_twin_env(env, plant).evaluate(gains)[1]
+    noisy = make_twin_env(env, plant, measurement_noise_std=0.5, draws=4)
+    first, again = noisy.evaluate(gains)[1], noisy.evaluate(gains)[1]
+    np.testing.assert_array_equal(first, again)
+    assert not np.allclose(first, quiet)
+    with pytest.raises(ValueError, match="measurement_noise_std"):
+        make_twin_env(env, plant, measurement_noise_std=-1.0)
+
+
+# -- trust -----------------------------------------------------------------------------------------------
+def test_a_broken_promise_stops_the_twin_until_a_refit_no_longer_makes_it():
+    env = gym.make("gbo_envs/DCMotor-v0")
+    tuner = _setup(GuidedBO(**FAST), env)
+    info = _records(gym.make("gbo_envs/DCMotor-v0"), [[0.5, 1.2]])[0]
+    tuner.tell(info["gains"], info["cost"], info)
+    assert tuner._current_twin() is not None and tuner._activate(std=np.inf)
+    twin_gains, incumbent = np.array([0.9, 1.5]), np.asarray(info["gains"])
+    # the twin promised an improvement of 0.2 over the incumbent's 0.3; the plant measured 0.4 (worse)
+    tuner._promise = (twin_gains, incumbent, 0.3, 0.2)
+    tuner.tell(twin_gains, 0.4, None)
+    assert not tuner.trusted and tuner.distrusts_ == 1
+    assert not tuner._activate(std=np.inf)
+    # a refitted twin that still promises more than was delivered stays distrusted ...
+    twin_env = tuner._current_twin_env()
+    honest = tuner._twin_cost(twin_env, incumbent) - tuner._twin_cost(twin_env, twin_gains)
+    tuner._broken = (twin_gains, incumbent, honest - 10 * tuner.sigma_eps)
+    tuner._restore_trust()
+    assert not tuner.trusted
+    # ... and one whose promise matches what the plant delivered is trusted again
+    tuner._broken = (twin_gains, incumbent, honest)
+    tuner._restore_trust()
+    assert tuner.trusted
+    # a promise kept within the noise does not cost trust
+    tuner._promise = (twin_gains, incumbent, 0.3, 0.05)
+    tuner.tell(twin_gains, 0.3 - 0.05 + tuner.sigma_eps, None)
+    assert tuner.trusted and tuner.distrusts_ == 1
+
+
+def _wrong_twin():
+    """A fitted LinearTwin of another plant: DCMotor-v0 behind a 60 ms dead time and a 120-unit drive limit."""
+    other = gym.make("gbo_envs/DCMotor-v0", effects={"time_delay": {"delay": 0.06}, "saturation": {"limit": 120.0}})
+    return LinearTwin(n_samples=100).fit(_records(other, [[0.5, 1.2], [0.9, 1.6]]))
+
+
+@pytest.mark.slow
+def test_a_wrong_user_twin_does_not_make_guided_bo_worse_than_bo():
+    truth = gym.make("gbo_envs/DCMotor-v0", noise=False).unwrapped
+    best = {"bo": [], "guided": []}
+    wrong = make_twin_env(gym.make("gbo_envs/DCMotor-v0"), _wrong_twin())
+    assert wrong.evaluate(np.array([[0.52, 1.1633]]))[1][0] > 1.5 * truth.evaluate(np.array([[0.52, 1.1633]]))[1][0]
+    for seed in range(3):
+        bo = agents.make("bo").run(gym.make("gbo_envs/DCMotor-v0"), budget=12, seed=seed)
+        guided = GuidedBO(twin=_wrong_twin(), **FAST).run(gym.make("gbo_envs/DCMotor-v0"), budget=12, seed=seed)
+        best["bo"].append(float(np.min(bo.min_true_cost_curve())))
+        best["guided"].append(float(np.min(guided.min_true_cost_curve())))
+    optimum = float(truth.evaluate(np.array([[0.52, 1.1633]]))[1][0])
+    assert np.mean(best["guided"]) / optimum <= np.mean(best["bo"]) / optimum + 0.05, best
+
+
+# -- guards against non-finite values --------------------------------------------------------------------
+def test_an_unstable_or_non_finite_record_is_not_identified_from():
+    env = gym.make("gbo_envs/DCMotor-v0")
+    tuner = _setup(GuidedBO(**FAST), env)
+    info = dict(_records(gym.make("gbo_envs/DCMotor-v0"), [[0.5, 1.2]])[0])
+    tuner.tell(info["gains"], info["cost"], {**info, "unstable": True})
+    bad_y = np.asarray(info["y"], dtype=float).copy()
+    bad_y[10] = np.inf
+    tuner.tell(info["gains"], info["cost"], {**info, "y": bad_y})
+    assert tuner._twin_records == [] and tuner._noise_floors == []
+    assert tuner.n_observations == 2  # the costs still reach the GP
+
+
+def test_a_twin_that_fails_to_fit_leaves_plain_bo():
+    class Unfittable(LinearTwin):
+        def fit(self, records, y=None):
+            raise np.linalg.LinAlgError("singular")
+
+    result = GuidedBO(twin=Unfittable(), **FAST).run(gym.make("gbo_envs/DCMotor-v0"), budget=4, seed=0)
+    assert result.info["activations"] == 0
+    assert np.all(np.isfinite(result.to_pandas()["cost"]))
+
+
+def test_a_non_finite_twin_cost_enters_the_gp_as_the_unstable_cost():
+    env = gym.make("gbo_envs/DCMotor-v0")
+    tuner = _setup(GuidedBO(**FAST), env)
+    info = _records(gym.make("gbo_envs/DCMotor-v0"), [[0.5, 1.2]])[0]
+    tuner.tell(info["gains"], info["cost"], info)
+
+    class NaNTwin:
+        unstable_cost = 10.0
+
+        def evaluate(self, gains):
+            return np.full((1, 4), np.nan), np.array([np.nan])
+
+    tuner.twin_ = tuner._current_twin()
+    gains, cost = tuner._twin_iterations(NaNTwin(), np.array([0.5, 1.2]), 1.0, cap=2, periodic=True)
+    assert cost == 10.0
+    X, y = tuner.training_set()
+    assert np.all(np.isfinite(y)) and np.all(y[1:] == 10.0)
