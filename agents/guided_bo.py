@@ -36,6 +36,9 @@ TWIN_CHOICES = ("auto", "linear")
 #: Effects at most in a diagnosed twin (the workbench's ladder, two rungs).
 MAX_TWIN_EFFECTS = 2
 
+#: Records in ``D~`` beyond which the effects are settled: no further diagnosis, only warm refits.
+MAX_DIAGNOSED_RECORDS = 8
+
 #: Noise draws ``K`` of the twin's expected cost (:class:`agents.twin.TwinEnv`).
 TWIN_NOISE_DRAWS = 8
 
@@ -75,7 +78,8 @@ class GuidedBO(BayesianOptimization):
     diagnose``), and the twin becomes the linear model plus every effect they
     evidence, at most two, as a :class:`~agents.twin.GreyBoxTwin`, if that fits
     better. A diagnosis is repeated only when the records have doubled since the
-    last one (1, 2, 4, 8, ... records).
+    last one, up to :data:`MAX_DIAGNOSED_RECORDS` (1, 2, 4, 8 records); after that the
+    effects are settled and the twin is only refitted.
     ``twin="linear"`` is the paper's Algorithm 1 unchanged: the SRIVC
     transfer function of ``twin_poles`` poles, noise-free, ``eta2 = 3 sigma_eps``
     by default, always trusted. A :class:`~agents.twin.LinearTwin` or
@@ -97,9 +101,11 @@ class GuidedBO(BayesianOptimization):
     improvement the twin promised over the plant incumbent ``theta_I`` (lowest
     measured cost), ``J^(theta_I) - J^(theta_T)``, is compared with the one measured,
     ``mu(theta_I) - J(theta_T)`` (``mu``: the GP's posterior mean on the plant data; the
-    lowest measurement itself is biased low by the noise). If the plant delivers less than promised by more
-    than ``2 sqrt(2) sigma_eps`` (two standard deviations of a difference of two
-    measurements), the twin is not used again until it has been refitted and the
+    lowest measurement itself is biased low by the noise). If the plant delivers less than
+    promised and less than nothing, ``delivered < min(promised, 0) - 2 sqrt(2) sigma_eps``
+    (two standard deviations of a difference of two measurements): the twin's point is
+    worse than the incumbent and than predicted, beyond the noise. Such a twin
+    is not used again until it has been refitted and the
     refitted twin no longer promises that improvement; meanwhile guided BO is BO,
     and the twin is refitted (and the records diagnosed) once they have doubled.
 
@@ -430,7 +436,8 @@ class GuidedBO(BayesianOptimization):
             return
         _, inc_gains, inc_cost, promised = promise
         delivered = inc_cost - float(cost)
-        if delivered < promised - 2.0 * np.sqrt(2.0) * self.sigma_eps:
+        # worse than promised and worse than the incumbent, each beyond the noise of a difference
+        if delivered < min(promised, 0.0) - 2.0 * np.sqrt(2.0) * self.sigma_eps:
             self._broken = (promise[0], inc_gains, delivered)
             self.distrusts_ += 1
 
@@ -503,14 +510,16 @@ class GuidedBO(BayesianOptimization):
             effects = getattr(previous, "effect_params_", None) or {}
             # the current structure first: the paper's SRIVC twin, or the diagnosed effects from their last values
             twin = clone(previous).fit(self._twin_records) if effects else self._default_twin().fit(self._twin_records)
-            due = self._diagnosed_on == 0 or len(self._twin_records) >= 2 * self._diagnosed_on
+            n = len(self._twin_records)
+            doubled = n >= 2 * self._diagnosed_on and self._diagnosed_on < MAX_DIAGNOSED_RECORDS
+            due = self._diagnosed_on == 0 or doubled
             if due and not twin.rmse_ <= self._explained_rmse():  # an error the noise does not explain
                 from agents.twin.greybox import ModelSpec
                 from agents.twin.selection import diagnosed_twin
 
                 spec = ModelSpec(n_poles=self.twin_poles, n_integrators=self._integrators(),
                                  output=self._plant_env.loop.plant.output)
-                self._diagnosed_on = len(self._twin_records)
+                self._diagnosed_on = n
                 diagnosed = diagnosed_twin(self._twin_records, spec, effects=effects, max_effects=MAX_TWIN_EFFECTS,
                                            n_samples=self.n_samples)[0]
                 if diagnosed.rmse_ < twin.rmse_:

@@ -123,9 +123,11 @@ def test_a_broken_promise_stops_the_twin_until_a_refit_no_longer_makes_it():
     tuner._broken = (twin_gains, incumbent, honest)
     tuner._restore_trust()
     assert tuner.trusted
-    # a promise kept within the noise does not cost trust
+    # a promise kept within the noise does not cost trust, nor does a smaller improvement than promised
     tuner._promise = (twin_gains, incumbent, 0.3, 0.05)
     tuner.tell(twin_gains, 0.3 - 0.05 + tuner.sigma_eps, None)
+    tuner._promise = (twin_gains, incumbent, 0.3, 0.2)
+    tuner.tell(twin_gains, 0.29, None)
     assert tuner.trusted and tuner.distrusts_ == 1
 
 
