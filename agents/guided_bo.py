@@ -105,9 +105,10 @@ class GuidedBO(BayesianOptimization):
     promised and less than nothing, ``delivered < min(promised, 0) - 2 sqrt(2) sigma_eps``
     (two standard deviations of a difference of two measurements): the twin's point is
     worse than the incumbent and than predicted, beyond the noise. Such a twin
-    is not used again until it has been refitted and the
-    refitted twin no longer promises that improvement; meanwhile guided BO is BO,
-    and the twin is refitted (and the records diagnosed) once they have doubled.
+    is not used again until it has been refitted and either no longer promises that
+    improvement or was refitted on twice the records it had when it lost trust
+    (so a wrong twin costs at most one experiment per doubling of the records);
+    meanwhile guided BO is BO.
 
     Choices where the paper leaves room (their measured effect on DCMotor-v0 is in
     benchmarks/README.md):
@@ -258,7 +259,7 @@ class GuidedBO(BayesianOptimization):
         self._diagnosed_on = 0  # records in D~ at the last diagnosis (twin="auto")
         self._noise_floors: list[float] = []
         self._promise = None  # (theta_T, theta_I, J(theta_I), promised improvement) of the last twin proposal
-        self._broken = None  # (theta_T, theta_I, delivered improvement) that cost the twin its trust
+        self._broken = None  # (theta_T, theta_I, delivered improvement, records) of the promise that failed
         self.twin_ = None
         self._twin_env = None
         if not isinstance(self.twin, str) and hasattr(self.twin, "plant_"):
@@ -438,14 +439,18 @@ class GuidedBO(BayesianOptimization):
         delivered = inc_cost - float(cost)
         # worse than promised and worse than the incumbent, each beyond the noise of a difference
         if delivered < min(promised, 0.0) - 2.0 * np.sqrt(2.0) * self.sigma_eps:
-            self._broken = (promise[0], inc_gains, delivered)
+            self._broken = (promise[0], inc_gains, delivered, max(len(self._twin_records), 1))
             self.distrusts_ += 1
 
     def _restore_trust(self) -> None:
-        """After a refit: trusted again if the new twin no longer promises the improvement that failed."""
+        """After a refit: trusted again if the new twin no longer promises the improvement that failed,
+        or if it was refitted on at least twice the records it had when it lost trust."""
         if self._broken is None or self._twin_env is None:
             return
-        failed, inc_gains, delivered = self._broken
+        failed, inc_gains, delivered, records = self._broken
+        if len(self._twin_records) >= 2 * records:
+            self._broken = None
+            return
         promised = self._twin_cost(self._twin_env, inc_gains) - self._twin_cost(self._twin_env, failed)
         if promised <= delivered + 2.0 * np.sqrt(2.0) * self.sigma_eps:
             self._broken = None

@@ -116,11 +116,16 @@ def test_a_broken_promise_stops_the_twin_until_a_refit_no_longer_makes_it():
     # a refitted twin that still promises more than was delivered stays distrusted ...
     twin_env = tuner._current_twin_env()
     honest = tuner._twin_cost(twin_env, incumbent) - tuner._twin_cost(twin_env, twin_gains)
-    tuner._broken = (twin_gains, incumbent, honest - 10 * tuner.sigma_eps)
+    tuner._broken = (twin_gains, incumbent, honest - 10 * tuner.sigma_eps, 1)
     tuner._restore_trust()
     assert not tuner.trusted
+    # ... unless it was refitted on twice the records it had when it lost trust ...
+    tuner._twin_records.append(tuner._twin_records[0])
+    tuner._restore_trust()
+    assert tuner.trusted
+    tuner._twin_records.pop()
     # ... and one whose promise matches what the plant delivered is trusted again
-    tuner._broken = (twin_gains, incumbent, honest)
+    tuner._broken = (twin_gains, incumbent, honest, 1)
     tuner._restore_trust()
     assert tuner.trusted
     # a promise kept within the noise does not cost trust, nor does a smaller improvement than promised
