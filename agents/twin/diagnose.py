@@ -128,7 +128,8 @@ def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_i
 @single_thread()
 def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
              current: GreyFit | None = None, n_folds: int = 4, bic_margin: float = 10.0, min_gain: float = 0.02,
-             max_iter: int = 20, _restarts: int = 0) -> Diagnosis:
+             max_iter: int = 20, *, noise_gain: float = 0.05, skip_unexcited: bool = True,
+             _restarts: int = 0) -> Diagnosis:
     """Try every catalogued effect as an addition to the model and rank them on held-out experiments.
 
     Parameters
@@ -157,6 +158,20 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         other parameters.
     max_iter : int, default 20
         Trial points of the full-data least-squares fits (:func:`agents.twin.greybox.fit_problems`).
+    noise_gain : float, default 0.05
+        ``best`` also needs its held-out RMSE at least ``noise_gain`` times the
+        measurement noise floor (:func:`agents.twin.noise_floor.noise_floor`) below
+        the current model's: a gain far below what the measurement resolves is not
+        evidence (on noise-free data the linear model's error is far below the
+        floor, and an effect would otherwise be credited with fitting that error).
+    skip_unexcited : bool, default True
+        Do not fit the effects the data cannot show (:func:`agents.twin.evidence.excitation_notes`:
+        friction, stiction and backlash without a speed reversal, a dead zone without a
+        zero crossing of the input, drift in one experiment, a constant offset always).
+        They stay in ``candidates`` with their ``note``, ``"fitted": False``, no entry in
+        ``fits``, the current model's errors (the effect is absorbed by the rest levels
+        and biases, so its fit is the current model's) and a ``delta_bic`` of its extra
+        parameters' penalty alone.
 
     Returns
     -------
@@ -174,10 +189,22 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     the diagnosis restarts from that fit, so that no effect is credited with a
     better fit of parameters the model already has. With one experiment there is nothing to hold
     out: the training RSS is used and ``validation`` says so.
+
+    Decision rule: ``best`` is the candidate with the lowest ``delta_bic`` among
+    those with ``delta_bic < -bic_margin``, a held-out RMSE below ``(1 - min_gain)``
+    times the current model's and at least ``noise_gain`` times the noise floor
+    below it, and an ``effect_rms`` of at least a fifth of the RMS it explains;
+    ``None`` when no candidate passes. The noise floor from second differences
+    overestimates the noise of smooth noise-free data (the response's own
+    curvature), which only makes the noise rule stricter there; a quantized
+    output without noise uses ``q / sqrt(12)``.
     """
     if current is None:
         current = _grey_box(effects, spec, max_iter).fit(data).greybox_
     names = [n for n in (candidates or EFFECT_NAMES) if n not in current.spec.effect_names]
+    notes = excitation_notes(data, current.spec.output)
+    skipped = [n for n in names if n in notes] if skip_unexcited else []
+    names = [n for n in names if n not in skipped]
     # the current model gets the same iteration budget as the candidates, so that no candidate wins by
     # merely polishing parameters the current model already has
     problems = [_refit_problem(data, current, np.arange(data.n_records), True, tag="__current__")]
@@ -196,7 +223,8 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     restart = _without_new_effect(data, current, fits)
     if restart is not None and _restarts < 1:  # a candidate found better values of the current parameters
         return diagnose(data, candidates=candidates, current=restart, n_folds=n_folds, bic_margin=bic_margin,
-                        min_gain=min_gain, max_iter=max_iter, _restarts=_restarts + 1)
+                        min_gain=min_gain, max_iter=max_iter, noise_gain=noise_gain,
+                        skip_unexcited=skip_unexcited, _restarts=_restarts + 1)
     order = list(fits)
     models = [current] + [fits[name] for name in order]
     n = data.n_samples
@@ -207,7 +235,6 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         rss = np.array([m.rmse**2 * n for m in models])
         validation = "training error (one experiment: nothing to hold out)"
     bic = n * np.log(np.maximum(rss, 1e-300) / n) + np.array([m.n_params for m in models]) * np.log(n)
-    notes = excitation_notes(data, current.spec.output)
     cands = []
     for i, name in enumerate(order, start=1):
         fit = fits[name]
@@ -215,15 +242,23 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
                  "params": jsonable(fit.effect_params.get(name, {}), finite=True) if name in fit.effect_params else {},
                  "evidence": effect_evidence(name, data, current, fit), "train_rmse": float(fit.rmse),
                  "extra_params": int(fit.n_params - current.n_params),
-                 "effect_rms": _effect_size(data, fit)}
+                 "effect_rms": _effect_size(data, fit), "fitted": True}
         if name in notes:
             entry["note"] = notes[name]
         cands.append(entry)
-    cands.sort(key=lambda c: c["delta_bic"])
     cur_rmse = float(np.sqrt(rss[0] / n))
+    for name in skipped:  # not fitted: absorbed by the rest levels, so its fit is the current model's
+        extra = sum(1 for _ in FITTED_PARAMETERS[name])
+        cands.append({"effect": name, "rmse": cur_rmse, "delta_bic": float(extra * np.log(n)), "params": {},
+                      "evidence": f"not fitted: {notes[name]}", "train_rmse": float(current.rmse),
+                      "extra_params": extra, "effect_rms": 0.0, "note": notes[name], "fitted": False})
+    cands.sort(key=lambda c: c["delta_bic"])
+    noise = noise_floor(data)
     # an improvement counts if it passes BIC, lowers the held-out error by min_gain, and comes from the
     # effect itself: switching the effect off must move the output by a fifth of what the effect explains
+    # and the gain must be resolvable by the measurement: at least noise_gain times its noise floor
     good = [c for c in cands if c["delta_bic"] < -bic_margin and c["rmse"] < (1.0 - min_gain) * cur_rmse
+            and (noise is None or cur_rmse - c["rmse"] >= noise_gain * noise)
             and c["effect_rms"] >= 0.2 * np.sqrt(max(current.rmse**2 - c["train_rmse"] ** 2, 0.0))]
     best = good[0]["effect"] if good else None
     pairs = []
@@ -233,7 +268,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
                     abs(a["rmse"] - b["rmse"]) < 0.01 * a["rmse"]:
                 pairs.append([a["effect"], b["effect"]])
     suggestion = separating_experiment(*pairs[0]) if pairs else None
-    return Diagnosis(current, fits, cands, best, noise_floor(data), compare(data, current).fit_percent_all, cur_rmse,
+    return Diagnosis(current, fits, cands, best, noise, compare(data, current).fit_percent_all, cur_rmse,
                      validation, pairs, suggestion)
 
 
