@@ -129,7 +129,7 @@ def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_i
 def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
              current: GreyFit | None = None, n_folds: int = 4, bic_margin: float = 10.0, min_gain: float = 0.02,
              max_iter: int = 20, *, noise_gain: float = 0.05, skip_unexcited: bool = True,
-             _restarts: int = 0) -> Diagnosis:
+             screen_iter: int = 8, _restarts: int = 0) -> Diagnosis:
     """Try every catalogued effect as an addition to the model and rank them on held-out experiments.
 
     Parameters
@@ -172,6 +172,11 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         ``fits``, the current model's errors (the effect is absorbed by the rest levels
         and biases, so its fit is the current model's) and a ``delta_bic`` of its extra
         parameters' penalty alone.
+    screen_iter : int, default 8
+        Trial points after which a candidate whose cost is not below the current
+        model's (fitted with all ``max_iter``) stops: it cannot pass the decision rule
+        below without beating the current model, so only the candidates ahead of it
+        get the rest of ``max_iter``.
 
     Returns
     -------
@@ -211,7 +216,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     for name in names:
         for options in _variants(name, current.spec):
             problems += candidate_problems(data, current, name, options, tag=name)
-    fit_problems(data, problems, max_iter=max_iter)
+    _screened_fit(data, problems, max_iter, screen_iter)
     polished = GreyFit.from_problem(data, problems[0])
     if polished.rmse < current.rmse:
         current = refine_grid_parameters(data, polished)
@@ -224,7 +229,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     if restart is not None and _restarts < 1:  # a candidate found better values of the current parameters
         return diagnose(data, candidates=candidates, current=restart, n_folds=n_folds, bic_margin=bic_margin,
                         min_gain=min_gain, max_iter=max_iter, noise_gain=noise_gain,
-                        skip_unexcited=skip_unexcited, _restarts=_restarts + 1)
+                        skip_unexcited=skip_unexcited, screen_iter=screen_iter, _restarts=_restarts + 1)
     order = list(fits)
     models = [current] + [fits[name] for name in order]
     n = data.n_samples
@@ -291,6 +296,15 @@ def _effect_size(data: GreyData, fit: GreyFit) -> float:
                          true_output=cls.side != "sensor")  # a sensor effect only shows in the measurement
     size = rmse(sims[0] - sims[1], mask=data.mask)
     return size if np.isfinite(size) else 0.0
+
+
+def _screened_fit(data: GreyData, problems: list[Problem], max_iter: int, screen_iter: int) -> None:
+    """Fit the current model (``problems[0]``, ``max_iter`` trial points) and the candidates
+    (``screen_iter``); those whose cost is then below the current model's get the rest of ``max_iter``."""
+    fit_problems(data, problems, budgets=[max_iter] + [min(max_iter, screen_iter)] * (len(problems) - 1))
+    ahead = [p for p in problems[1:] if p.cost < problems[0].cost]
+    if max_iter > screen_iter and ahead:
+        fit_problems(data, ahead, max_iter=max_iter - screen_iter)
 
 
 def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit | None:

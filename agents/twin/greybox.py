@@ -355,7 +355,8 @@ def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(err), err, 1e6 * (1.0 + np.abs(data.y[rows]).max()))
 
 
-def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7) -> list[Problem]:
+def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7, *,
+                 budgets: Sequence[int] | None = None) -> list[Problem]:
     """Solve bounded least-squares problems of the simulation error with ``scipy.optimize.least_squares``.
 
     All problems are first simulated at their starts in one vectorised pass; each
@@ -378,6 +379,8 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
         Trial points per problem after the start; 0 only simulates the starts.
     tol : float, default 1e-7
         Relative cost decrease that ends the iteration.
+    budgets : sequence of int, optional
+        Trial points of each problem, instead of ``max_iter`` for all.
 
     Returns
     -------
@@ -389,20 +392,23 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     for p, y in zip(problems, sims):
         p.y_sim, p.residual = y, residual(data, p.rows, y)
         p.cost = float(np.sum(p.residual**2))
-    todo = [p for p in problems if max_iter > 0 and np.any(p.free & (p.lower < p.upper))]
+    budgets = [int(max_iter)] * len(problems) if budgets is None else [int(b) for b in budgets]
+    if len(budgets) != len(problems):
+        raise ValueError(f"budgets: need one per problem ({len(problems)}), got {len(budgets)}")
+    todo = [(p, b) for p, b in zip(problems, budgets) if b > 0 and np.any(p.free & (p.lower < p.upper))]
     if len(todo) == 1:
-        _solve(data, todo[0], int(max_iter), float(tol))
+        _solve(data, todo[0][0], todo[0][1], float(tol))
     elif todo:
         lockstep = _Lockstep(data, len(todo))
 
-        def solve(p: Problem) -> None:
+        def solve(p: Problem, budget: int) -> None:
             try:
-                _solve(data, p, int(max_iter), float(tol), lockstep.simulate)
+                _solve(data, p, budget, float(tol), lockstep.simulate)
             finally:
                 lockstep.leave()
 
         with ThreadPoolExecutor(max_workers=len(todo)) as pool:
-            for future in [pool.submit(solve, p) for p in todo]:
+            for future in [pool.submit(solve, p, b) for p, b in todo]:
                 future.result()
     return problems
 
