@@ -8,7 +8,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -129,7 +129,7 @@ def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_i
 def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
              current: GreyFit | None = None, n_folds: int = 4, bic_margin: float = 10.0, min_gain: float = 0.02,
              max_iter: int = 20, *, noise_gain: float = 0.05, skip_unexcited: bool = True,
-             screen_iter: int = 8, _restarts: int = 0) -> Diagnosis:
+             screen_iter: int = 8, _restarts: int = 0, _starts: dict | None = None) -> Diagnosis:
     """Try every catalogued effect as an addition to the model and rank them on held-out experiments.
 
     Parameters
@@ -175,8 +175,8 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     screen_iter : int, default 8
         Trial points after which a candidate whose cost is not below the current
         model's (fitted with all ``max_iter``) stops: it cannot pass the decision rule
-        below without beating the current model, so only the candidates ahead of it
-        get the rest of ``max_iter``.
+        below without beating the current model. The candidates ahead of it are
+        fitted again from their starts with all ``max_iter`` trial points.
 
     Returns
     -------
@@ -192,7 +192,8 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     iteration budget as the candidates, and if a candidate's fit with its new
     effect switched off beats it (a better minimum of the current parameters),
     the diagnosis restarts from that fit, so that no effect is credited with a
-    better fit of parameters the model already has. With one experiment there is nothing to hold
+    better fit of parameters the model already has (each candidate then starts
+    from its fit of the first round). With one experiment there is nothing to hold
     out: the training RSS is used and ``validation`` says so.
 
     Decision rule: ``best`` is the candidate with the lowest ``delta_bic`` among
@@ -214,6 +215,9 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     # merely polishing parameters the current model already has
     problems = [_refit_problem(data, current, np.arange(data.n_records), True, tag="__current__")]
     for name in names:
+        if _starts and name in _starts:  # a restart: the candidate's fit of the first round is its start
+            problems.append(_refit_problem(data, _starts[name], np.arange(data.n_records), True, tag=name))
+            continue
         for options in _variants(name, current.spec):
             problems += candidate_problems(data, current, name, options, tag=name)
     _screened_fit(data, problems, max_iter, screen_iter)
@@ -229,7 +233,8 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     if restart is not None and _restarts < 1:  # a candidate found better values of the current parameters
         return diagnose(data, candidates=candidates, current=restart, n_folds=n_folds, bic_margin=bic_margin,
                         min_gain=min_gain, max_iter=max_iter, noise_gain=noise_gain,
-                        skip_unexcited=skip_unexcited, screen_iter=screen_iter, _restarts=_restarts + 1)
+                        skip_unexcited=skip_unexcited, screen_iter=screen_iter, _restarts=_restarts + 1,
+                        _starts=fits)
     order = list(fits)
     models = [current] + [fits[name] for name in order]
     n = data.n_samples
@@ -299,12 +304,22 @@ def _effect_size(data: GreyData, fit: GreyFit) -> float:
 
 
 def _screened_fit(data: GreyData, problems: list[Problem], max_iter: int, screen_iter: int) -> None:
-    """Fit the current model (``problems[0]``, ``max_iter`` trial points) and the candidates
-    (``screen_iter``); those whose cost is then below the current model's get the rest of ``max_iter``."""
-    fit_problems(data, problems, budgets=[max_iter] + [min(max_iter, screen_iter)] * (len(problems) - 1))
-    ahead = [p for p in problems[1:] if p.cost < problems[0].cost]
-    if max_iter > screen_iter and ahead:
-        fit_problems(data, ahead, max_iter=max_iter - screen_iter)
+    """Fit the current model (``problems[0]``, ``max_iter`` trial points) and the candidates (``screen_iter``).
+
+    The candidates whose cost is then below the current model's are fitted again
+    from their starts with all ``max_iter`` trial points (the same fit as without
+    the screen), in place in ``problems``.
+    """
+    if max_iter <= screen_iter:
+        fit_problems(data, problems, max_iter=max_iter)
+        return
+    starts = [replace(p) for p in problems]
+    fit_problems(data, problems, budgets=[max_iter] + [screen_iter] * (len(problems) - 1))
+    ahead = [i for i in range(1, len(problems)) if problems[i].cost < problems[0].cost]
+    for i in ahead:
+        problems[i] = starts[i]
+    if ahead:
+        fit_problems(data, [problems[i] for i in ahead], max_iter=max_iter)
 
 
 def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit | None:
