@@ -93,3 +93,7 @@ def test_noise_free_linear_data_evidence_no_effect():
     out = diagnose(data).to_dict()
     assert out["heldout_rmse"] < 0.05 * out["noise_rmse"]
     assert out["best"] is None
+    # every effect fitted: some pass BIC on the linear model's tiny error, none by a resolvable margin
+    out = diagnose(data, skip_unexcited=False).to_dict()
+    assert out["best"] is None
+    assert min(c["delta_bic"] for c in out["candidates"]) < -10.0
