@@ -205,14 +205,18 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     curvature), which only makes the noise rule stricter there; a quantized
     output without noise uses ``q / sqrt(12)``.
     """
+    if not np.isfinite(noise_gain) or noise_gain < 0.0:
+        raise ValueError(f"noise_gain: must be a finite number >= 0, got {noise_gain}")
+    if int(screen_iter) < 1:
+        raise ValueError(f"screen_iter: must be an integer >= 1, got {screen_iter}")
     if current is None:
         current = _grey_box(effects, spec, max_iter).fit(data).greybox_
     names = [n for n in (candidates or EFFECT_NAMES) if n not in current.spec.effect_names]
     notes = excitation_notes(data, current.spec.output)
     skipped = [n for n in names if n in notes] if skip_unexcited else []
     names = [n for n in names if n not in skipped]
-    # the current model gets the same iteration budget as the candidates, so that no candidate wins by
-    # merely polishing parameters the current model already has
+    # the current model gets the same iteration budget as the candidates that can win, so that no candidate
+    # wins by merely polishing parameters the current model already has
     problems = [_refit_problem(data, current, np.arange(data.n_records), True, tag="__current__")]
     for name in names:
         if _starts and name in _starts:  # a restart: the candidate's fit of the first round is its start

@@ -63,6 +63,14 @@ def test_fit_problems_budgets_are_checked():
         fit_problems(data, problems, budgets=[1] * (len(problems) + 1))
 
 
+@pytest.mark.parametrize(("kwargs", "name"), [({"noise_gain": -0.1}, "noise_gain"),
+                                              ({"noise_gain": float("nan")}, "noise_gain"),
+                                              ({"screen_iter": 0}, "screen_iter")])
+def test_diagnose_rejects_bad_options(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        diagnose(_data(n=2), **kwargs)
+
+
 def _copy(p):
     from dataclasses import replace
 
