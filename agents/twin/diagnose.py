@@ -8,7 +8,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -128,7 +128,8 @@ def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_i
 @single_thread()
 def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
              current: GreyFit | None = None, n_folds: int = 4, bic_margin: float = 10.0, min_gain: float = 0.02,
-             max_iter: int = 20, _restarts: int = 0) -> Diagnosis:
+             max_iter: int = 20, *, noise_gain: float = 0.05, skip_unexcited: bool = True,
+             screen_iter: int = 8, _restarts: int = 0, _starts: dict | None = None) -> Diagnosis:
     """Try every catalogued effect as an addition to the model and rank them on held-out experiments.
 
     Parameters
@@ -157,6 +158,25 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         other parameters.
     max_iter : int, default 20
         Trial points of the full-data least-squares fits (:func:`agents.twin.greybox.fit_problems`).
+    noise_gain : float, default 0.05
+        ``best`` also needs its held-out RMSE at least ``noise_gain`` times the
+        measurement noise floor (:func:`agents.twin.noise_floor.noise_floor`) below
+        the current model's: a gain far below what the measurement resolves is not
+        evidence (on noise-free data the linear model's error is far below the
+        floor, and an effect would otherwise be credited with fitting that error).
+    skip_unexcited : bool, default True
+        Do not fit the effects the data cannot show (:func:`agents.twin.evidence.excitation_notes`:
+        friction, stiction and backlash without a speed reversal, a dead zone without a
+        zero crossing of the input, drift in one experiment, a constant offset always).
+        They stay in ``candidates`` with their ``note``, ``"fitted": False``, no entry in
+        ``fits``, the current model's errors (the effect is absorbed by the rest levels
+        and biases, so its fit is the current model's) and a ``delta_bic`` of its extra
+        parameters' penalty alone.
+    screen_iter : int, default 8
+        Trial points after which a candidate whose cost is not below the current
+        model's (fitted with all ``max_iter``) stops: it cannot pass the decision rule
+        below without beating the current model. The candidates ahead of it are
+        fitted again from their starts with all ``max_iter`` trial points.
 
     Returns
     -------
@@ -172,19 +192,39 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     iteration budget as the candidates, and if a candidate's fit with its new
     effect switched off beats it (a better minimum of the current parameters),
     the diagnosis restarts from that fit, so that no effect is credited with a
-    better fit of parameters the model already has. With one experiment there is nothing to hold
+    better fit of parameters the model already has (each candidate then starts
+    from its fit of the first round). With one experiment there is nothing to hold
     out: the training RSS is used and ``validation`` says so.
+
+    Decision rule: ``best`` is the candidate with the lowest ``delta_bic`` among
+    those with ``delta_bic < -bic_margin``, a held-out RMSE below ``(1 - min_gain)``
+    times the current model's and at least ``noise_gain`` times the noise floor
+    below it, and an ``effect_rms`` of at least a fifth of the RMS it explains;
+    ``None`` when no candidate passes. The noise floor from second differences
+    overestimates the noise of smooth noise-free data (the response's own
+    curvature), which only makes the noise rule stricter there; a quantized
+    output without noise uses ``q / sqrt(12)``.
     """
+    if not np.isfinite(noise_gain) or noise_gain < 0.0:
+        raise ValueError(f"noise_gain: must be a finite number >= 0, got {noise_gain}")
+    if int(screen_iter) < 1:
+        raise ValueError(f"screen_iter: must be an integer >= 1, got {screen_iter}")
     if current is None:
         current = _grey_box(effects, spec, max_iter).fit(data).greybox_
     names = [n for n in (candidates or EFFECT_NAMES) if n not in current.spec.effect_names]
-    # the current model gets the same iteration budget as the candidates, so that no candidate wins by
-    # merely polishing parameters the current model already has
+    notes = excitation_notes(data, current.spec.output)
+    skipped = [n for n in names if n in notes] if skip_unexcited else []
+    names = [n for n in names if n not in skipped]
+    # the current model gets the same iteration budget as the candidates that can win, so that no candidate
+    # wins by merely polishing parameters the current model already has
     problems = [_refit_problem(data, current, np.arange(data.n_records), True, tag="__current__")]
     for name in names:
+        if _starts and name in _starts:  # a restart: the candidate's fit of the first round is its start
+            problems.append(_refit_problem(data, _starts[name], np.arange(data.n_records), True, tag=name))
+            continue
         for options in _variants(name, current.spec):
             problems += candidate_problems(data, current, name, options, tag=name)
-    fit_problems(data, problems, max_iter=max_iter)
+    _screened_fit(data, problems, max_iter, screen_iter)
     polished = GreyFit.from_problem(data, problems[0])
     if polished.rmse < current.rmse:
         current = refine_grid_parameters(data, polished)
@@ -196,7 +236,9 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     restart = _without_new_effect(data, current, fits)
     if restart is not None and _restarts < 1:  # a candidate found better values of the current parameters
         return diagnose(data, candidates=candidates, current=restart, n_folds=n_folds, bic_margin=bic_margin,
-                        min_gain=min_gain, max_iter=max_iter, _restarts=_restarts + 1)
+                        min_gain=min_gain, max_iter=max_iter, noise_gain=noise_gain,
+                        skip_unexcited=skip_unexcited, screen_iter=screen_iter, _restarts=_restarts + 1,
+                        _starts=fits)
     order = list(fits)
     models = [current] + [fits[name] for name in order]
     n = data.n_samples
@@ -207,7 +249,6 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         rss = np.array([m.rmse**2 * n for m in models])
         validation = "training error (one experiment: nothing to hold out)"
     bic = n * np.log(np.maximum(rss, 1e-300) / n) + np.array([m.n_params for m in models]) * np.log(n)
-    notes = excitation_notes(data, current.spec.output)
     cands = []
     for i, name in enumerate(order, start=1):
         fit = fits[name]
@@ -215,15 +256,23 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
                  "params": jsonable(fit.effect_params.get(name, {}), finite=True) if name in fit.effect_params else {},
                  "evidence": effect_evidence(name, data, current, fit), "train_rmse": float(fit.rmse),
                  "extra_params": int(fit.n_params - current.n_params),
-                 "effect_rms": _effect_size(data, fit)}
+                 "effect_rms": _effect_size(data, fit), "fitted": True}
         if name in notes:
             entry["note"] = notes[name]
         cands.append(entry)
-    cands.sort(key=lambda c: c["delta_bic"])
     cur_rmse = float(np.sqrt(rss[0] / n))
+    for name in skipped:  # not fitted: absorbed by the rest levels, so its fit is the current model's
+        extra = sum(1 for _ in FITTED_PARAMETERS[name])
+        cands.append({"effect": name, "rmse": cur_rmse, "delta_bic": float(extra * np.log(n)), "params": {},
+                      "evidence": f"not fitted: {notes[name]}", "train_rmse": float(current.rmse),
+                      "extra_params": extra, "effect_rms": 0.0, "note": notes[name], "fitted": False})
+    cands.sort(key=lambda c: c["delta_bic"])
+    noise = noise_floor(data)
     # an improvement counts if it passes BIC, lowers the held-out error by min_gain, and comes from the
     # effect itself: switching the effect off must move the output by a fifth of what the effect explains
+    # and the gain must be resolvable by the measurement: at least noise_gain times its noise floor
     good = [c for c in cands if c["delta_bic"] < -bic_margin and c["rmse"] < (1.0 - min_gain) * cur_rmse
+            and (noise is None or cur_rmse - c["rmse"] >= noise_gain * noise)
             and c["effect_rms"] >= 0.2 * np.sqrt(max(current.rmse**2 - c["train_rmse"] ** 2, 0.0))]
     best = good[0]["effect"] if good else None
     pairs = []
@@ -233,7 +282,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
                     abs(a["rmse"] - b["rmse"]) < 0.01 * a["rmse"]:
                 pairs.append([a["effect"], b["effect"]])
     suggestion = separating_experiment(*pairs[0]) if pairs else None
-    return Diagnosis(current, fits, cands, best, noise_floor(data), compare(data, current).fit_percent_all, cur_rmse,
+    return Diagnosis(current, fits, cands, best, noise, compare(data, current).fit_percent_all, cur_rmse,
                      validation, pairs, suggestion)
 
 
@@ -256,6 +305,25 @@ def _effect_size(data: GreyData, fit: GreyFit) -> float:
                          true_output=cls.side != "sensor")  # a sensor effect only shows in the measurement
     size = rmse(sims[0] - sims[1], mask=data.mask)
     return size if np.isfinite(size) else 0.0
+
+
+def _screened_fit(data: GreyData, problems: list[Problem], max_iter: int, screen_iter: int) -> None:
+    """Fit the current model (``problems[0]``, ``max_iter`` trial points) and the candidates (``screen_iter``).
+
+    The candidates whose cost is then below the current model's are fitted again
+    from their starts with all ``max_iter`` trial points (the same fit as without
+    the screen), in place in ``problems``.
+    """
+    if max_iter <= screen_iter:
+        fit_problems(data, problems, max_iter=max_iter)
+        return
+    starts = [replace(p) for p in problems]
+    fit_problems(data, problems, budgets=[max_iter] + [screen_iter] * (len(problems) - 1))
+    ahead = [i for i in range(1, len(problems)) if problems[i].cost < problems[0].cost]
+    for i in ahead:
+        problems[i] = starts[i]
+    if ahead:
+        fit_problems(data, [problems[i] for i in ahead], max_iter=max_iter)
 
 
 def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit | None:

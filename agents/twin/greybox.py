@@ -27,7 +27,9 @@ grid at the end.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -251,6 +253,11 @@ def simulate_sets(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np
     list of ndarray of shape (len(rows), n_steps)
         ``nan`` rows where a parameter set is invalid (e.g. an unstable plant).
     """
+    return [pair[1 if true_output else 0] for pair in _simulate_both(data, sets)]
+
+
+def _simulate_both(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]]) -> list[tuple]:
+    """``(measurement, plant output before the sensors)`` of each set, in one vectorised pass."""
     plants, chains, u, y0, bias, index, owner = [], [], [], [], [], [], []
     for s, (spec, theta, rows) in enumerate(sets):
         k = rows.size
@@ -267,7 +274,7 @@ def simulate_sets(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np
         bias.append(theta[g + k :])
         index.append(data.index[rows])
         owner += [s] * k
-    out = [np.full((rows.size, data.u.shape[1]), np.nan) for _, _, rows in sets]
+    out = [(np.full((rows.size, data.u.shape[1]), np.nan),) * 2 for _, _, rows in sets]
     if not owner:
         return out
     try:
@@ -277,12 +284,60 @@ def simulate_sets(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np
     except (np.linalg.LinAlgError, ValueError):  # a plant that cannot be sampled (overflowing coefficients)
         if len(sets) == 1:
             return out
-        return [simulate_sets(data, [one], true_output=true_output)[0] for one in sets]
+        return [_simulate_both(data, [one])[0] for one in sets]
     owner = np.array(owner)
-    y = res.y_true if true_output else res.y
     for s in set(owner.tolist()):
-        out[s] = y[owner == s]
+        out[s] = (res.y[owner == s], res.y_true[owner == s])
     return out
+
+
+class _Lockstep:
+    """Simulation requests of problems solved in parallel threads, run together in one vectorised pass.
+
+    Each thread runs one ``least_squares``; its residual and Jacobian evaluations
+    call :meth:`simulate`, which waits until every thread still solving has made
+    its request, then simulates all requests at once (:func:`_simulate_both`).
+    The rows of a batch do not interact, so every problem sees the values it
+    would see alone; only the per-call overhead of the time loop is shared.
+    """
+
+    def __init__(self, data: GreyData, n_workers: int) -> None:
+        self.data = data
+        self.active = n_workers
+        self.pending: list[tuple[list, dict]] = []
+        self.cond = threading.Condition()
+
+    def simulate(self, sets: list, true_output: bool = False) -> list[np.ndarray]:
+        slot: dict = {}
+        with self.cond:
+            self.pending.append((sets, slot))
+            if len(self.pending) >= self.active:
+                self._run()
+            while not slot:
+                self.cond.wait()
+        if "error" in slot:
+            raise slot["error"]
+        return [pair[1 if true_output else 0] for pair in slot["out"]]
+
+    def leave(self) -> None:
+        """A thread has finished; run the others' requests if they were waiting for it."""
+        with self.cond:
+            self.active -= 1
+            if self.pending and len(self.pending) >= self.active:
+                self._run()
+
+    def _run(self) -> None:  # called with the lock held
+        pending, self.pending = self.pending, []
+        try:
+            res = _simulate_both(self.data, [one for sets, _ in pending for one in sets])
+            start = 0
+            for sets, slot in pending:
+                slot["out"] = res[start : start + len(sets)]
+                start += len(sets)
+        except Exception as exc:  # noqa: BLE001  (handed to every waiting thread)
+            for _, slot in pending:
+                slot["error"] = exc
+        self.cond.notify_all()
 
 
 def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
@@ -300,7 +355,8 @@ def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(err), err, 1e6 * (1.0 + np.abs(data.y[rows]).max()))
 
 
-def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7) -> list[Problem]:
+def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7, *,
+                 budgets: Sequence[int] | None = None) -> list[Problem]:
     """Solve bounded least-squares problems of the simulation error with ``scipy.optimize.least_squares``.
 
     All problems are first simulated at their starts in one vectorised pass; each
@@ -323,6 +379,8 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
         Trial points per problem after the start; 0 only simulates the starts.
     tol : float, default 1e-7
         Relative cost decrease that ends the iteration.
+    budgets : sequence of int, optional
+        Trial points of each problem, instead of ``max_iter`` for all.
 
     Returns
     -------
@@ -334,15 +392,35 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     for p, y in zip(problems, sims):
         p.y_sim, p.residual = y, residual(data, p.rows, y)
         p.cost = float(np.sum(p.residual**2))
-    if max_iter > 0:
-        for p in problems:
-            if np.any(p.free & (p.lower < p.upper)):
-                _solve(data, p, int(max_iter), float(tol))
+    budgets = [int(max_iter)] * len(problems) if budgets is None else [int(b) for b in budgets]
+    if len(budgets) != len(problems):
+        raise ValueError(f"budgets: need one per problem ({len(problems)}), got {len(budgets)}")
+    todo = [(p, b) for p, b in zip(problems, budgets) if b > 0 and np.any(p.free & (p.lower < p.upper))]
+    if len(todo) == 1:
+        _solve(data, todo[0][0], todo[0][1], float(tol))
+    elif todo:
+        lockstep = _Lockstep(data, len(todo))
+
+        def solve(p: Problem, budget: int) -> None:
+            try:
+                _solve(data, p, budget, float(tol), lockstep.simulate)
+            finally:
+                lockstep.leave()
+
+        with ThreadPoolExecutor(max_workers=len(todo)) as pool:
+            for future in [pool.submit(solve, p, b) for p, b in todo]:
+                future.result()
     return problems
 
 
-def _solve(data: GreyData, p: Problem, max_iter: int, tol: float) -> None:
-    """One :class:`Problem` by ``least_squares`` (trf) from its start; see :func:`fit_problems`."""
+def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None) -> None:
+    """One :class:`Problem` by ``least_squares`` (trf) from its start; see :func:`fit_problems`.
+
+    ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``).
+    """
+    if simulate is None:
+        def simulate(sets, true_output=False):
+            return simulate_sets(data, sets, true_output=true_output)
     free = np.flatnonzero(p.free & (p.lower < p.upper))
     g, k, n = p.n_global, p.rows.size, data.u.shape[1]
     rough = any(not smooth for name, _ in p.spec.effects for _, smooth in FITTED_PARAMETERS[name])
@@ -357,7 +435,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float) -> None:
         return theta
 
     def fun(x: np.ndarray) -> np.ndarray:
-        y = simulate_sets(data, [(p.spec, full(x), p.rows)])[0]
+        y = simulate([(p.spec, full(x), p.rows)])[0]
         simulated[x.tobytes()] = y
         return residual(data, p.rows, y).ravel()
 
@@ -374,7 +452,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float) -> None:
             steps.append(h)
         if rough or x.tobytes() not in simulated:  # the smooth output at x itself
             sets.append((p.spec, theta, p.rows))
-        ys = simulate_sets(data, sets, true_output=rough)
+        ys = simulate(sets, true_output=rough)
         base = residual(data, p.rows, ys[-1] if len(ys) > len(columns) else simulated[x.tobytes()])
         mat = np.zeros((base.size, theta.size))
         for cols, h, y in zip(columns, steps, ys):
@@ -396,7 +474,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float) -> None:
     if cost < p.cost:
         p.theta = full(sol.x)
         p.y_sim = simulated[sol.x.tobytes()] if sol.x.tobytes() in simulated else \
-            simulate_sets(data, [(p.spec, p.theta, p.rows)])[0]
+            simulate([(p.spec, p.theta, p.rows)])[0]
         p.residual = residual(data, p.rows, p.y_sim)
         p.cost = float(np.sum(p.residual**2))
 

@@ -265,13 +265,9 @@ def _direct(continuous, discrete, chains, u, y0, bias) -> OpenLoopResult:
                 v[idx] = block.actuate(v[idx], np.zeros_like(v[idx]))
     v += bias[:, None]
     y_true = np.empty((batch, n))
-    tf_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    tf_cache = _transfer_functions(discrete)
     for row in range(batch):
-        key = id(discrete[row])
-        if key not in tf_cache:
-            num, den = discrete[row].transfer_function()
-            tf_cache[key] = (num[discrete[row].delay_steps:], den)  # the whole-sample delay is already in v
-        num, den = tf_cache[key]
+        num, den = tf_cache[id(discrete[row])]
         y_true[row] = rest.y_true0[row] + lfilter(num, den, v[row] - v_rest[row])
     y = y_true.copy()
     for sl, sensors, _ in groups:
@@ -281,6 +277,44 @@ def _direct(continuous, discrete, chains, u, y0, bias) -> OpenLoopResult:
                 y[idx] = block.measure(y[idx])
     return OpenLoopResult(y=y[inverse], y_true=y_true[inverse], v=v[inverse], u_rest=rest.u_rest[inverse],
                           v_rest=v_rest[inverse])
+
+
+def _transfer_functions(discrete: list[DiscretePlant]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """``{id(plant): (num, den)}`` in ``z^-1`` of the distinct sampled plants, without the whole-sample delay.
+
+    The same transfer function as :meth:`DiscretePlant.transfer_function` (whose
+    ``scipy.signal.ss2tf`` costs two polynomial root computations per plant),
+    for all plants of one order at once by the Faddeev-LeVerrier recursion:
+    ``det(zI - Phi) = sum_j c_j z^j`` and ``adj(zI - Phi) = sum_k M_k z^(n-k)`` with
+    ``M_1 = I``, ``M_k = Phi M_(k-1) + c_(n-k+1) I`` and ``c_(n-k) = -tr(Phi M_k) / k``,
+    so that ``c (zI - Phi)^-1 (Gamma0 + Gamma1 z^-1)`` has denominator coefficients
+    ``c_(n-i)`` of ``z^-i`` and numerator ``c M_k Gamma0`` of ``z^-k`` (and
+    ``c M_k Gamma1`` one power later).
+    """
+    unique = {id(d): d for d in discrete}
+    by_order: dict[int, list[DiscretePlant]] = {}
+    for d in unique.values():
+        by_order.setdefault(d.order, []).append(d)
+    out = {}
+    for order, plants in by_order.items():
+        phi = np.stack([d.phi for d in plants])
+        g = np.stack([np.stack([d.gamma0, d.gamma1], axis=-1) for d in plants])  # (m, n, 2)
+        c = np.stack([d.c for d in plants])
+        m = len(plants)
+        eye = np.broadcast_to(np.eye(order), (m, order, order))
+        den = np.zeros((m, order + 1))
+        den[:, 0] = 1.0
+        num = np.zeros((m, order + 2))
+        mk = np.zeros((m, order, order))
+        for k in range(1, order + 1):
+            mk = phi @ mk + den[:, k - 1, None, None] * eye
+            den[:, k] = -np.trace(phi @ mk, axis1=1, axis2=2) / k
+            cg = np.einsum("mi,mij,mjs->ms", c, mk, g)  # c M_k [Gamma0, Gamma1]
+            num[:, k] += cg[:, 0]
+            num[:, k + 1] += cg[:, 1]
+        for i, d in enumerate(plants):
+            out[id(d)] = (np.trim_zeros(num[i], "b"), den[i])
+    return out
 
 
 def _sorted_rows(chains) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,107 @@
+"""Fast paths of ``diagnose``: batched transfer functions, lockstep fits, skipped candidates, the noise rule.
+
+Data as in ``test_workbench``: closed-loop step experiments of DCMotor-v0 (2 s, 1001 samples).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import gbo_envs  # noqa: F401  (registers the envs)
+from agents.twin.fitting import candidate_problems, linear_fit
+from agents.twin.greybox import GreyData, fit_problems
+from agents.twin.open_loop import _transfer_functions
+from agents.twin.workbench import diagnose
+from gbo_envs.physics import ContinuousPlant
+from tests.support import loop_records
+
+GAINS = np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2], [1.05, 2.0]])
+
+
+def _data(effects=None, noise=0.1, n=4) -> GreyData:
+    return GreyData.from_records(loop_records(effects, gains=GAINS[:n], step=(245.0, 306.0), noise=noise, seed=0))
+
+
+@pytest.mark.parametrize("plant", [ContinuousPlant(num=(9.544,), den=(1.0, 4.145, 4.199), delay=0.0031),
+                                   ContinuousPlant(num=(1.0, 2.0), den=(1.0, 3.0, 2.0, 0.5), delay=0.0),
+                                   ContinuousPlant(num=(2.0,), den=(1.0, 1.0, 0.0), delay=0.005)])
+def test_batched_transfer_function_matches_the_state_space_recursion(plant):
+    d = plant.discretize(0.002)
+    num, den = _transfer_functions([d])[id(d)]
+    ref_num, ref_den = d.transfer_function()
+    np.testing.assert_allclose(den, ref_den, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(num, ref_num[d.delay_steps :], rtol=0, atol=1e-7 * np.max(np.abs(ref_num)))
+    u = np.random.default_rng(0).normal(size=500)
+    x, up, y = np.zeros(d.order), 0.0, np.empty(500)
+    for k in range(500):
+        y[k] = d.c @ x
+        x = d.phi @ x + d.gamma0 * u[k] + d.gamma1 * up
+        up = u[k]
+    from scipy.signal import lfilter
+
+    np.testing.assert_allclose(lfilter(num, den, u), y, rtol=0, atol=1e-9 * np.max(np.abs(y)))
+
+
+def test_lockstep_fits_equal_one_at_a_time():
+    data = _data({"saturation": {"limit": 150.0}})
+    base = linear_fit(data)
+    problems = candidate_problems(data, base, "saturation") + candidate_problems(data, base, "viscous_friction")
+    together = fit_problems(data, [_copy(p) for p in problems], max_iter=5)
+    alone = [fit_problems(data, [_copy(p)], max_iter=5)[0] for p in problems]
+    assert len(together) >= 2
+    for a, b in zip(together, alone):
+        np.testing.assert_allclose(a.theta, b.theta, rtol=1e-9, atol=1e-12)
+        assert a.cost == pytest.approx(b.cost, rel=1e-9)
+
+
+def test_fit_problems_budgets_are_checked():
+    data = _data(n=2)
+    base = linear_fit(data, refine=False)
+    problems = candidate_problems(data, base, "saturation")
+    with pytest.raises(ValueError, match="budgets"):
+        fit_problems(data, problems, budgets=[1] * (len(problems) + 1))
+
+
+@pytest.mark.parametrize(("kwargs", "name"), [({"noise_gain": -0.1}, "noise_gain"),
+                                              ({"noise_gain": float("nan")}, "noise_gain"),
+                                              ({"screen_iter": 0}, "screen_iter")])
+def test_diagnose_rejects_bad_options(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        diagnose(_data(n=2), **kwargs)
+
+
+def _copy(p):
+    from dataclasses import replace
+
+    return replace(p, theta=p.theta.copy())
+
+
+@pytest.mark.slow
+def test_unexcited_effects_are_listed_with_their_note_and_not_fitted():
+    data = _data({"saturation": {"limit": 150.0}})  # 245 -> 306 rad/s: no speed reversal, no zero crossing
+    result = diagnose(data)
+    out = result.to_dict()
+    assert out["best"] == "saturation"
+    skipped = {c["effect"]: c for c in out["candidates"] if not c["fitted"]}
+    assert set(skipped) == {"coulomb_friction", "stiction", "backlash", "dead_zone", "offset"}
+    for name, c in skipped.items():
+        assert name not in result.fits
+        assert c["note"] and c["evidence"].startswith("not fitted")
+        assert c["rmse"] == pytest.approx(out["heldout_rmse"])
+        assert c["delta_bic"] > 0
+    fitted = diagnose(data, candidates=["saturation", "offset"], skip_unexcited=False)
+    assert set(fitted.fits) == {"saturation", "offset"}
+
+
+@pytest.mark.slow
+def test_noise_free_linear_data_evidence_no_effect():
+    """Cost noise only: the linear model's error is far below the noise floor, so no effect is evidenced."""
+    data = _data(None, noise=0.0)
+    out = diagnose(data).to_dict()
+    assert out["heldout_rmse"] < 0.05 * out["noise_rmse"]
+    assert out["best"] is None
+    # every effect fitted: some pass BIC on the linear model's tiny error, none by a resolvable margin
+    out = diagnose(data, skip_unexcited=False).to_dict()
+    assert out["best"] is None
+    assert min(c["delta_bic"] for c in out["candidates"]) < -10.0
