@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import logging
 import sys
 
 __all__ = ["add_parser"]
@@ -72,6 +73,13 @@ def _json_object(text: str) -> dict:
     return value
 
 
+class _PrintEvents(logging.Handler):
+    """Prints a tuner's events (:meth:`agents.Tuner.log_event`) to the current standard output."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        print(record.getMessage(), flush=True)
+
+
 def _tune(args: argparse.Namespace) -> int:
     import math
 
@@ -82,6 +90,11 @@ def _tune(args: argparse.Namespace) -> int:
 
     for module in args.imports:
         importlib.import_module(module)
+    if args.no_progress:  # without a bar the tuner's events (e.g. "twin: + saturation ...") go to the log
+        events = logging.getLogger("agents.base")
+        if not any(isinstance(h, _PrintEvents) for h in events.handlers):
+            events.addHandler(_PrintEvents())
+        events.setLevel(logging.INFO)
     try:
         session = TuningSession(args.db, args.env, args.tuner, budget=args.budget, seed=args.seed,
                                 env_kwargs=args.env_kwargs, tuner_kwargs=args.tuner_kwargs, on_crash=args.on_crash,

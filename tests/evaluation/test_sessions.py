@@ -352,3 +352,11 @@ def test_concurrent_sessions_in_one_database(tmp_path):
     with SessionStore(db) as store:
         _, count = export_csv(store, tmp_path / "one.csv", session_id=2)
     assert count == 15
+
+
+def test_cli_tune_prints_when_the_twin_changes(tmp_path, capsys):
+    db = str(tmp_path / "runs.sqlite")
+    assert gbo(["tune", "--env", ENV, "--tuner", "guided-bo", "--budget", "2", "--db", db,
+                "--tuner-kwargs", '{"grid_points": 30}', "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "guided-bo: twin: linear, RMSE" in out and "(after 1 experiments)" in out
