@@ -343,16 +343,19 @@ class _Lockstep:
 def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
     """Simulation error ``y_sim - y`` of the records ``rows``, the residual :func:`fit_problems` minimises.
 
-    Padding samples give 0; a non-finite simulated value (a diverged model) gives a large finite
-    penalty, ``1e6 (1 + max |y|)``, so that the cost stays comparable.
+    Padding samples give 0; a non-finite or huge simulated value (a diverged model) gives a large
+    finite penalty, ``1e6 (1 + max |y|)``, so that the cost stays comparable and its sum of squares
+    cannot overflow inside the solver.
 
     Returns
     -------
     ndarray of shape (len(rows), n_steps)
         In the units of ``y``.
     """
-    err = np.where(data.mask[rows], y_sim - data.y[rows], 0.0)
-    return np.where(np.isfinite(err), err, 1e6 * (1.0 + np.abs(data.y[rows]).max()))
+    penalty = 1e6 * (1.0 + np.abs(data.y[rows]).max())
+    with np.errstate(invalid="ignore", over="ignore"):
+        err = np.where(data.mask[rows], y_sim - data.y[rows], 0.0)
+    return np.where(np.isfinite(err), np.clip(err, -penalty, penalty), penalty)
 
 
 def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7, *,

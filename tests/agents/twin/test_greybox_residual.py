@@ -1,0 +1,28 @@
+"""The simulation error a grey-box fit minimises stays finite when a trial model diverges."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agents.twin.greybox import GreyData, residual
+
+
+def _data(n_records=2, n=50):
+    t = np.tile(np.arange(n) * 0.01, (n_records, 1))
+    y = np.sin(t) + 5.0
+    return GreyData(t=t, r=np.full_like(t, 6.0), u=np.ones_like(t), y=y, mask=np.ones_like(t, dtype=bool),
+                    dt=0.01, index=np.arange(n_records))
+
+
+def test_a_diverged_simulation_gives_a_bounded_residual_whose_squares_do_not_overflow():
+    data = _data()
+    rows = np.arange(data.n_records)
+    y_sim = data.y.copy()
+    y_sim[0, 10:] = 1e300  # a diverging trial model, still finite
+    y_sim[1, 20] = np.nan
+    y_sim[1, 30] = -np.inf
+    err = residual(data, rows, y_sim)
+    penalty = 1e6 * (1.0 + np.abs(data.y).max())
+    assert np.all(np.isfinite(err)) and np.max(np.abs(err)) <= penalty
+    assert np.isfinite(np.dot(err.ravel(), err.ravel()))
+    np.testing.assert_array_equal(err[0, :10], 0.0)  # the exact samples keep their zero error
