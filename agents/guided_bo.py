@@ -9,6 +9,7 @@ goes to the real plant.
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import numpy as np
@@ -258,7 +259,7 @@ class GuidedBO(BayesianOptimization):
         self._twin_dirty = False
         self._diagnosed_on = 0  # records in D~ at the last diagnosis (twin="auto")
         self._noise_floors: list[float] = []
-        self._promise = None  # (theta_T, theta_I, J(theta_I), promised improvement) of the last twin proposal
+        self._promise = None  # (theta_T, theta_I, mu(theta_I), promised improvement) of the last twin proposal
         self._broken = None  # (theta_T, theta_I, delivered improvement, records) of the promise that failed
         self.twin_ = None
         self._twin_env = None
@@ -346,6 +347,11 @@ class GuidedBO(BayesianOptimization):
         if self.twin == "linear":
             return 3.0 * self.sigma_eps
         return 3.0 * max(self.noise_floor_, RMSE_FLOOR)
+
+    @property
+    def _difference_noise(self) -> float:
+        """Two standard deviations of a difference of two cost measurements, ``2 sqrt(2) sigma_eps``."""
+        return 2.0 * np.sqrt(2.0) * self.sigma_eps
 
     @property
     def trusted(self) -> bool:
@@ -438,7 +444,7 @@ class GuidedBO(BayesianOptimization):
         _, inc_gains, inc_cost, promised = promise
         delivered = inc_cost - float(cost)
         # worse than promised and worse than the incumbent, each beyond the noise of a difference
-        if delivered < min(promised, 0.0) - 2.0 * np.sqrt(2.0) * self.sigma_eps:
+        if delivered < min(promised, 0.0) - self._difference_noise:
             self._broken = (promise[0], inc_gains, delivered, max(len(self._twin_records), 1))
             self.distrusts_ += 1
 
@@ -452,17 +458,20 @@ class GuidedBO(BayesianOptimization):
             self._broken = None
             return
         promised = self._twin_cost(self._twin_env, inc_gains) - self._twin_cost(self._twin_env, failed)
-        if promised <= delivered + 2.0 * np.sqrt(2.0) * self.sigma_eps:
+        if promised <= delivered + self._difference_noise:
             self._broken = None
 
     # -- the twin ----------------------------------------------------------------------------------
-    def _mispredicts(self, new: list[dict]) -> bool:
-        """Whether the current twin's RMSE on new records exceeds what noise and its own fit error explain."""
-        if not new:
-            return False
+    def _error_on(self, new: list[dict]) -> float | None:
+        """The current twin's normalised RMSE on new records; ``None`` if it cannot simulate them."""
         try:
-            error = -self.twin_.score(new)
+            return float(-self.twin_.score(new))
         except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+            return None
+
+    def _mispredicts(self, error: float | None) -> bool:
+        """Whether the twin's RMSE on new records exceeds what noise and its own fit error explain."""
+        if error is None:
             return True
         if self.twin == "linear":
             return not error <= max(1.5 * self.twin_.rmse_, 0.25 * self.eta2_value)
@@ -480,19 +489,21 @@ class GuidedBO(BayesianOptimization):
         doc) has nothing to learn from them, so it is kept (Algorithm 1 refits at
         every activation; the result is the same up to that tolerance).
         """
-        if self._twin_dirty and self.twin_ is not None and self._twin_fitted_on <= len(self._twin_records):
-            # a distrusted twin is refitted when the records have doubled since its fit (more excitation)
-            if (len(self._twin_records) < 2 * self._twin_fitted_on if not self.trusted
-                    else not self._mispredicts(self._twin_records[self._twin_fitted_on:])):
+        new = self._twin_records[self._twin_fitted_on:]
+        previous_rmse = None  # the current twin's error on the records added since its fit
+        scored = False
+        if self._twin_dirty and self.twin_ is not None:
+            if not new:
                 self._twin_dirty = False
+            elif self.trusted:
+                previous_rmse, scored = self._error_on(new), True
+                self._twin_dirty = self._mispredicts(previous_rmse)
+            else:  # a distrusted twin is refitted when the records have doubled since its fit (more excitation)
+                self._twin_dirty = len(self._twin_records) >= 2 * self._twin_fitted_on
         if self._twin_dirty and self._twin_records:
             previous = self.twin_
-            previous_rmse = None
-            if previous is not None and self._twin_fitted_on < len(self._twin_records):
-                try:
-                    previous_rmse = float(-previous.score(self._twin_records[self._twin_fitted_on:]))
-                except (ValueError, FloatingPointError, np.linalg.LinAlgError):
-                    previous_rmse = None
+            if previous is not None and new and not scored:
+                previous_rmse = self._error_on(new)
             try:
                 twin = self._fit_twin(previous)
                 self.twin_ = twin if twin is not None and np.isfinite(twin.rmse_) else None
@@ -503,7 +514,7 @@ class GuidedBO(BayesianOptimization):
             self._twin_fitted_on = len(self._twin_records)
             if self.twin_ is not None:
                 self._record_twin_change(previous_rmse)
-                self._current_twin_env()
+                self._twin_env = self._twin_env_for(self.twin_)
                 self._restore_trust()
         return self.twin_
 
@@ -538,17 +549,20 @@ class GuidedBO(BayesianOptimization):
         return twin.fit(self._twin_records)  # warm start from the last fit
 
     def _current_twin_env(self):
-        twin = self._current_twin() if self._twin_env is None else self.twin_
-        if twin is None:
-            return None
+        """The twin env of the current twin (fitting it first if none is fitted yet)."""
         if self._twin_env is None:
-            from agents.twin import make_twin_env
-
-            floor = self.noise_floor_
-            noise = floor * self._step_height if self.twin != "linear" and floor > SIMULATED_NOISE_FLOOR else 0.0
-            self._twin_env = make_twin_env(self._plant_env, twin, measurement_noise_std=noise,
-                                           draws=TWIN_NOISE_DRAWS)
+            twin = self._current_twin()  # a refit builds the env itself
+            if twin is not None and self._twin_env is None:
+                self._twin_env = self._twin_env_for(twin)
         return self._twin_env
+
+    def _twin_env_for(self, twin):
+        """The plant env's loop around ``twin``, with the records' noise floor unless the twin is the paper's."""
+        from agents.twin import make_twin_env
+
+        floor = self.noise_floor_
+        noise = floor * self._step_height if self.twin != "linear" and floor > SIMULATED_NOISE_FLOOR else 0.0
+        return make_twin_env(self._plant_env, twin, measurement_noise_std=noise, draws=TWIN_NOISE_DRAWS)
 
     def _integrators(self) -> int:
         plant = self._plant_env.loop.plant
@@ -566,7 +580,7 @@ class GuidedBO(BayesianOptimization):
         """Which twin drives the twin iterations: its effects, parameters and RMSE (logged per twin row)."""
         twin = self.twin_
         return {"twin_effects": ",".join(_effect_values(twin)) or "linear",
-                "twin_params": json_params(twin), "twin_rmse": float(twin.rmse_)}
+                "twin_params": _json_params(twin), "twin_rmse": float(twin.rmse_)}
 
     def _record_twin_change(self, previous_rmse: float | None) -> None:
         twin = self.twin_
@@ -591,8 +605,6 @@ def _format_values(values: dict[str, float]) -> str:
     return ", ".join(f"{k} {v:.4g}" for k, v in values.items())
 
 
-def json_params(twin) -> str:
+def _json_params(twin) -> str:
     """The twin's linear parameters and effect values as one compact JSON string (one per twin row)."""
-    import json
-
     return json.dumps({"linear": [float(p) for p in twin.params_], **_effect_values(twin)})

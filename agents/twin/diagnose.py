@@ -262,7 +262,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         cands.append(entry)
     cur_rmse = float(np.sqrt(rss[0] / n))
     for name in skipped:  # not fitted: absorbed by the rest levels, so its fit is the current model's
-        extra = sum(1 for _ in FITTED_PARAMETERS[name])
+        extra = len(FITTED_PARAMETERS[name])
         cands.append({"effect": name, "rmse": cur_rmse, "delta_bic": float(extra * np.log(n)), "params": {},
                       "evidence": f"not fitted: {notes[name]}", "train_rmse": float(current.rmse),
                       "extra_params": extra, "effect_rms": 0.0, "note": notes[name], "fitted": False})
