@@ -18,7 +18,8 @@ from agents.bo import BayesianOptimization
 from agents.parameters import HasMethods, Interval, Options, validate_params
 from gbo_envs import METRIC_NAMES
 
-__all__ = ["GuidedBO", "ACTIVATION_RULES", "MIN_TWIN_ITERATIONS", "TWIN_CHOICES", "TWIN_REFIT_EVERY"]
+__all__ = ["GuidedBO", "ACTIVATION_RULES", "GUIDANCE_RULES", "MIN_TWIN_ITERATIONS", "TWIN_CHOICES",
+           "TWIN_REFIT_EVERY"]
 
 #: How the twin is switched on: the paper's uncertainty test eq. (DT_activation), or every
 #: ``period`` plant experiments for ``n_ei`` twin iterations (the twin-fidelity study, Sec. V-A).
@@ -33,6 +34,10 @@ TWIN_REFIT_EVERY = 5
 
 #: ``twin`` by name: the workbench-diagnosed grey-box twin, or the paper's linear SRIVC twin.
 TWIN_CHOICES = ("auto", "linear")
+
+#: How the twin guides BO: as the prior mean of the default BO's metric GPs, or by the paper's
+#: twin iterations on the cost GP (Algorithm 1, lines 9-16).
+GUIDANCE_RULES = ("prior", "iterations")
 
 #: Effects at most in a diagnosed twin (the workbench's ladder, two rungs).
 MAX_TWIN_EFFECTS = 2
@@ -222,18 +227,24 @@ class GuidedBO(BayesianOptimization):
         "period": [Interval(int, 1, None)],
         "twin_poles": [Interval(int, 1, None)],
         "twin": [Options(TWIN_CHOICES), HasMethods(("fit", "get_params"))],
+        "guidance": [Options(GUIDANCE_RULES)],
     }
 
     def __init__(self, *, n_initial: int = 1, grid_points: int = 100, noise_std: float | None = None,
                  eta1: float = 3.0, eta2: float | None = None, eta3: float = 0.2, n_ei: int = 3,
                  delta: float = 2.0, max_twin_iterations: int = 20, n_samples: int | None = 100,
-                 activation: str = "uncertainty", period: int = 1, twin_poles: int = 2, twin="auto") -> None:
-        # one GP on the cost: the twin's points enter D as costs (Algorithm 1, line D_in_DT)
-        super().__init__(n_initial=n_initial, grid_points=grid_points, noise_std=noise_std, model="cost")
+                 activation: str = "uncertainty", period: int = 1, twin_poles: int = 2, twin="auto",
+                 guidance: str = "prior") -> None:
+        validate_params({"guidance": self._parameter_constraints["guidance"]}, {"guidance": guidance})
+        # "iterations": one GP on the cost, the twin's points enter D as costs (Algorithm 1, line D_in_DT);
+        # "prior": the default BO's metric GPs, with the twin's metrics as their prior mean
+        super().__init__(n_initial=n_initial, grid_points=grid_points, noise_std=noise_std,
+                         model="metrics" if guidance == "prior" else "cost")
         params = validate_params(self._parameter_constraints, {
             "eta1": eta1, "eta2": eta2, "eta3": eta3, "n_ei": n_ei, "delta": delta,
             "max_twin_iterations": max_twin_iterations, "n_samples": n_samples, "activation": activation,
-            "period": period, "twin_poles": twin_poles, "twin": twin})
+            "period": period, "twin_poles": twin_poles, "twin": twin, "guidance": guidance})
+        self.guidance = guidance
         self.eta1, self.eta2, self.eta3 = params["eta1"], params["eta2"], params["eta3"]
         self.n_ei, self.delta = params["n_ei"], params["delta"]
         self.max_twin_iterations = params["max_twin_iterations"]
@@ -274,9 +285,19 @@ class GuidedBO(BayesianOptimization):
             self._record_twin_change(None)
         # periodic rule (Sec. V-A): the twin is used right after the initial data, then every N_G experiments
         self._since_activation = self.period
+        self._prior = None  # the twin's metrics while they are the metric GPs' prior mean (guidance="prior")
+        self._twin_metrics = None  # the current twin's metrics (simulated gains cached)
 
     def _ask(self) -> np.ndarray:
         if self.n_observations < self.n_initial:
+            return super()._ask()
+        if self.guidance == "prior":
+            prior = self._twin_prior()
+            if prior is not self._prior:
+                self._prior = prior
+                self._data_changed()
+            if prior is not None:
+                self.activations_ += 1
             return super()._ask()
         gains, ei, std = self.propose()
         self.last_ei_, self.last_std_ = ei, std
@@ -288,6 +309,12 @@ class GuidedBO(BayesianOptimization):
 
     def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:
         super()._tell(gains, cost, record)
+        if self.guidance == "prior" and record is not None and record.get("unstable", False):
+            # a diverging experiment keeps the metric GPs (and the twin prior) in use: its metrics are
+            # those of J = unstable_cost, as the twin's diverging points (agents.twin.prior.TwinMetrics)
+            env = self._plant_env
+            self._plant_F[-1] = (np.asarray(env.normalizers, dtype=float) * float(env.unstable_cost)
+                                 / float(np.sum(env.weights)))
         self._check_promise(gains, cost)
         if record is None or record.get("unstable", False) or not all(key in record for key in ("t", "r", "u", "y")):
             return  # nothing to identify from (or a diverging response)
@@ -313,7 +340,8 @@ class GuidedBO(BayesianOptimization):
     def run_summary(self) -> dict[str, Any]:
         summary = super().run_summary()
         twin = self.twin_
-        summary.update({"activations": self.activations_, "twin_evaluations": self.twin_evaluations_,
+        simulated = 0 if self._twin_metrics is None else self._twin_metrics.simulations_
+        summary.update({"activations": self.activations_, "twin_evaluations": self.twin_evaluations_ + simulated,
                         "reinitializations": self.reinitializations_, "distrusts": self.distrusts_,
                         "twin_rmse": twin.rmse_ if twin is not None else None,
                         "twin_params": None if twin is None else [float(p) for p in twin.params_],
@@ -357,6 +385,24 @@ class GuidedBO(BayesianOptimization):
     def trusted(self) -> bool:
         """Whether the twin may propose plant experiments (see "Trust" in the class doc)."""
         return self._broken is None
+
+    def metric_prior(self):
+        """The twin's metrics (:class:`agents.twin.prior.TwinMetrics`) while they guide BO, else ``None``."""
+        return self._prior
+
+    def _twin_prior(self):
+        """The current twin's metrics if the twin may guide (eq. (DT_rmse1) and trust), else ``None``."""
+        twin = self._current_twin()
+        if twin is None or not np.isfinite(twin.rmse_) or twin.rmse_ >= self.eta2_value or not self.trusted:
+            return None
+        twin_env = self._current_twin_env()
+        if self._twin_metrics is None or self._twin_metrics.twin_env is not twin_env:
+            from agents.twin.prior import TwinMetrics
+
+            if self._twin_metrics is not None:
+                self.twin_evaluations_ += self._twin_metrics.simulations_
+            self._twin_metrics = TwinMetrics(twin_env, self.space)
+        return self._twin_metrics
 
     def _activate(self, std: float) -> bool:
         """Twin activation test, eq. (DT_activation) (or the periodic rule), and trust."""
