@@ -1,10 +1,13 @@
-"""Guided Bayesian optimization: the paper's Algorithm 1, BO guided by a digital twin.
+"""Guided Bayesian optimization: BO guided by a digital twin (the paper's Algorithm 1 and a prior-mean form).
 
 Every plant experiment already records ``u`` and ``y``; guided BO keeps a
-digital twin identified from those records (:mod:`agents.twin`) and, when the
-GP is uncertain at its next query, lets the twin do the exploring: BO runs on
-the twin until expected improvement dries up, and only the best point found
-goes to the real plant.
+digital twin identified from those records (:mod:`agents.twin`). By default
+the twin's performance metrics are the prior mean of the default BO's metric
+GPs, which then learn only the plant's discrepancy from the twin
+(:mod:`agents.twin.prior`). ``guidance="iterations"`` is the paper's
+Algorithm 1: when the GP is uncertain at its next query, BO runs on the twin
+until expected improvement dries up, and only the best point found goes to
+the real plant.
 """
 
 from __future__ import annotations
@@ -57,9 +60,26 @@ RMSE_FLOOR = 1e-3
 
 
 class GuidedBO(BayesianOptimization):
-    r"""Guided BO, Algorithm 1 of the paper, on top of :class:`~agents.bo.BayesianOptimization`.
+    r"""Guided BO on top of :class:`~agents.bo.BayesianOptimization`: the twin as prior mean, or Algorithm 1.
 
-    Every ``ask`` after the initial design:
+    **guidance="prior"** (the default). The surrogate is the default BO's: one GP per
+    performance metric, combined into the posterior of ``J_hat = sum_i w_i f_i / n_i``
+    (eq. (J_used), :mod:`agents.metric_surrogate`). While a twin may guide (its
+    ``e_RMSE < eta2``, eq. (DT_rmse1)), the prior mean of metric ``i``'s
+    GP is the twin's metric ``f~_i(theta)`` (:class:`agents.twin.prior.TwinMetrics`), so
+    the GP models the discrepancy ``T_i(f_i) - T_i(f~_i)`` (``T_i``: ``f / n_i``, or its
+    log) and the posterior mean is ``T_i(f~_i(theta)) + mu_d(theta)``. Every ``ask``
+    queries the maximiser of EI (eq. (EI)) on that posterior. A right twin makes the
+    discrepancy flat, and EI goes straight to the twin's optimum; a wrong twin is
+    corrected where the plant has been measured. The twin is simulated once per grid
+    point and fitted twin (10^4 simulations, cached). Otherwise the metric GPs have
+    their constant prior mean and guided BO is the default BO. A diverging plant
+    experiment enters with the metrics of ``J = unstable_cost``. ``eta1``, ``eta3``,
+    ``n_ei``, ``max_twin_iterations``, ``activation`` and ``period`` are not used.
+    Which choice buys what is measured in benchmarks/guided_bo_ablation.py.
+
+    **guidance="iterations"**, Algorithm 1 of the paper, on one GP on the cost
+    (the twin's points enter ``D`` as costs). Every ``ask`` after the initial design:
 
     1. fit the GP on the plant data ``D`` and find ``theta+ = argmax a_EI`` (eq. (EI));
     2. activate the twin if ``sqrt(v_n(theta+)) > eta1 sigma_eps`` (eq. (eta1)),
@@ -103,7 +123,8 @@ class GuidedBO(BayesianOptimization):
     as good as the noise allows is used on any plant, and on a quiet plant the
     threshold is the paper's 0.003.
 
-    **Trust.** After a plant experiment at a twin-proposed point ``theta_T``, the
+    **Trust** (``guidance="iterations"``; with the prior, the discrepancy GPs correct the
+    twin instead). After a plant experiment at a twin-proposed point ``theta_T``, the
     improvement the twin promised over the plant incumbent ``theta_I`` (lowest
     measured cost), ``J^(theta_I) - J^(theta_T)``, is compared with the one measured,
     ``mu(theta_I) - J(theta_T)`` (``mu``: the GP's posterior mean on the plant data; the
@@ -188,13 +209,17 @@ class GuidedBO(BayesianOptimization):
         high-fidelity twin has 2 poles, the low-fidelity one 5).
     twin : {"auto", "linear"} or estimator, default "auto"
         The digital twin, see "Which twin" above.
+    guidance : {"prior", "iterations"}, default "prior"
+        How the twin guides BO (see above): as the prior mean of the metric GPs, or by
+        the paper's twin iterations on the cost GP (Algorithm 1).
 
     Attributes
     ----------
     activations_ : int
-        How often the twin was switched on.
+        How often the twin was switched on (``guidance="prior"``: plant queries proposed with the twin prior).
     twin_evaluations_ : int
-        Twin experiments made.
+        Twin experiments made (with ``guidance="prior"``, by twins replaced so far; ``run_summary``
+        counts the current twin's too).
     reinitializations_ : int
         How often eq. (reinit_DTdataset) emptied the twin data set.
     distrusts_ : int
@@ -208,8 +233,8 @@ class GuidedBO(BayesianOptimization):
     noise_floor_ : float
         ``s``: the median normalised noise floor of the plant records.
     model : str
-        Always ``"cost"``: one GP on the cost, as in the paper's Algorithm 1 (the twin's
-        points enter ``D`` as costs, line D_in_DT).
+        ``"metrics"`` with ``guidance="prior"``; ``"cost"`` with ``"iterations"``: one GP on the
+        cost, as in the paper's Algorithm 1 (the twin's points enter ``D`` as costs, line D_in_DT).
     """
 
     name = "guided-bo"
