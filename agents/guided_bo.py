@@ -71,8 +71,13 @@ class GuidedBO(BayesianOptimization):
     log) and the posterior mean is ``T_i(f~_i(theta)) + mu_d(theta)``. Every ``ask``
     queries the maximiser of EI (eq. (EI)) on that posterior. A right twin makes the
     discrepancy flat, and EI goes straight to the twin's optimum; a wrong twin is
-    corrected where the plant has been measured. The twin is simulated once per grid
-    point and fitted twin (10^4 simulations, cached). Otherwise the metric GPs have
+    corrected where the plant has been measured. Two rules keep a slightly wrong twin
+    from holding BO at its optimum: where EI with the prior proposes gains already
+    measured, the experiment is the default BO's proposal (EI without the prior); and a
+    plant cost more than ``3 sigma_eps`` off the twin's prediction refits the twin once
+    the records have doubled since its fit (the RMSE test below misses a twin whose
+    response is close but whose thin optimal valley sits a grid cell away). The twin is
+    simulated once per grid point and fitted twin (10^4 simulations, cached). Otherwise the metric GPs have
     their constant prior mean and guided BO is the default BO. A diverging plant
     experiment enters with the metrics of ``J = unstable_cost``. ``eta1``, ``eta3``,
     ``n_ei``, ``max_twin_iterations``, ``activation`` and ``period`` are not used.
@@ -224,6 +229,9 @@ class GuidedBO(BayesianOptimization):
         How often eq. (reinit_DTdataset) emptied the twin data set.
     distrusts_ : int
         How often a twin-proposed experiment disappointed and the twin lost trust.
+    repeats_ : int
+        ``guidance="prior"``: how often the twin prior proposed gains already measured and the
+        default BO's proposal was taken instead.
     twin_ : LinearTwin, GreyBoxTwin or None
         The current fitted twin.
     twin_changes_ : list of dict
@@ -293,6 +301,7 @@ class GuidedBO(BayesianOptimization):
         self._twin_records: list[dict] = []
         self._twin_fitted_on = 0  # records in D~ when the twin was last fitted
         self._twin_dirty = False
+        self._cost_missed = False  # a plant cost since the last fit was off the twin's by > 3 sigma_eps
         self._diagnosed_on = 0  # records in D~ at the last diagnosis (twin="auto")
         self._noise_floors: list[float] = []
         self._promise = None  # (theta_T, theta_I, mu(theta_I), promised improvement) of the last twin proposal
@@ -305,6 +314,7 @@ class GuidedBO(BayesianOptimization):
         self.twin_evaluations_ = 0
         self.reinitializations_ = 0
         self.distrusts_ = 0
+        self.repeats_ = 0
         self.twin_changes_: list[dict] = []
         if self.twin_ is not None:
             self._record_twin_change(None)
@@ -317,13 +327,7 @@ class GuidedBO(BayesianOptimization):
         if self.n_observations < self.n_initial:
             return super()._ask()
         if self.guidance == "prior":
-            prior = self._twin_prior()
-            if prior is not self._prior:
-                self._prior = prior
-                self._data_changed()
-            if prior is not None:
-                self.activations_ += 1
-            return super()._ask()
+            return self._ask_with_twin_prior()
         gains, ei, std = self.propose()
         self.last_ei_, self.last_std_ = ei, std
         if self._activate(std):
@@ -359,6 +363,8 @@ class GuidedBO(BayesianOptimization):
                 self._twin_fitted_on = 0
                 self._diagnosed_on = 0
                 self.reinitializations_ += 1
+            elif self.guidance == "prior" and abs(cost - predicted) > 3.0 * self.sigma_eps:
+                self._cost_missed = True  # the twin's cost is off by more than the cost noise explains
         self._twin_records.append(new)  # eq. (Ds): D~ <- D~ u {(u_i, y_i)}
         self._twin_dirty = True
 
@@ -367,6 +373,7 @@ class GuidedBO(BayesianOptimization):
         twin = self.twin_
         simulated = 0 if self._twin_metrics is None else self._twin_metrics.simulations_
         summary.update({"activations": self.activations_, "twin_evaluations": self.twin_evaluations_ + simulated,
+                        "repeats": self.repeats_,
                         "reinitializations": self.reinitializations_, "distrusts": self.distrusts_,
                         "twin_rmse": twin.rmse_ if twin is not None else None,
                         "twin_params": None if twin is None else [float(p) for p in twin.params_],
@@ -410,6 +417,34 @@ class GuidedBO(BayesianOptimization):
     def trusted(self) -> bool:
         """Whether the twin may propose plant experiments (see "Trust" in the class doc)."""
         return self._broken is None
+
+    def _ask_with_twin_prior(self) -> np.ndarray:
+        """EI on the metric GPs with the twin prior; the default BO's proposal where the twin repeats itself.
+
+        If EI with the twin prior proposes gains already measured, the twin has nothing
+        new to say (plain EI would measure its optimum over and over, also where that
+        optimum is slightly off the plant's): the experiment is then the default BO's
+        proposal, EI on the same metric GPs without the prior.
+        """
+        prior = self._twin_prior()
+        if prior is not self._prior:
+            self._prior = prior
+            self._data_changed()
+        gains = super()._ask()
+        if prior is None:
+            return gains
+        self.activations_ += 1
+        unit = self.space.to_unit(gains)
+        if any(np.allclose(unit, measured, rtol=0.0, atol=1e-9) for measured in self._plant_X):
+            self._prior = None
+            self._data_changed()
+            try:
+                gains = super()._ask()
+            finally:
+                self._prior = prior
+                self._data_changed()
+            self.repeats_ += 1
+        return gains
 
     def metric_prior(self):
         """The twin's metrics (:class:`agents.twin.prior.TwinMetrics`) while they guide BO, else ``None``."""
@@ -568,7 +603,9 @@ class GuidedBO(BayesianOptimization):
                 self._twin_dirty = False
             elif self.trusted:
                 previous_rmse, scored = self._error_on(new), True
-                self._twin_dirty = self._mispredicts(previous_rmse)
+                # with the twin as prior, also when its cost missed and the records have doubled since its fit
+                doubled = len(self._twin_records) >= 2 * self._twin_fitted_on
+                self._twin_dirty = self._mispredicts(previous_rmse) or (self._cost_missed and doubled)
             else:  # a distrusted twin is refitted when the records have doubled since its fit (more excitation)
                 self._twin_dirty = len(self._twin_records) >= 2 * self._twin_fitted_on
         if self._twin_dirty and self._twin_records:
@@ -581,7 +618,7 @@ class GuidedBO(BayesianOptimization):
             except (ValueError, FloatingPointError, np.linalg.LinAlgError):
                 self.twin_ = None  # too little excitation to identify: no twin this time
             self._twin_env = None
-            self._twin_dirty = False
+            self._twin_dirty = self._cost_missed = False
             self._twin_fitted_on = len(self._twin_records)
             if self.twin_ is not None:
                 self._record_twin_change(previous_rmse)
