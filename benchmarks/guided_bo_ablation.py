@@ -39,11 +39,10 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from joblib import Parallel, delayed
-from tqdm import tqdm
-
 from data_efficiency import experiments_to_reach
 from effect_aware_guided_bo import PLANTS, interval, optimum, thresholds
+from joblib import Parallel, delayed
+from tqdm import tqdm
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNS = RESULTS / "guided_bo_ablation_runs.jsonl"
@@ -89,7 +88,8 @@ def run_one(label: str, variant: str, seed: int, best: float) -> dict:
 
 def summarise(runs: list[dict]) -> str:
     """The Markdown table: per plant, threshold and variant, the mean [95 % CI] (misses) and the ratio to BO."""
-    lines = ["| plant | threshold | variant | seeds | real experiments | / bo | s/run |", "|---|---|---|---|---|---|---|"]
+    lines = ["| plant | threshold | variant | seeds | real experiments | / bo | s/run |",
+             "|---|---|---|---|---|---|---|"]
     for label in PLANTS:
         mine = {v: {r["seed"]: r for r in runs if r["plant"] == label and r["variant"] == v} for v in VARIANTS}
         present = [v for v in VARIANTS if mine[v]]

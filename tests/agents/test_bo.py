@@ -343,8 +343,8 @@ def test_default_bo_models_the_metrics_of_the_dc_motor_with_logs():
     assert bo.model_in_use == "metrics" and isinstance(bo.fit_surrogate(), CompositeSurrogate)
     assert bo.metric_surrogate.log_metrics == (1, 2, 3)  # settling time, rise time, ITAE
     assert result.info["model"] == "metrics"
-    # guided BO keeps one GP on the cost, into which its twin costs go
-    assert agents.GuidedBO().model == "cost"
+    # guided BO builds on the same metric GPs; the paper's Algorithm 1 keeps one GP on the cost
+    assert agents.GuidedBO().model == "metrics" and agents.GuidedBO(guidance="iterations").model == "cost"
 
 
 def test_blockwise_prediction_equals_sklearn_on_a_large_grid():
