@@ -15,8 +15,9 @@ Per plant and variant: the mean real experiments until the best evaluated gains
 reach each optimality ratio ``J / J*`` (``J``: the env's expected cost; ``J*``:
 the ground-truth grid's minimum), with a 95 % Student-t interval and the misses
 (a run that never reaches counts as ``budget + 1``), and the ratio to BO's mean.
-On the DC motors one threshold is the paper's first nominal controller, PGM at
-60 deg, (0.85, 1.07): its ratio on the noise-free env.
+On the DC motors two thresholds are the paper's nominal controllers,
+``agents.make("nominal", phase_margin_deg=60)`` and ``=75`` (PGM at 46 dB, (0.855,
+1.070) and (0.855, 0.890)): their ratios on the noise-free env.
 
 The plants are those of ``effect_aware_guided_bo.py``. Finished runs are appended
 to ``benchmarks/results/guided_bo_ablation_runs.jsonl`` and skipped when the
@@ -56,17 +57,20 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "iterations, linear twin": ("guided-bo", {"guidance": "iterations", "twin": "linear"}),
 }
 
-#: The paper's first nominal controller, PGM at 60 deg (Table nominal_ctl_specs), on the DC motors.
-NOMINAL_GAINS = (0.85, 1.07)
+#: Phase margins (deg) of the paper's nominal PGM controllers (Table nominal_ctl_specs), used on the DC motors.
+NOMINAL_PHASE_MARGINS = (60.0, 75.0)
 
 
-def nominal_ratio(label: str, best: float) -> float | None:
-    """``J(nominal) / J*`` on the noise-free plant (the expectation), or ``None`` off the DC motors."""
+def nominal_ratio(label: str, best: float, phase_margin_deg: float) -> float | None:
+    """``J(nominal) / J*`` of the nominal PGM controller on the noise-free plant, or ``None`` off the DC motors."""
+    import agents
+
     if not label.startswith("DC"):
         return None
     env_id, kwargs = PLANTS[label]
     env = gym.make(env_id, noise=False, **kwargs)
-    return float(env.unwrapped.evaluate(np.asarray([NOMINAL_GAINS]))[1][0]) / best
+    nominal = agents.make("nominal", phase_margin_deg=phase_margin_deg).run(env, budget=1, seed=0, progress=False)
+    return float(nominal.min_true_cost_curve()[0]) / best
 
 
 def run_one(label: str, variant: str, seed: int, best: float) -> dict:
@@ -100,9 +104,11 @@ def summarise(runs: list[dict]) -> str:
             continue
         best = optimum(label)["cost"]
         levels = [(f"ratio {t}", t) for t in thresholds(label)]
-        nominal = nominal_ratio(label, best)
-        if nominal is not None:
-            levels = [("ratio 1.1", 1.1), *levels, (f"nominal PGM 60 deg (ratio {nominal:.3f})", nominal)]
+        if label.startswith("DC"):
+            levels = [("ratio 1.1", 1.1), *levels]
+            for phase in NOMINAL_PHASE_MARGINS:
+                nominal = nominal_ratio(label, best, phase)
+                levels.append((f"nominal PGM {phase:g} deg (ratio {nominal:.3f})", nominal))
         for name, level in levels:
             counts = {v: np.array([experiments_to_reach(mine[v][s]["ratios"], level) for s in seeds]) for v in present}
             budget = len(mine["bo"][seeds[0]]["ratios"])

@@ -128,3 +128,16 @@ def test_estimate_noise_uses_repeated_measured_costs():
     assert sigma_many == pytest.approx(0.009, rel=0.15)  # the env's default cost noise
     with pytest.raises(ValueError, match="repeats"):
         agents.estimate_noise(env, repeats=1)
+
+
+@pytest.mark.slow
+def test_nominal_example_prints_the_papers_designs_and_a_clipped_one(capsys):
+    import runpy
+
+    from tests.support import REPO_ROOT
+
+    rows = runpy.run_path(str(REPO_ROOT / "examples" / "nominal_pgm.py"))["main"]()
+    assert [row["clipped"] for row in rows] == [False, False, True, False]
+    np.testing.assert_allclose([rows[0]["Kp"], rows[0]["Ki"]], PAPER_NOMINAL_GAINS[60.0], atol=0.006)
+    assert 1.0 < rows[1]["ratio"] < rows[0]["ratio"] < rows[2]["ratio"]  # 75 deg is the better nominal
+    assert "J / J*" in capsys.readouterr().out
