@@ -34,7 +34,6 @@ same seeds (``guided_bo_misses.png``)::
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -42,8 +41,7 @@ import gymnasium as gym
 import numpy as np
 from data_efficiency import experiments_to_reach
 from effect_aware_guided_bo import PLANTS, interval, optimum, thresholds
-from joblib import Parallel, delayed
-from tqdm import tqdm
+from run_log import append_runs, load_runs
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNS = RESULTS / "guided_bo_ablation_runs.jsonl"
@@ -160,20 +158,13 @@ def main() -> None:
     parser.add_argument("--traces", nargs=2, metavar=("BEFORE", "AFTER"), choices=list(VARIANTS),
                         help="plot the runs BEFORE missed at ratio 1.05 next to AFTER's on the same seeds")
     args = parser.parse_args()
-    RESULTS.mkdir(exist_ok=True)
-    runs = [json.loads(line) for line in RUNS.read_text().splitlines()] if RUNS.exists() else []
+    runs = load_runs(RUNS)
     if not args.summary:
         optima = {label: optimum(label)["cost"] for label in args.plants}
         done = {(r["plant"], r["variant"], r["seed"]) for r in runs}
-        todo = [(p, v, s) for p in args.plants for v in args.variants for s in range(args.seeds)
+        todo = [(p, v, s, optima[p]) for p in args.plants for v in args.variants for s in range(args.seeds)
                 if (p, v, s) not in done]
-        jobs = (delayed(run_one)(p, v, s, optima[p]) for p, v, s in todo)
-        with RUNS.open("a") as out:
-            for run in tqdm(Parallel(n_jobs=args.workers, return_as="generator_unordered")(jobs), total=len(todo),
-                            unit="run"):
-                out.write(json.dumps(run) + "\n")
-                out.flush()
-                runs.append(run)
+        runs += append_runs(RUNS, run_one, todo, args.workers)
     table = summarise(runs)
     (RESULTS / "guided_bo_ablation.md").write_text(
         "Real experiments to each optimality ratio, mean [95 % CI] (misses; a miss counts as budget + 1), "
