@@ -27,7 +27,6 @@ the command is run again (an interrupted study resumes). Writes
 from __future__ import annotations
 
 import argparse
-import json
 import time
 import warnings
 from pathlib import Path
@@ -35,8 +34,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pandas as pd
-from joblib import Parallel, delayed
-from tqdm import tqdm
+from run_log import append_runs, load_runs
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNS = RESULTS / "peers_runs.jsonl"
@@ -154,22 +152,16 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--summary", action="store_true", help="only write and print the tables of the runs so far")
     args = parser.parse_args()
-    RESULTS.mkdir(exist_ok=True)
-    runs = [json.loads(line) for line in RUNS.read_text().splitlines()] if RUNS.exists() else []
+    runs = load_runs(RUNS)
     if not args.summary:
         from effect_aware_guided_bo import optimum
 
         rows = [row for row in args.rows if available(row)]
         optima = {env_label: optimum(env_label)["cost"] for env_label in args.envs}
         done = {(r["env"], r["row"], r["seed"]) for r in runs}
-        todo = [(e, r, s) for e in args.envs for s in range(args.seeds) for r in rows if (e, r, s) not in done]
-        jobs = (delayed(run_one)(e, r, s, optima[e]) for e, r, s in todo)
-        with RUNS.open("a") as out:
-            for run in tqdm(Parallel(n_jobs=args.workers, return_as="generator_unordered")(jobs), total=len(todo),
-                            unit="run"):
-                out.write(json.dumps(run) + "\n")
-                out.flush()
-                runs.append(run)
+        todo = [(e, r, s, optima[e]) for e in args.envs for s in range(args.seeds) for r in rows
+                if (e, r, s) not in done]
+        runs += append_runs(RUNS, run_one, todo, args.workers)
     table = summarise(runs)
     table.round(4).to_csv(RESULTS / "peers.csv", index=False)
     text = markdown(table)

@@ -10,6 +10,7 @@ import numpy as np
 from scipy.stats import qmc
 
 from agents.base import Tuner
+from agents.parameters import Interval, validate_params
 
 __all__ = ["PeerTuner", "latin_hypercube", "require"]
 
@@ -54,13 +55,29 @@ class PeerTuner(Tuner):
     Subclasses implement :meth:`_start` (build the library's optimizer), :meth:`_propose`
     (a unit-box point) and :meth:`_observe` (learn a unit-box point and its cost).
 
+    A subclass names its library in :attr:`library`; one whose only keyword is
+    ``n_initial`` inherits this constructor.
+
     Parameters
     ----------
-    n_initial : int
-        Size ``N0`` of the initial design, ``>= 1``.
+    n_initial : int, default 1
+        Size ``N0`` of the Latin hypercube initial design (the same points as ``agents.make("bo")``), ``>= 1``.
+
+    Raises
+    ------
+    ImportError
+        If the library is not installed (``pip install "gbo-envs[peers]"``).
     """
 
-    n_initial: int
+    #: (import name, distribution name) of the peer library
+    library: tuple[str, str]
+
+    _parameter_constraints: dict[str, list] = {"n_initial": [Interval(int, 1, None)]}
+
+    def __init__(self, *, n_initial: int = 1) -> None:
+        self._params = validate_params(self._parameter_constraints, {"n_initial": n_initial})
+        require(*self.library)
+        self.n_initial = self._params["n_initial"]
 
     def _setup(self) -> None:
         self._initial = latin_hypercube(self.rng, self.space.dim, self.n_initial)

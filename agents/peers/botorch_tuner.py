@@ -43,6 +43,7 @@ class BoTorchTuner(PeerTuner):
     """
 
     name = "botorch"
+    library = ("botorch", "botorch")
 
     _parameter_constraints: dict[str, list] = {
         "n_initial": [Interval(int, 1, None)],
@@ -56,7 +57,7 @@ class BoTorchTuner(PeerTuner):
         self._params = validate_params(self._parameter_constraints, {
             "n_initial": n_initial, "acquisition": acquisition, "num_restarts": num_restarts,
             "raw_samples": raw_samples})
-        require("botorch", "botorch")
+        require(*self.library)
         self.n_initial = self._params["n_initial"]
         self.acquisition = self._params["acquisition"]
         self.num_restarts = self._params["num_restarts"]

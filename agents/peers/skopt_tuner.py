@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from agents.parameters import Interval, validate_params
-from agents.peers.base import PeerTuner, require
+from agents.peers.base import PeerTuner
 
 __all__ = ["SkoptTuner"]
 
@@ -32,13 +31,7 @@ class SkoptTuner(PeerTuner):
     """
 
     name = "skopt"
-
-    _parameter_constraints: dict[str, list] = {"n_initial": [Interval(int, 1, None)]}
-
-    def __init__(self, *, n_initial: int = 1) -> None:
-        self._params = validate_params(self._parameter_constraints, {"n_initial": n_initial})
-        require("skopt", "scikit-optimize")
-        self.n_initial = self._params["n_initial"]
+    library = ("skopt", "scikit-optimize")
 
     def _start(self) -> None:
         import skopt
