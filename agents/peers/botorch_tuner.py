@@ -12,6 +12,9 @@ __all__ = ["ACQUISITIONS", "BoTorchTuner"]
 #: ``acquisition`` values: BoTorch's qLogNoisyExpectedImprovement or analytic LogExpectedImprovement.
 ACQUISITIONS = ("qlognei", "logei")
 
+#: ``optimize_acqf``: L-BFGS-B starting points, and the random points they are picked from.
+NUM_RESTARTS, RAW_SAMPLES = 8, 256
+
 
 class BoTorchTuner(PeerTuner):
     """BoTorch's standard loop on the unit box, after BO's initial design.
@@ -31,10 +34,6 @@ class BoTorchTuner(PeerTuner):
         ``"qlognei"``: ``qLogNoisyExpectedImprovement`` with the training gains as baseline.
         ``"logei"``: ``LogExpectedImprovement`` with ``best_f`` the best measured cost
         (the maximum of the negated costs).
-    num_restarts : int, default 8
-        Starting points of ``optimize_acqf``'s L-BFGS-B.
-    raw_samples : int, default 256
-        Random points from which ``optimize_acqf`` picks its starting points.
 
     Raises
     ------
@@ -48,20 +47,14 @@ class BoTorchTuner(PeerTuner):
     _parameter_constraints: dict[str, list] = {
         "n_initial": [Interval(int, 1, None)],
         "acquisition": [Options(ACQUISITIONS)],
-        "num_restarts": [Interval(int, 1, None)],
-        "raw_samples": [Interval(int, 1, None)],
     }
 
-    def __init__(self, *, n_initial: int = 1, acquisition: str = "qlognei", num_restarts: int = 8,
-                 raw_samples: int = 256) -> None:
+    def __init__(self, *, n_initial: int = 1, acquisition: str = "qlognei") -> None:
         self._params = validate_params(self._parameter_constraints, {
-            "n_initial": n_initial, "acquisition": acquisition, "num_restarts": num_restarts,
-            "raw_samples": raw_samples})
+            "n_initial": n_initial, "acquisition": acquisition})
         require(*self.library)
         self.n_initial = self._params["n_initial"]
         self.acquisition = self._params["acquisition"]
-        self.num_restarts = self._params["num_restarts"]
-        self.raw_samples = self._params["raw_samples"]
 
     def _start(self) -> None:
         self._seeds = np.random.default_rng(self.library_seed)
@@ -90,6 +83,6 @@ class BoTorchTuner(PeerTuner):
             else:
                 acqf = LogExpectedImprovement(model, best_f=train_y.max())
             bounds = torch.stack([torch.zeros(dim, dtype=torch.float64), torch.ones(dim, dtype=torch.float64)])
-            candidate, _ = optimize_acqf(acqf, bounds=bounds, q=1, num_restarts=self.num_restarts,
-                                         raw_samples=self.raw_samples)
+            candidate, _ = optimize_acqf(acqf, bounds=bounds, q=1, num_restarts=NUM_RESTARTS,
+                                         raw_samples=RAW_SAMPLES)
         return candidate.detach().numpy().reshape(dim)

@@ -66,10 +66,8 @@ def test_missing_library_raises_an_import_error_naming_the_extra(name, monkeypat
 
 def test_bad_botorch_options_raise_value_errors_naming_the_parameter():
     pytest.importorskip("botorch")
-    with pytest.raises(ValueError, match="acquisition: must be one of"):
+    with pytest.raises(ValueError, match=r"acquisition: must be one of \('qlognei', 'logei'\)"):
         agents.make("botorch", acquisition="ei")
-    with pytest.raises(ValueError, match=r"num_restarts: must be an int in \[1, inf\)"):
-        agents.make("botorch", num_restarts=0)
     with pytest.raises(ValueError, match=r"n_initial: must be an int in \[1, inf\)"):
         agents.make("skopt", n_initial=0)
 
