@@ -139,7 +139,7 @@ def plot_traces(runs: list[dict], before: str, after: str, level: float = 1.05) 
             if run is not None:
                 ax.plot(np.arange(1, len(run["ratios"]) + 1), run["ratios"], label=f"{r['plant']} seed {r['seed']}")
         ax.axhline(level, color="k", ls="--", lw=0.8)
-        ax.set(title=variant, xlabel="real experiments (-)", yscale="log", ylim=(0.98, 2.0))
+        ax.set(title=variant, xlabel="real experiments (-)", ylim=(0.98, 1.6))
     axes[0].set_ylabel("best optimality ratio J / J* (-)")
     axes[1].legend(fontsize=7)
     fig.suptitle(f"Runs that '{before}' missed at ratio {level}, and '{after}' on the same seeds")
