@@ -170,7 +170,7 @@ def main() -> None:
     table = summarise(runs)
     (RESULTS / "guided_bo_ablation.md").write_text(
         "Real experiments to each optimality ratio, mean [95 % CI] (misses; a miss counts as budget + 1), "
-        "same seeds for every variant (benchmarks/guided_bo_ablation.py).\n\n" + table + "\n")
+        "each variant against bo on the seeds both ran (benchmarks/guided_bo_ablation.py).\n\n" + table + "\n")
     print(table)
     if args.traces:
         print(plot_traces(runs, *args.traces) or f"'{args.traces[0]}' missed no run")
