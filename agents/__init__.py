@@ -7,7 +7,8 @@
 5
 
 Tuner classes load lazily, so optional dependencies (Optuna, stable-baselines3)
-are imported only when their tuner is used.
+are imported only when their tuner is used. The peer libraries (BoTorch,
+scikit-optimize, bayesian-optimization) install with ``pip install "gbo-envs[peers]"``.
 """
 
 from __future__ import annotations
@@ -35,6 +36,9 @@ _LAZY = {
     "OptunaTPE": "agents.optuna_tuner",
     "estimate_noise": "agents.cost_noise",
     "GuidedBO": "agents.guided_bo",
+    "BoTorchTuner": "agents.peers.botorch_tuner",
+    "SkoptTuner": "agents.peers.skopt_tuner",
+    "BayesOptTuner": "agents.peers.bayes_opt_tuner",
 }
 
 #: Registry name -> entry point.
@@ -47,6 +51,9 @@ _TUNERS = {
     "optuna-gp": "agents.optuna_tuner:OptunaGP",
     "optuna-tpe": "agents.optuna_tuner:OptunaTPE",
     "guided-bo": "agents.guided_bo:GuidedBO",
+    "botorch": "agents.peers.botorch_tuner:BoTorchTuner",
+    "skopt": "agents.peers.skopt_tuner:SkoptTuner",
+    "bayes-opt": "agents.peers.bayes_opt_tuner:BayesOptTuner",
 }
 
 for _name, _entry in _TUNERS.items():

@@ -278,6 +278,19 @@ class BayesianOptimization(Tuner):
         envelope = error_envelope(record["t"], record["y"], loop.r1, loop.r2, settling.times)
         return envelope if np.all(np.isfinite(envelope)) else None
 
+    def metric_prior(self):
+        """Prior mean of the metric GPs (:class:`agents.metric_surrogate.MetricPrior`), ``None`` here.
+
+        ``None`` gives every metric GP a constant prior mean. Guided BO returns its twin's metrics
+        (:class:`agents.twin.prior.TwinMetrics`); a subclass that changes its prior must call
+        :meth:`_data_changed` so that the surrogate is refitted.
+        """
+        return None
+
+    def _data_changed(self) -> None:
+        """Mark the surrogate stale: the next :meth:`fit_surrogate` refits it."""
+        self._version += 1
+
     @property
     def model_in_use(self) -> str:
         """``"metrics"`` or ``"cost"``: the model of the last :meth:`fit_surrogate`."""
@@ -300,7 +313,8 @@ class BayesianOptimization(Tuner):
             if data is not None:
                 self._model = self.metric_surrogate.fit(data[0], data[1], data[2], seed=seed,
                                                         optimize=self._optimize_hyperparameters,
-                                                        envelopes=self.envelope_training_set())
+                                                        envelopes=self.envelope_training_set(),
+                                                        prior=self.metric_prior())
                 self._model_in_use = "metrics"
             else:
                 self._model = self.surrogate.fit(X, y, seed=seed, optimize=self._optimize_hyperparameters)

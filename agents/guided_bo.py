@@ -1,10 +1,13 @@
-"""Guided Bayesian optimization: the paper's Algorithm 1, BO guided by a digital twin.
+"""Guided Bayesian optimization: BO guided by a digital twin (the paper's Algorithm 1 and a prior-mean form).
 
 Every plant experiment already records ``u`` and ``y``; guided BO keeps a
-digital twin identified from those records (:mod:`agents.twin`) and, when the
-GP is uncertain at its next query, lets the twin do the exploring: BO runs on
-the twin until expected improvement dries up, and only the best point found
-goes to the real plant.
+digital twin identified from those records (:mod:`agents.twin`). By default
+the twin's performance metrics are the prior mean of the default BO's metric
+GPs, which then learn only the plant's discrepancy from the twin
+(:mod:`agents.twin.prior`). ``guidance="iterations"`` is the paper's
+Algorithm 1: when the GP is uncertain at its next query, BO runs on the twin
+until expected improvement dries up, and only the best point found goes to
+the real plant.
 """
 
 from __future__ import annotations
@@ -18,7 +21,8 @@ from agents.bo import BayesianOptimization
 from agents.parameters import HasMethods, Interval, Options, validate_params
 from gbo_envs import METRIC_NAMES
 
-__all__ = ["GuidedBO", "ACTIVATION_RULES", "MIN_TWIN_ITERATIONS", "TWIN_CHOICES", "TWIN_REFIT_EVERY"]
+__all__ = ["GuidedBO", "ACTIVATION_RULES", "GUIDANCE_RULES", "MIN_TWIN_ITERATIONS", "TWIN_CHOICES",
+           "TWIN_REFIT_EVERY"]
 
 #: How the twin is switched on: the paper's uncertainty test eq. (DT_activation), or every
 #: ``period`` plant experiments for ``n_ei`` twin iterations (the twin-fidelity study, Sec. V-A).
@@ -33,6 +37,10 @@ TWIN_REFIT_EVERY = 5
 
 #: ``twin`` by name: the workbench-diagnosed grey-box twin, or the paper's linear SRIVC twin.
 TWIN_CHOICES = ("auto", "linear")
+
+#: How the twin guides BO: as the prior mean of the default BO's metric GPs, or by the paper's
+#: twin iterations on the cost GP (Algorithm 1, lines 9-16).
+GUIDANCE_RULES = ("prior", "iterations")
 
 #: Effects at most in a diagnosed twin (the workbench's ladder, two rungs).
 MAX_TWIN_EFFECTS = 2
@@ -52,9 +60,31 @@ RMSE_FLOOR = 1e-3
 
 
 class GuidedBO(BayesianOptimization):
-    r"""Guided BO, Algorithm 1 of the paper, on top of :class:`~agents.bo.BayesianOptimization`.
+    r"""Guided BO on top of :class:`~agents.bo.BayesianOptimization`: the twin as prior mean, or Algorithm 1.
 
-    Every ``ask`` after the initial design:
+    **guidance="prior"** (the default). The surrogate is the default BO's: one GP per
+    performance metric, combined into the posterior of ``J_hat = sum_i w_i f_i / n_i``
+    (eq. (J_used), :mod:`agents.metric_surrogate`). While a twin may guide (its
+    ``e_RMSE < eta2``, eq. (DT_rmse1)), the prior mean of metric ``i``'s
+    GP is the twin's metric ``f~_i(theta)`` (:class:`agents.twin.prior.TwinMetrics`), so
+    the GP models the discrepancy ``T_i(f_i) - T_i(f~_i)`` (``T_i``: ``f / n_i``, or its
+    log) and the posterior mean is ``T_i(f~_i(theta)) + mu_d(theta)``. Every ``ask``
+    queries the maximiser of EI (eq. (EI)) on that posterior. A right twin makes the
+    discrepancy flat, and EI goes straight to the twin's optimum; a wrong twin is
+    corrected where the plant has been measured. Two rules keep a slightly wrong twin
+    from holding BO at its optimum: where EI with the prior proposes gains already
+    measured, the experiment is the default BO's proposal (EI without the prior); and a
+    plant cost more than ``3 sigma_eps`` off the twin's prediction refits the twin once
+    the records have doubled since its fit (the RMSE test below misses a twin whose
+    response is close but whose thin optimal valley sits a grid cell away). The twin is
+    simulated once per grid point and fitted twin (10^4 simulations, cached). Otherwise the metric GPs have
+    their constant prior mean and guided BO is the default BO. A diverging plant
+    experiment enters with the metrics of ``J = unstable_cost``. ``eta1``, ``eta3``,
+    ``n_ei``, ``max_twin_iterations``, ``activation`` and ``period`` are not used.
+    Which choice buys what is measured in benchmarks/guided_bo_ablation.py.
+
+    **guidance="iterations"**, Algorithm 1 of the paper, on one GP on the cost
+    (the twin's points enter ``D`` as costs). Every ``ask`` after the initial design:
 
     1. fit the GP on the plant data ``D`` and find ``theta+ = argmax a_EI`` (eq. (EI));
     2. activate the twin if ``sqrt(v_n(theta+)) > eta1 sigma_eps`` (eq. (eta1)),
@@ -98,7 +128,8 @@ class GuidedBO(BayesianOptimization):
     as good as the noise allows is used on any plant, and on a quiet plant the
     threshold is the paper's 0.003.
 
-    **Trust.** After a plant experiment at a twin-proposed point ``theta_T``, the
+    **Trust** (``guidance="iterations"``; with the prior, the discrepancy GPs correct the
+    twin instead). After a plant experiment at a twin-proposed point ``theta_T``, the
     improvement the twin promised over the plant incumbent ``theta_I`` (lowest
     measured cost), ``J^(theta_I) - J^(theta_T)``, is compared with the one measured,
     ``mu(theta_I) - J(theta_T)`` (``mu``: the GP's posterior mean on the plant data; the
@@ -183,17 +214,24 @@ class GuidedBO(BayesianOptimization):
         high-fidelity twin has 2 poles, the low-fidelity one 5).
     twin : {"auto", "linear"} or estimator, default "auto"
         The digital twin, see "Which twin" above.
+    guidance : {"prior", "iterations"}, default "prior"
+        How the twin guides BO (see above): as the prior mean of the metric GPs, or by
+        the paper's twin iterations on the cost GP (Algorithm 1).
 
     Attributes
     ----------
     activations_ : int
-        How often the twin was switched on.
+        How often the twin was switched on (``guidance="prior"``: plant queries proposed with the twin prior).
     twin_evaluations_ : int
-        Twin experiments made.
+        Twin experiments made (with ``guidance="prior"``, by twins replaced so far; ``run_summary``
+        counts the current twin's too).
     reinitializations_ : int
         How often eq. (reinit_DTdataset) emptied the twin data set.
     distrusts_ : int
         How often a twin-proposed experiment disappointed and the twin lost trust.
+    repeats_ : int
+        ``guidance="prior"``: how often the twin prior proposed gains already measured and the
+        default BO's proposal was taken instead.
     twin_ : LinearTwin, GreyBoxTwin or None
         The current fitted twin.
     twin_changes_ : list of dict
@@ -203,8 +241,8 @@ class GuidedBO(BayesianOptimization):
     noise_floor_ : float
         ``s``: the median normalised noise floor of the plant records.
     model : str
-        Always ``"cost"``: one GP on the cost, as in the paper's Algorithm 1 (the twin's
-        points enter ``D`` as costs, line D_in_DT).
+        ``"metrics"`` with ``guidance="prior"``; ``"cost"`` with ``"iterations"``: one GP on the
+        cost, as in the paper's Algorithm 1 (the twin's points enter ``D`` as costs, line D_in_DT).
     """
 
     name = "guided-bo"
@@ -222,18 +260,24 @@ class GuidedBO(BayesianOptimization):
         "period": [Interval(int, 1, None)],
         "twin_poles": [Interval(int, 1, None)],
         "twin": [Options(TWIN_CHOICES), HasMethods(("fit", "get_params"))],
+        "guidance": [Options(GUIDANCE_RULES)],
     }
 
     def __init__(self, *, n_initial: int = 1, grid_points: int = 100, noise_std: float | None = None,
                  eta1: float = 3.0, eta2: float | None = None, eta3: float = 0.2, n_ei: int = 3,
                  delta: float = 2.0, max_twin_iterations: int = 20, n_samples: int | None = 100,
-                 activation: str = "uncertainty", period: int = 1, twin_poles: int = 2, twin="auto") -> None:
-        # one GP on the cost: the twin's points enter D as costs (Algorithm 1, line D_in_DT)
-        super().__init__(n_initial=n_initial, grid_points=grid_points, noise_std=noise_std, model="cost")
+                 activation: str = "uncertainty", period: int = 1, twin_poles: int = 2, twin="auto",
+                 guidance: str = "prior") -> None:
+        validate_params({"guidance": self._parameter_constraints["guidance"]}, {"guidance": guidance})
+        # "iterations": one GP on the cost, the twin's points enter D as costs (Algorithm 1, line D_in_DT);
+        # "prior": the default BO's metric GPs, with the twin's metrics as their prior mean
+        super().__init__(n_initial=n_initial, grid_points=grid_points, noise_std=noise_std,
+                         model="metrics" if guidance == "prior" else "cost")
         params = validate_params(self._parameter_constraints, {
             "eta1": eta1, "eta2": eta2, "eta3": eta3, "n_ei": n_ei, "delta": delta,
             "max_twin_iterations": max_twin_iterations, "n_samples": n_samples, "activation": activation,
-            "period": period, "twin_poles": twin_poles, "twin": twin})
+            "period": period, "twin_poles": twin_poles, "twin": twin, "guidance": guidance})
+        self.guidance = guidance
         self.eta1, self.eta2, self.eta3 = params["eta1"], params["eta2"], params["eta3"]
         self.n_ei, self.delta = params["n_ei"], params["delta"]
         self.max_twin_iterations = params["max_twin_iterations"]
@@ -257,6 +301,7 @@ class GuidedBO(BayesianOptimization):
         self._twin_records: list[dict] = []
         self._twin_fitted_on = 0  # records in D~ when the twin was last fitted
         self._twin_dirty = False
+        self._cost_missed = False  # a plant cost since the last fit was off the twin's by > 3 sigma_eps
         self._diagnosed_on = 0  # records in D~ at the last diagnosis (twin="auto")
         self._noise_floors: list[float] = []
         self._promise = None  # (theta_T, theta_I, mu(theta_I), promised improvement) of the last twin proposal
@@ -269,15 +314,20 @@ class GuidedBO(BayesianOptimization):
         self.twin_evaluations_ = 0
         self.reinitializations_ = 0
         self.distrusts_ = 0
+        self.repeats_ = 0
         self.twin_changes_: list[dict] = []
         if self.twin_ is not None:
             self._record_twin_change(None)
         # periodic rule (Sec. V-A): the twin is used right after the initial data, then every N_G experiments
         self._since_activation = self.period
+        self._prior = None  # the twin's metrics while they are the metric GPs' prior mean (guidance="prior")
+        self._twin_metrics = None  # the current twin's metrics (simulated gains cached)
 
     def _ask(self) -> np.ndarray:
         if self.n_observations < self.n_initial:
             return super()._ask()
+        if self.guidance == "prior":
+            return self._ask_with_twin_prior()
         gains, ei, std = self.propose()
         self.last_ei_, self.last_std_ = ei, std
         if self._activate(std):
@@ -288,6 +338,12 @@ class GuidedBO(BayesianOptimization):
 
     def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:
         super()._tell(gains, cost, record)
+        if self.guidance == "prior" and record is not None and record.get("unstable", False):
+            # a diverging experiment keeps the metric GPs (and the twin prior) in use: its metrics are
+            # those of J = unstable_cost, as the twin's diverging points (agents.twin.prior.TwinMetrics)
+            env = self._plant_env
+            self._plant_F[-1] = (np.asarray(env.normalizers, dtype=float) * float(env.unstable_cost)
+                                 / float(np.sum(env.weights)))
         self._check_promise(gains, cost)
         if record is None or record.get("unstable", False) or not all(key in record for key in ("t", "r", "u", "y")):
             return  # nothing to identify from (or a diverging response)
@@ -307,13 +363,17 @@ class GuidedBO(BayesianOptimization):
                 self._twin_fitted_on = 0
                 self._diagnosed_on = 0
                 self.reinitializations_ += 1
+            elif self.guidance == "prior" and abs(cost - predicted) > 3.0 * self.sigma_eps:
+                self._cost_missed = True  # the twin's cost is off by more than the cost noise explains
         self._twin_records.append(new)  # eq. (Ds): D~ <- D~ u {(u_i, y_i)}
         self._twin_dirty = True
 
     def run_summary(self) -> dict[str, Any]:
         summary = super().run_summary()
         twin = self.twin_
-        summary.update({"activations": self.activations_, "twin_evaluations": self.twin_evaluations_,
+        simulated = 0 if self._twin_metrics is None else self._twin_metrics.simulations_
+        summary.update({"activations": self.activations_, "twin_evaluations": self.twin_evaluations_ + simulated,
+                        "repeats": self.repeats_,
                         "reinitializations": self.reinitializations_, "distrusts": self.distrusts_,
                         "twin_rmse": twin.rmse_ if twin is not None else None,
                         "twin_params": None if twin is None else [float(p) for p in twin.params_],
@@ -357,6 +417,52 @@ class GuidedBO(BayesianOptimization):
     def trusted(self) -> bool:
         """Whether the twin may propose plant experiments (see "Trust" in the class doc)."""
         return self._broken is None
+
+    def _ask_with_twin_prior(self) -> np.ndarray:
+        """EI on the metric GPs with the twin prior; the default BO's proposal where the twin repeats itself.
+
+        If EI with the twin prior proposes gains already measured, the twin has nothing
+        new to say (plain EI would measure its optimum over and over, also where that
+        optimum is slightly off the plant's): the experiment is then the default BO's
+        proposal, EI on the same metric GPs without the prior.
+        """
+        prior = self._twin_prior()
+        if prior is not self._prior:
+            self._prior = prior
+            self._data_changed()
+        gains = super()._ask()
+        if prior is None:
+            return gains
+        self.activations_ += 1
+        unit = self.space.to_unit(gains)
+        if any(np.allclose(unit, measured, rtol=0.0, atol=1e-9) for measured in self._plant_X):
+            self._prior = None
+            self._data_changed()
+            try:
+                gains = super()._ask()
+            finally:
+                self._prior = prior
+                self._data_changed()
+            self.repeats_ += 1
+        return gains
+
+    def metric_prior(self):
+        """The twin's metrics (:class:`agents.twin.prior.TwinMetrics`) while they guide BO, else ``None``."""
+        return self._prior
+
+    def _twin_prior(self):
+        """The current twin's metrics if the twin may guide (eq. (DT_rmse1) and trust), else ``None``."""
+        twin = self._current_twin()
+        if twin is None or not np.isfinite(twin.rmse_) or twin.rmse_ >= self.eta2_value or not self.trusted:
+            return None
+        twin_env = self._current_twin_env()
+        if self._twin_metrics is None or self._twin_metrics.twin_env is not twin_env:
+            from agents.twin.prior import TwinMetrics
+
+            if self._twin_metrics is not None:
+                self.twin_evaluations_ += self._twin_metrics.simulations_
+            self._twin_metrics = TwinMetrics(twin_env, self.space)
+        return self._twin_metrics
 
     def _activate(self, std: float) -> bool:
         """Twin activation test, eq. (DT_activation) (or the periodic rule), and trust."""
@@ -497,7 +603,9 @@ class GuidedBO(BayesianOptimization):
                 self._twin_dirty = False
             elif self.trusted:
                 previous_rmse, scored = self._error_on(new), True
-                self._twin_dirty = self._mispredicts(previous_rmse)
+                # with the twin as prior, also when its cost missed and the records have doubled since its fit
+                doubled = len(self._twin_records) >= 2 * self._twin_fitted_on
+                self._twin_dirty = self._mispredicts(previous_rmse) or (self._cost_missed and doubled)
             else:  # a distrusted twin is refitted when the records have doubled since its fit (more excitation)
                 self._twin_dirty = len(self._twin_records) >= 2 * self._twin_fitted_on
         if self._twin_dirty and self._twin_records:
@@ -510,7 +618,7 @@ class GuidedBO(BayesianOptimization):
             except (ValueError, FloatingPointError, np.linalg.LinAlgError):
                 self.twin_ = None  # too little excitation to identify: no twin this time
             self._twin_env = None
-            self._twin_dirty = False
+            self._twin_dirty = self._cost_missed = False
             self._twin_fitted_on = len(self._twin_records)
             if self.twin_ is not None:
                 self._record_twin_change(previous_rmse)

@@ -30,15 +30,30 @@ Modelling assumptions
   s_i^2)`` with ``s_i`` the metric GPs' learned noise (:attr:`CompositeSurrogate.noise_std_`).
   Because the metrics are not corrupted by ``epsilon``, the composite mean at a
   training point reproduces ``J_hat`` rather than the noisy ``J``.
+* **Prior mean.** By default each GP has a constant prior mean (the
+  standardisation of :class:`~agents.surrogate.GPSurrogate`). Given a ``prior``
+  (e.g. a digital twin's metrics, :class:`agents.twin_prior.TwinMetrics`), the GP of
+  metric ``i`` models the discrepancy ``d_i = T_i(f_i) - T_i(p_i)`` of the transformed
+  metric (``T_i``: ``f / n_i``, or its log) from the prior's, and predicts
+  ``T_i(p_i(theta)) + mu_d(theta)`` with the discrepancy's std (Kennedy and O'Hagan's
+  model discrepancy; a constant discrepancy is still learned by the standardisation).
 """
 
 from __future__ import annotations
+
+from typing import Protocol
 
 import numpy as np
 
 from agents.surrogate import GPSurrogate
 
-__all__ = ["CompositeSurrogate", "GPDerivedMetric", "MetricSurrogate"]
+__all__ = ["CompositeSurrogate", "GPDerivedMetric", "MetricSurrogate", "MetricPrior"]
+
+
+class MetricPrior(Protocol):
+    """Prior mean of the raw metrics: ``prior(X) -> f`` of shape (m, n_metrics), finite, for unit-box X (m, d)."""
+
+    def __call__(self, X: np.ndarray) -> np.ndarray: ...
 
 
 class CompositeSurrogate:
@@ -131,7 +146,8 @@ class MetricSurrogate:
         return np.asarray(metrics, dtype=float) @ (self.weights / self.normalizers)
 
     def fit(self, X: np.ndarray, metrics: np.ndarray, costs: np.ndarray | None = None,
-            seed: int | None = None, optimize: bool = True, envelopes: np.ndarray | None = None) -> CompositeSurrogate:
+            seed: int | None = None, optimize: bool = True, envelopes: np.ndarray | None = None,
+            prior: MetricPrior | None = None) -> CompositeSurrogate:
         """Fit every metric GP on ``(X, f_i / n_i)`` and return their combination.
 
         Parameters
@@ -149,28 +165,62 @@ class MetricSurrogate:
         envelopes : ndarray of shape (n, k), optional
             Error envelopes of the responses (:func:`agents.settling.error_envelope`); with a
             ``settling`` model, the settling time is modelled from them instead of by a GP.
+        prior : MetricPrior, optional
+            Prior mean of the raw metrics; every GP then models the discrepancy from it (see
+            the module doc). The settling time is then always modelled by a GP.
         """
         metrics = np.atleast_2d(np.asarray(metrics, dtype=float))
         if metrics.shape != (np.shape(X)[0], self.weights.size) or not np.all(np.isfinite(metrics)):
             raise ValueError(f"metrics: need finite values of shape ({np.shape(X)[0]}, {self.weights.size})")
-        scaled = metrics / self.normalizers
+        target = self._transformed(metrics)
+        if prior is not None:
+            target = target - self._transformed(prior(X))  # the discrepancy d_i from the prior
         models = []
         for i, model in enumerate(self.models):
-            if i == self.settling_index and self.settling is not None and envelopes is not None:
+            if i == self.settling_index and self.settling is not None and envelopes is not None and prior is None:
                 seed_i = None if seed is None else int(seed) + i
                 models.append(self.settling.fit(X, envelopes, seed=seed_i, optimize=optimize))
                 continue
-            target = np.log(scaled[:, i] + _LOG_OFFSET) if i in self.log_metrics else scaled[:, i]
-            model.fit(X, target, seed=None if seed is None else int(seed) + i, optimize=optimize)
-            models.append(_LogNormal(model) if i in self.log_metrics else model)
+            model.fit(X, target[:, i], seed=None if seed is None else int(seed) + i, optimize=optimize)
+            shifted = model if prior is None else _PriorMean(model, prior, i, self._transformed)
+            models.append(_LogNormal(shifted) if i in self.log_metrics else shifted)
         noise = 0.0
         if costs is not None and np.size(costs) > 1:
             residual = np.asarray(costs, dtype=float) - self.reconstruct(metrics)
             noise = float(np.sqrt(np.mean(residual**2)))
         return CompositeSurrogate(models, self.weights, cost_noise_std=noise)
 
+    def _transformed(self, metrics: np.ndarray) -> np.ndarray:
+        """``T_i(f_i)`` of raw metrics (n, n_metrics): ``f_i / n_i``, in logs for :attr:`log_metrics`."""
+        scaled = np.asarray(metrics, dtype=float) / self.normalizers
+        for i in self.log_metrics:
+            scaled[:, i] = np.log(np.maximum(scaled[:, i], 0.0) + _LOG_OFFSET)
+        return scaled
+
 
 _LOG_OFFSET = 1e-3
+
+
+class _PriorMean:
+    """The GP of a discrepancy ``d_i = T_i(f_i) - T_i(p_i)`` seen as a model of ``T_i(f_i)``.
+
+    Mean ``T_i(p_i(X)) + mu_d(X)``, std ``sigma_d(X)``; noise and length scales are the GP's.
+    """
+
+    def __init__(self, gp: GPSurrogate, prior: MetricPrior, index: int, transform) -> None:
+        self.gp, self.prior, self.index, self.transform = gp, prior, index, transform
+
+    def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        mu, sigma = self.gp.predict(X)
+        return self.transform(self.prior(X))[:, self.index] + mu, sigma
+
+    @property
+    def noise_std_(self) -> float:
+        return self.gp.noise_std_
+
+    @property
+    def length_scales_(self) -> np.ndarray:
+        return self.gp.length_scales_
 
 
 class GPDerivedMetric:

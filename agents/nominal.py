@@ -4,7 +4,14 @@ Ho, Hang and Cao (1995) tune a PI controller ``C(s) = Kp (1 + Ki / s)`` for a
 first-order-plus-dead-time (FOPDT) plant ``L e^{-l s} / (1 + tau s)`` so the
 loop has phase margin ``Phi_m`` and gain margin ``A_m``; the paper (subsec.
 nominal_tuning, eqs. (PGM:omega), (PGM:Kp), (PGM:Kv), Table nominal_ctl_specs)
-applies them to the identified DC motor.
+designs its two nominal DC motor controllers with them.
+
+By default :class:`NominalPGM` uses the FOPDT the env declares for its nominal
+design (``env.unwrapped.nominal_fopdt``): on the DC motor envs that is
+:data:`gbo_envs.envs.dc_motor.NOMINAL_FOPDT`, which reproduces the paper's table,
+(0.85, 1.07) at 60 deg and (0.86, 0.89) at 75 deg. The FOPDT of the identified
+model of Table I does not: it gives (1.71, 3.59), outside the feasible set (the
+paper designed on the real loop's margins, not on that model).
 """
 
 from __future__ import annotations
@@ -15,17 +22,21 @@ from typing import Any
 import numpy as np
 
 from agents.base import Tuner
+from agents.parameters import HasMethods, Interval, Options, validate_params
+from gbo_envs.envs.dc_motor import NOMINAL_FOPDT
 
-__all__ = ["NominalPGM", "pgm_pi_gains", "fopdt_from_second_order", "PAPER_NOMINAL_GAINS", "PAPER_TABLE_FOPDT"]
+__all__ = ["NominalPGM", "pgm_pi_gains", "fopdt_from_second_order", "PAPER_NOMINAL_GAINS", "PAPER_TABLE_FOPDT",
+           "FOPDT_SOURCES"]
 
 #: The paper's Table nominal_ctl_specs: phase margin (deg) -> (Kp, Ki), both at A_m = 46 dB.
 PAPER_NOMINAL_GAINS = {60.0: (0.85, 1.07), 75.0: (0.86, 0.89)}
 
-#: FOPDT (gain, tau in s, delay in s) that reproduces Table nominal_ctl_specs through eqs.
-#: (PGM:omega)-(PGM:Kv) with A_m = 46 dB = 199.5 (least squares on its four gains:
-#: (0.855, 1.070) at 60 deg and (0.855, 0.890) at 75 deg). It is *not* the identified
-#: model: no FOPDT with the identified 2 ms delay reproduces the table's Ki column.
-PAPER_TABLE_FOPDT = {"gain": 0.8842, "tau": 1.3984, "delay": 0.014544}
+#: FOPDT (gain, tau in s, delay in s) that reproduces Table nominal_ctl_specs (the DC motor envs'
+#: ``nominal_fopdt``; see :data:`gbo_envs.envs.dc_motor.NOMINAL_FOPDT` for the evidence).
+PAPER_TABLE_FOPDT = NOMINAL_FOPDT
+
+#: ``fopdt`` by name: the env's declared nominal design model, or the FOPDT of its identified plant.
+FOPDT_SOURCES = ("env", "identified")
 
 
 def pgm_pi_gains(phase_margin_deg: float, gain_margin_db: float, gain: float, tau: float,
@@ -96,29 +107,39 @@ class NominalPGM(Tuner):
 
     Gains come from :func:`pgm_pi_gains` on an FOPDT model, then are clipped
     into the feasible set (``clipped`` in the run's ``info`` says whether that
-    happened, ``unclipped_gains`` what the formulas gave).
+    happened, ``unclipped_gains`` what the formulas gave). With the defaults, on
+    the DC motor envs, these are the paper's first nominal controller (0.855,
+    1.070); ``phase_margin_deg=75`` gives its second, (0.855, 0.890).
 
     Parameters
     ----------
     phase_margin_deg : float, default 60
-        ``Phi_m`` (the paper's first nominal controller; 75 for the second).
+        ``Phi_m``, degrees, in (0, 90) (the paper's first nominal controller; 75 for the second).
     gain_margin_db : float, default 46
-        ``A_m`` in dB (amplitude ratio 10^(46/20) = 199.5).
-    fopdt : {"identified", "paper"} or dict, default "identified"
+        ``A_m``, dB, > 0 (amplitude ratio 10^(46/20) = 199.5).
+    fopdt : {"env", "identified"} or dict, default "env"
+        ``"env"``: the FOPDT the env declares for its nominal design
+        (``env.unwrapped.nominal_fopdt``; the DC motor envs declare the one that
+        reproduces the paper's table), else as ``"identified"``.
         ``"identified"``: :func:`fopdt_from_second_order` of the env's
         identified plant (``env.unwrapped.plant_params`` with ``gain, tau1,
         tau2, delay``); for the DC motor this gives (1.707, 3.594) at 60 deg,
-        clipped to (1.10, 2.08). ``"paper"``: :data:`PAPER_TABLE_FOPDT`, which
-        reproduces the paper's Table nominal_ctl_specs. A dict
-        ``{"gain", "tau", "delay"}`` gives the FOPDT directly (any PI env).
+        clipped to (1.10, 2.08). A dict ``{"gain", "tau" (s), "delay" (s)}``
+        gives the FOPDT directly (any PI env).
     """
 
     name = "nominal"
 
+    _parameter_constraints = {
+        "phase_margin_deg": [Interval(float, 0.0, 90.0, closed="neither")],
+        "gain_margin_db": [Interval(float, 0.0, None, closed="neither")],
+        "fopdt": [Options(FOPDT_SOURCES), HasMethods(("keys",))],
+    }
+
     def __init__(self, *, phase_margin_deg: float = 60.0, gain_margin_db: float = 46.0,
-                 fopdt: str | dict = "identified") -> None:
-        if isinstance(fopdt, str) and fopdt not in ("identified", "paper"):
-            raise ValueError(f"fopdt: must be 'identified', 'paper' or a dict, got {fopdt!r}")
+                 fopdt: str | dict = "env") -> None:
+        validate_params(self._parameter_constraints, {"phase_margin_deg": phase_margin_deg,
+                                                      "gain_margin_db": gain_margin_db, "fopdt": fopdt})
         if isinstance(fopdt, dict) and set(fopdt) != {"gain", "tau", "delay"}:
             raise ValueError(f"fopdt: dict needs exactly the keys gain, tau, delay, got {sorted(fopdt)}")
         self.phase_margin_deg = float(phase_margin_deg)
@@ -126,19 +147,20 @@ class NominalPGM(Tuner):
         self.fopdt = fopdt
         self._params = {"phase_margin_deg": self.phase_margin_deg, "gain_margin_db": self.gain_margin_db,
                         "fopdt": fopdt}
-        pgm_pi_gains(self.phase_margin_deg, self.gain_margin_db, 1.0, 1.0, 1.0)  # validate the margins now
 
     def model(self) -> dict[str, float]:
         """The FOPDT used: ``{"gain", "tau" (s), "delay" (s)}``."""
         if isinstance(self.fopdt, dict):
             return {k: float(v) for k, v in self.fopdt.items()}
-        if self.fopdt == "paper":
-            return dict(PAPER_TABLE_FOPDT)
         plant = getattr(getattr(self, "env", None), "unwrapped", None)
+        declared = getattr(plant, "nominal_fopdt", None)
+        if self.fopdt == "env" and declared:
+            return {k: float(v) for k, v in declared.items()}
         params = getattr(plant, "plant_params", None)
         if not params or not {"gain", "tau1", "tau2", "delay"} <= set(params):
-            raise ValueError("fopdt='identified' needs an env whose plant_params has gain, tau1, tau2, delay "
-                             "(a second-order plant); pass fopdt={'gain': ..., 'tau': ..., 'delay': ...}")
+            raise ValueError(f"fopdt={self.fopdt!r}: the env declares no nominal_fopdt and its plant_params lack "
+                             "gain, tau1, tau2, delay (a second-order plant); pass fopdt={'gain': ..., "
+                             "'tau': ..., 'delay': ...}")
         return fopdt_from_second_order(params["gain"], params["tau1"], params["tau2"], params["delay"])
 
     def _setup(self) -> None:

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
 
 import numpy as np
 
 from agents.base import Tuner
-from agents.parameters import HasMethods, Options, validate_params
+from agents.parameters import HasMethods, Interval, Options, validate_params
+from agents.peers.base import latin_hypercube
 
 __all__ = ["OptunaTuner", "OptunaGP", "OptunaTPE", "SAMPLERS"]
 
@@ -34,6 +36,12 @@ class OptunaTuner(Tuner):
         reproducibility, and it is shared between runs).
     sampler_kwargs : dict, optional
         Extra constructor arguments of the sampler.
+    n_initial : int, optional
+        ``None``: the sampler's own start (GPSampler and TPESampler: 10 independent random
+        trials). An int ``N0 >= 1``: the first ``N0`` trials are ``agents.make("bo")``'s Latin
+        hypercube initial design for the same seed (enqueued with ``study.enqueue_trial``), and a
+        sampler built here that takes ``n_startup_trials`` gets ``n_startup_trials=N0`` (unless
+        ``sampler_kwargs`` sets it), so its model takes over right after the design.
     """
 
     name = "optuna"
@@ -41,35 +49,52 @@ class OptunaTuner(Tuner):
     _parameter_constraints = {
         "sampler": [Options(tuple(SAMPLERS)), HasMethods(("__call__",)), HasMethods(("sample_relative",))],
         "sampler_kwargs": [None, HasMethods(("keys",))],
+        "n_initial": [None, Interval(int, 1, None)],
     }
 
-    def __init__(self, *, sampler: Any = "tpe", sampler_kwargs: dict | None = None) -> None:
-        validate_params(self._parameter_constraints, {"sampler": sampler, "sampler_kwargs": sampler_kwargs})
+    def __init__(self, *, sampler: Any = "tpe", sampler_kwargs: dict | None = None,
+                 n_initial: int | None = None) -> None:
+        checked = validate_params(self._parameter_constraints,
+                                  {"sampler": sampler, "sampler_kwargs": sampler_kwargs, "n_initial": n_initial})
         self.sampler = sampler
         self.sampler_kwargs = dict(sampler_kwargs or {})
+        self.n_initial = checked["n_initial"]
         self._params = {"sampler": sampler if isinstance(sampler, str) else repr(sampler),
                         "sampler_kwargs": self.sampler_kwargs}
+        if self.n_initial is not None:
+            self._params["n_initial"] = self.n_initial
 
     def _make_sampler(self, seed: int | None):
         import optuna
 
         if isinstance(self.sampler, str):
-            return getattr(optuna.samplers, SAMPLERS[self.sampler])(seed=seed, **self.sampler_kwargs)
+            return self._build(getattr(optuna.samplers, SAMPLERS[self.sampler]), seed)
         if isinstance(self.sampler, type):
-            return self.sampler(seed=seed, **self.sampler_kwargs)
+            return self._build(self.sampler, seed)
         if callable(self.sampler) and not isinstance(self.sampler, optuna.samplers.BaseSampler):
             return self.sampler(seed)
         return self.sampler
+
+    def _build(self, cls: type, seed: int | None):
+        """``cls(seed=seed, **sampler_kwargs)``, with ``n_startup_trials = n_initial`` where it applies."""
+        kwargs = dict(self.sampler_kwargs)
+        if self.n_initial is not None and "n_startup_trials" in inspect.signature(cls).parameters:
+            kwargs.setdefault("n_startup_trials", self.n_initial)
+        return cls(seed=seed, **kwargs)
 
     def _setup(self) -> None:
         import optuna
 
         optuna.logging.set_verbosity(optuna.logging.WARNING)
+        # BO's initial design is the first draw from the tuner rng, as in agents.bo
+        initial = None if self.n_initial is None else latin_hypercube(self.rng, self.space.dim, self.n_initial)
         # the run's seed, or a draw from the tuner rng when setup got no seed
         seed = self.seed if self.seed is not None else int(self.rng.integers(2**31))
         self._distributions = {name: optuna.distributions.FloatDistribution(float(lo), float(hi))
                                for name, lo, hi in zip(self.space.names, self.space.low, self.space.high)}
         self.study = optuna.create_study(direction="minimize", sampler=self._make_sampler(seed))
+        for point in () if initial is None else self.space.from_unit(initial):
+            self.study.enqueue_trial({name: float(g) for name, g in zip(self.space.names, point)})
         self._pending: tuple[Any, np.ndarray] | None = None
 
     def _ask(self) -> np.ndarray:
@@ -96,12 +121,15 @@ class OptunaTuner(Tuner):
 
 
 class OptunaGP(OptunaTuner):
-    """:class:`OptunaTuner` with ``optuna.samplers.GPSampler(seed=...)`` (registry name ``optuna-gp``)."""
+    """:class:`OptunaTuner` with ``optuna.samplers.GPSampler(seed=...)`` (registry name ``optuna-gp``).
+
+    ``n_initial=N0`` starts it from ``agents.make("bo")``'s initial design (see :class:`OptunaTuner`).
+    """
 
     name = "optuna-gp"
 
-    def __init__(self, *, sampler_kwargs: dict | None = None) -> None:
-        super().__init__(sampler="gp", sampler_kwargs=sampler_kwargs)
+    def __init__(self, *, sampler_kwargs: dict | None = None, n_initial: int | None = None) -> None:
+        super().__init__(sampler="gp", sampler_kwargs=sampler_kwargs, n_initial=n_initial)
 
 
 class OptunaTPE(OptunaTuner):

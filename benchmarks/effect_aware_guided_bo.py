@@ -32,9 +32,8 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from joblib import Parallel, delayed
+from run_log import append_runs, load_runs
 from scipy import stats
-from tqdm import tqdm
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNS = RESULTS / "effect_aware_runs.jsonl"
@@ -145,20 +144,13 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--summary", action="store_true", help="only print the table of the runs so far")
     args = parser.parse_args()
-    RESULTS.mkdir(exist_ok=True)
-    runs = [json.loads(line) for line in RUNS.read_text().splitlines()] if RUNS.exists() else []
+    runs = load_runs(RUNS)
     if not args.summary:
         optima = {label: optimum(label)["cost"] for label in args.plants}
         done = {(r["plant"], r["tuner"], r["seed"]) for r in runs}
-        todo = [(p, t, s) for p in args.plants for t in args.tuners for s in range(args.seeds)
+        todo = [(p, t, s, optima[p]) for p in args.plants for t in args.tuners for s in range(args.seeds)
                 if (p, t, s) not in done]
-        jobs = (delayed(run_one)(p, t, s, optima[p]) for p, t, s in todo)
-        with RUNS.open("a") as out:
-            for run in tqdm(Parallel(n_jobs=args.workers, return_as="generator_unordered")(jobs), total=len(todo),
-                            unit="run"):
-                out.write(json.dumps(run) + "\n")
-                out.flush()
-                runs.append(run)
+        runs += append_runs(RUNS, run_one, todo, args.workers)
     table = summarise(runs)
     (RESULTS / "effect_aware.md").write_text(
         "Real experiments to each optimality ratio, mean [95 % CI] (misses; a miss counts as budget + 1), "

@@ -71,21 +71,35 @@ def test_paper_table_fopdt_reproduces_the_nominal_table():
         assert ki == pytest.approx(ki_paper, abs=0.006)
 
 
+@pytest.mark.parametrize("env_id", ["gbo_envs/DCMotor-v0", "gbo_envs/DCMotorRig-v0"])
+@pytest.mark.parametrize("phase", [60.0, 75.0])
+def test_nominal_by_default_is_the_papers_table(env_id, phase):
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no clipping warning
+        result = agents.make("nominal", phase_margin_deg=phase).run(gym.make(env_id), budget=2, seed=0)
+    np.testing.assert_allclose(result.to_pandas()[["Kp", "Ki"]].to_numpy(), [PAPER_NOMINAL_GAINS[phase]] * 2,
+                               atol=0.006)
+    assert result.info["clipped"] is False and result.info["fopdt"] == PAPER_TABLE_FOPDT
+
+
 def test_nominal_on_the_identified_model_is_clipped_and_constant():
     fopdt = fopdt_from_second_order(9.544, 4.145, 4.199, 0.002)
     assert fopdt["gain"] == pytest.approx(2.2729, abs=1e-4) and fopdt["tau"] == pytest.approx(0.98714, abs=1e-5)
     with pytest.warns(UserWarning, match="clipped"):
-        result = agents.NominalPGM().run(gym.make("gbo_envs/DCMotor-v0"), budget=3, seed=0)
+        result = agents.NominalPGM(fopdt="identified").run(gym.make("gbo_envs/DCMotor-v0"), budget=3, seed=0)
     frame = result.to_pandas()
     np.testing.assert_allclose(frame[["Kp", "Ki"]].to_numpy(), [[1.10, 2.08]] * 3)
     assert result.info["clipped"] is True
     np.testing.assert_allclose(result.info["unclipped_gains"], [1.7067, 3.5936], atol=1e-3)
-    paper = agents.NominalPGM(phase_margin_deg=75.0, fopdt="paper").run(gym.make("gbo_envs/DCMotor-v0"), 2, 0)
-    np.testing.assert_allclose(paper.best_gains, [0.855, 0.89], atol=0.005)
-    assert paper.info["clipped"] is False
     nominal = agents.NominalPGM()
-    with pytest.raises(ValueError, match="plant_params"):
+    with pytest.raises(ValueError, match="nominal_fopdt"):
         nominal.setup(SPACE, seed=0)
+    with pytest.raises(ValueError, match=r"phase_margin_deg: .*\(0(\.0)?, 90(\.0)?\)"):
+        agents.NominalPGM(phase_margin_deg=95.0)
+    with pytest.raises(ValueError, match="fopdt"):
+        agents.NominalPGM(fopdt="paper")
 
 
 def test_optuna_adapter_uses_ask_and_tell():
@@ -114,3 +128,16 @@ def test_estimate_noise_uses_repeated_measured_costs():
     assert sigma_many == pytest.approx(0.009, rel=0.15)  # the env's default cost noise
     with pytest.raises(ValueError, match="repeats"):
         agents.estimate_noise(env, repeats=1)
+
+
+@pytest.mark.slow
+def test_nominal_example_prints_the_papers_designs_and_a_clipped_one(capsys):
+    import runpy
+
+    from tests.support import REPO_ROOT
+
+    rows = runpy.run_path(str(REPO_ROOT / "examples" / "nominal_pgm.py"))["main"]()
+    assert [row["clipped"] for row in rows] == [False, False, True, False]
+    np.testing.assert_allclose([rows[0]["Kp"], rows[0]["Ki"]], PAPER_NOMINAL_GAINS[60.0], atol=0.006)
+    assert 1.0 < rows[1]["ratio"] < rows[0]["ratio"] < rows[2]["ratio"]  # 75 deg is the better nominal
+    assert "J / J*" in capsys.readouterr().out

@@ -343,8 +343,8 @@ def test_default_bo_models_the_metrics_of_the_dc_motor_with_logs():
     assert bo.model_in_use == "metrics" and isinstance(bo.fit_surrogate(), CompositeSurrogate)
     assert bo.metric_surrogate.log_metrics == (1, 2, 3)  # settling time, rise time, ITAE
     assert result.info["model"] == "metrics"
-    # guided BO keeps one GP on the cost, into which its twin costs go
-    assert agents.GuidedBO().model == "cost"
+    # guided BO builds on the same metric GPs; the paper's Algorithm 1 keeps one GP on the cost
+    assert agents.GuidedBO().model == "metrics" and agents.GuidedBO(guidance="iterations").model == "cost"
 
 
 def test_blockwise_prediction_equals_sklearn_on_a_large_grid():
@@ -396,3 +396,53 @@ def test_metrics_mode_falls_back_to_the_cost_gp_without_metrics():
         bo.add_data([0.4, 1.6], 0.1, metrics=[1.0, 2.0])
     with pytest.raises(ValueError, match="model"):
         agents.BayesianOptimization(model="metric")
+
+
+def test_a_metric_prior_is_followed_where_the_discrepancy_is_flat():
+    from agents.metric_surrogate import MetricSurrogate
+
+    def truth(X):
+        X = np.atleast_2d(X)
+        return np.column_stack([10 * X[:, 0] ** 2, 2 + np.sin(6 * X[:, 1]), 0.5 + X[:, 0] * X[:, 1],
+                                80 + 40 * np.cos(5 * X[:, 0])])
+
+    def prior(X):  # the truth off by a constant in f_0 / n_0 and by constant factors in the logged metrics
+        return truth(X) * np.array([1.0, 1.05, 0.9, 1.1]) + np.array([0.5, 0.0, 0.0, 0.0])
+
+    rng = np.random.default_rng(0)
+    X = rng.uniform(size=(8, 2))
+    surrogate = MetricSurrogate(_MetricEnv.weights, _MetricEnv.normalizers, log_metrics=[1, 2, 3])
+    guided = surrogate.fit(X, truth(X), seed=0, prior=prior)
+    plain = MetricSurrogate(_MetricEnv.weights, _MetricEnv.normalizers, log_metrics=[1, 2, 3]).fit(
+        X, truth(X), seed=0)
+    far = rng.uniform(size=(200, 2))
+    exact = truth(far) @ (_MetricEnv.weights / _MetricEnv.normalizers)
+    error_guided = np.abs(guided.predict(far)[0] - exact).max()
+    error_plain = np.abs(plain.predict(far)[0] - exact).max()
+    assert error_guided < 1e-3 * np.abs(exact).max()  # the prior's shape, the data's offset
+    assert error_plain > 30 * error_guided  # eight points alone cannot know the sine and cosine
+
+
+def test_twin_metrics_simulate_each_gain_once_and_price_divergence_at_the_unstable_cost():
+    from agents.twin.prior import TwinMetrics
+
+    class CountingTwin:
+        weights, normalizers, unstable_cost = np.array([0.4, 0.2, 0.2, 0.2]), np.array([1.0, 2.0, 4.0, 8.0]), 10.0
+        calls = 0
+
+        def evaluate(self, gains):
+            self.calls += len(gains)
+            metrics = np.tile([1.0, 2.0, 3.0, 4.0], (len(gains), 1))
+            metrics[gains[:, 0] > 1.0] = np.nan  # "diverges" for Kp > 1
+            return metrics, metrics.sum(axis=1)
+
+    twin = CountingTwin()
+    prior = TwinMetrics(twin, SPACE)
+    X = np.array([[0.1, 0.2], [0.9, 0.5], [0.1, 0.2]])
+    values = prior(X)
+    assert twin.calls == 2 and prior.simulations_ == 2  # the repeated row once
+    assert prior(X) is values and prior(X[:2].copy()).shape == (2, 4) and twin.calls == 2  # cached
+    unstable = SPACE.from_unit(X)[:, 0] > 1.0
+    assert unstable.any()
+    np.testing.assert_allclose(values[unstable] @ (twin.weights / twin.normalizers), twin.unstable_cost)
+    np.testing.assert_array_equal(values[~unstable][0], [1.0, 2.0, 3.0, 4.0])

@@ -1,4 +1,4 @@
-"""Guided BO (Algorithm 1): activation, twin rows, re-initialisation after a plant change."""
+"""Guided BO: Algorithm 1 (activation, twin rows), the twin prior, re-initialisation after a plant change."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from agents.guided_bo import GuidedBO
 from tests.support import DC_MOTOR_PARAMS
 
 FAST = {"grid_points": 40}
+PAPER = {"guidance": "iterations", **FAST}  # the paper's Algorithm 1
 
 
 def _drive(tuner, env, budget, seed=0):
@@ -30,7 +31,7 @@ def _drive(tuner, env, budget, seed=0):
 
 @pytest.mark.slow
 def test_result_marks_twin_rows_and_counts_activations():
-    result = GuidedBO(**FAST).run(gym.make("gbo_envs/DCMotor-v0"), budget=6, seed=0)
+    result = GuidedBO(**PAPER).run(gym.make("gbo_envs/DCMotor-v0"), budget=6, seed=0)
     frame = result.to_pandas(include_twin=True)
     plant, twin = frame[frame.source == "plant"], frame[frame.source == "twin"]
     assert plant["experiment"].tolist() == [1, 2, 3, 4, 5, 6]
@@ -50,17 +51,18 @@ def test_the_twin_identifies_the_plant_from_the_tuning_records():
 
 
 def test_periodic_activation_runs_exactly_n_ei_twin_iterations():
-    result = GuidedBO(activation="periodic", period=2, n_ei=3, eta3=np.inf, **FAST).run(
+    result = GuidedBO(activation="periodic", period=2, n_ei=3, eta3=np.inf, **PAPER).run(
         gym.make("gbo_envs/DCMotor-v0"), budget=7, seed=0)
     twin = result.to_pandas(include_twin=True).query("source == 'twin'")
     assert twin.groupby("activation").size().eq(3).all()
     assert sorted(twin["experiment"].unique()) == [2, 4, 6]  # after the initial data, then every N_G = 2
 
 
-def test_untrusted_twin_leaves_plain_bo():
+@pytest.mark.parametrize("guidance, model", [("iterations", "cost"), ("prior", "metrics")])
+def test_untrusted_twin_leaves_plain_bo(guidance, model):
     env = gym.make("gbo_envs/DCMotor-v0")
-    guided = GuidedBO(eta2=1e-12, **FAST).run(env, budget=6, seed=2)
-    plain = BayesianOptimization(model="cost", **FAST).run(env, budget=6, seed=2)  # guided BO's GP
+    guided = GuidedBO(eta2=1e-12, guidance=guidance, **FAST).run(env, budget=6, seed=2)
+    plain = BayesianOptimization(model=model, **FAST).run(env, budget=6, seed=2)  # guided BO's GP
     assert guided.info["activations"] == 0 and guided.n_twin == 0
     cols = ["Kp", "Ki"]
     np.testing.assert_allclose(guided.to_pandas()[cols].to_numpy(), plain.to_pandas()[cols].to_numpy())
@@ -86,6 +88,7 @@ def test_reinitialisation_fires_after_the_plant_changes_and_the_twin_refits():
     ({"twin_poles": 0}, r"twin_poles: must be an int in \[1, inf\), got 0"), ({"eta3": float("nan")}, "eta3"),
     ({"twin": object()}, r"twin: must be one of \('auto', 'linear'\) or an object with method\(s\) fit, get_params"),
     ({"n_initial": 0}, "n_initial"), ({"grid_points": 1}, "grid_points"),
+    ({"guidance": "mean"}, r"guidance: must be one of \('prior', 'iterations'\)"),
 ])
 def test_bad_parameters_are_named(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -99,7 +102,8 @@ def test_params_are_the_constructor_keywords_and_rebuild_the_tuner():
     assert params["twin"] == "auto"
     assert params["eta1"] == 2.0 and type(params["eta1"]) is float and params["grid_points"] == 40
     assert agents.make("guided-bo", **params).get_params() == params
-    assert tuner.model == "cost"  # one GP on the cost (Algorithm 1)
+    assert tuner.model == "metrics"  # the default BO's surrogate, with the twin as prior mean
+    assert GuidedBO(guidance="iterations").model == "cost"  # one GP on the cost (Algorithm 1)
     for removed in ("model", "twin_noise", "best_point", "min_twin_iterations", "twin_incumbent", "twin_polish",
                     "twin_refit_every", "twin_zeros", "twin_hyperparameters"):
         with pytest.raises(TypeError, match=removed):

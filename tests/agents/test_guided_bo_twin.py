@@ -73,7 +73,7 @@ def test_eta2_is_relative_to_the_noise_floor():
 
 def test_twin_changes_are_announced_logged_and_plotted(caplog):
     with caplog.at_level(logging.INFO, logger="agents.base"):
-        result = GuidedBO(**FAST).run(gym.make("gbo_envs/DCMotor-v0"), budget=3, seed=1)
+        result = GuidedBO(guidance="iterations", **FAST).run(gym.make("gbo_envs/DCMotor-v0"), budget=3, seed=1)
     changes = result.info["twin_changes"]
     assert changes and changes[0]["experiment"] == 1
     assert any("twin: linear, RMSE" in message for message in caplog.messages)
@@ -197,3 +197,30 @@ def test_a_non_finite_twin_cost_enters_the_gp_as_the_unstable_cost():
     assert cost == 10.0
     X, y = tuner.training_set()
     assert np.all(np.isfinite(y)) and np.all(y[1:] == 10.0)
+
+
+# -- the twin as prior mean (guidance="prior") -----------------------------------------------------------
+@pytest.mark.slow
+def test_a_perfect_twin_reaches_ratio_105_within_five_experiments():
+    # the plant's own noise-free model: SRIVC on noise-free records of the same structure (RMSE ~ 1e-7)
+    quiet = gym.make("gbo_envs/DCMotor-v0", noise=False)
+    perfect = LinearTwin(n_poles=2, n_zeros=0).fit(_records(quiet, [[0.5, 1.2], [0.9, 1.6]]))
+    assert perfect.rmse_ < 1e-5
+    optimum = gbo_envs.ground_truth("gbo_envs/DCMotor-v0", noise=False).cost
+    for seed in range(5):
+        result = GuidedBO(twin=perfect).run(gym.make("gbo_envs/DCMotor-v0"), budget=5, seed=seed)
+        assert result.min_true_cost_curve().min() / optimum <= 1.05, seed
+
+
+def test_a_diverging_experiment_keeps_the_twin_prior_and_the_metric_gps():
+    env = gym.make("gbo_envs/DCMotor-v0")
+    tuner = _setup(GuidedBO(**FAST), env)
+    for gains in ([0.5, 1.2], [0.9, 1.6]):
+        info = env.step(np.asarray(gains))[4]
+        tuner.tell(info["gains"], info["cost"], info)
+    diverged = {"unstable": True, "t": info["t"], "r": info["r"], "u": info["u"], "y": info["y"] * 1e6}
+    tuner.tell(np.array([1.1, 2.08]), env.unwrapped.unstable_cost, diverged)
+    tuner.ask()
+    assert tuner.model_in_use == "metrics" and tuner.metric_prior() is not None
+    unstable = tuner.metric_training_set()[1][-1]
+    assert tuner.metric_surrogate.reconstruct(unstable[None, :])[0] == pytest.approx(env.unwrapped.unstable_cost)

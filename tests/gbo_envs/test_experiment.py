@@ -179,7 +179,9 @@ def test_csv_round_trip_is_lossless_for_the_signals(tmp_path):
 # -- the result table ----------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def guided():
-    return agents.make("guided-bo", n_samples=50).run(gym.make("gbo_envs/DCMotor-v0"), budget=7, seed=0)
+    # the paper's Algorithm 1: its twin evaluations are rows of the result (behind include_twin)
+    return agents.make("guided-bo", guidance="iterations", n_samples=50).run(gym.make("gbo_envs/DCMotor-v0"), budget=7,
+                                                                             seed=0)
 
 
 def test_to_pandas_has_one_row_per_real_experiment(guided):

@@ -1,0 +1,180 @@
+"""Which part of guided BO buys what: the twin's guidance (prior mean or Algorithm 1) and the twin (issue 16).
+
+Every variant is ``agents.make("guided-bo", **kwargs)`` against the default BO
+(``agents.make("bo")``), over the same seeds, with the env's episode length as
+budget:
+
+* ``guided-bo``: the default, the diagnosed twin's metrics as the prior mean of the
+  default BO's metric GPs (``guidance="prior"``, ``twin="auto"``);
+* ``prior, linear twin``: the same with the paper's linear SRIVC twin;
+* ``iterations, auto twin``: the paper's twin iterations (Algorithm 1) on one cost GP,
+  with the diagnosed twin (the guided BO of issue 15);
+* ``iterations, linear twin``: the paper's Algorithm 1 as published.
+
+Per plant and variant: the mean real experiments until the best evaluated gains
+reach each optimality ratio ``J / J*`` (``J``: the env's expected cost; ``J*``:
+the ground-truth grid's minimum), with a 95 % Student-t interval and the misses
+(a run that never reaches counts as ``budget + 1``), and the ratio to BO's mean.
+On the DC motors two thresholds are the paper's nominal controllers,
+``agents.make("nominal", phase_margin_deg=60)`` and ``=75`` (PGM at 46 dB, (0.855,
+1.070) and (0.855, 0.890)): their ratios on the noise-free env.
+
+The plants are those of ``effect_aware_guided_bo.py``. Finished runs are appended
+to ``benchmarks/results/guided_bo_ablation_runs.jsonl`` and skipped when the
+command is run again (an interrupted study resumes). Writes
+``benchmarks/results/guided_bo_ablation.md`` and, with ``--traces``, the
+optimality-ratio traces of the runs one variant missed next to another's on the
+same seeds (``guided_bo_misses.png``)::
+
+    python benchmarks/guided_bo_ablation.py --plants DCMotor-v0 --seeds 50
+    python benchmarks/guided_bo_ablation.py --plants DC+saturation --variants bo guided-bo "prior, linear twin"
+    python benchmarks/guided_bo_ablation.py --summary --traces "iterations, auto twin" guided-bo
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+from data_efficiency import experiments_to_reach
+from effect_aware_guided_bo import PLANTS, interval, optimum, thresholds
+from run_log import append_runs, load_runs
+
+RESULTS = Path(__file__).resolve().parent / "results"
+RUNS = RESULTS / "guided_bo_ablation_runs.jsonl"
+
+#: label -> (registered tuner, keyword arguments)
+VARIANTS: dict[str, tuple[str, dict]] = {
+    "bo": ("bo", {}),
+    "guided-bo": ("guided-bo", {}),
+    "prior, linear twin": ("guided-bo", {"twin": "linear"}),
+    "iterations, auto twin": ("guided-bo", {"guidance": "iterations"}),
+    "iterations, linear twin": ("guided-bo", {"guidance": "iterations", "twin": "linear"}),
+}
+
+#: Phase margins (deg) of the paper's nominal PGM controllers (Table nominal_ctl_specs), used on the DC motors.
+NOMINAL_PHASE_MARGINS = (60.0, 75.0)
+
+
+def nominal_ratio(label: str, best: float, phase_margin_deg: float) -> float | None:
+    """``J(nominal) / J*`` of the nominal PGM controller on the noise-free plant, or ``None`` off the DC motors."""
+    import agents
+
+    if not label.startswith("DC"):
+        return None
+    env_id, kwargs = PLANTS[label]
+    env = gym.make(env_id, noise=False, **kwargs)
+    nominal = agents.make("nominal", phase_margin_deg=phase_margin_deg).run(env, budget=1, seed=0, progress=False)
+    return float(nominal.min_true_cost_curve()[0]) / best
+
+
+def run_one(label: str, variant: str, seed: int, best: float) -> dict:
+    """One tuning run: its minimum-observed optimality-ratio curve and the tuner's summary."""
+    import agents
+    import gbo_envs  # noqa: F401  (registers the envs in a fresh worker)
+    from agents.thread_limits import single_thread
+
+    env_id, kwargs = PLANTS[label]
+    env = gym.make(env_id, **kwargs)
+    name, tuner_kwargs = VARIANTS[variant]
+    start = time.perf_counter()
+    with single_thread(user_api=None):
+        result = agents.make(name, **tuner_kwargs).run(env, budget=env.spec.max_episode_steps, seed=seed,
+                                                        progress=False)
+    return {"plant": label, "variant": variant, "seed": seed, "ratios": (result.min_true_cost_curve() / best).tolist(),
+            "seconds": round(time.perf_counter() - start, 2), "activations": result.info.get("activations")}
+
+
+def summarise(runs: list[dict]) -> str:
+    """The Markdown table: per plant, threshold and variant, its runs and BO's on the same seeds."""
+    lines = ["| plant | threshold | variant | seeds | variant: real experiments | bo, same seeds | variant / bo | "
+             "s/run |", "|---|---|---|---|---|---|---|---|"]
+    for label in PLANTS:
+        mine = {v: {r["seed"]: r for r in runs if r["plant"] == label and r["variant"] == v} for v in VARIANTS}
+        if not mine["bo"]:
+            continue
+        best = optimum(label)["cost"]
+        levels = [(f"ratio {t}", t) for t in thresholds(label)]
+        if label.startswith("DC"):
+            levels = [("ratio 1.1", 1.1), *levels]
+            for phase in NOMINAL_PHASE_MARGINS:
+                nominal = nominal_ratio(label, best, phase)
+                levels.append((f"nominal PGM {phase:g} deg (ratio {nominal:.3f})", nominal))
+        for name, level in levels:
+            for variant in VARIANTS:
+                seeds = sorted(set(mine[variant]) & set(mine["bo"]))
+                if variant == "bo" or len(seeds) < 2:
+                    continue
+                cells, means = [], []
+                for runs_of in (mine[variant], mine["bo"]):
+                    counts = np.array([experiments_to_reach(runs_of[s]["ratios"], level) for s in seeds])
+                    mean, low, high = interval(counts)
+                    misses = int(np.sum(counts > len(runs_of[seeds[0]]["ratios"])))
+                    cells.append(f"{mean:.1f} [{low:.1f}, {high:.1f}] ({misses} misses)")
+                    means.append(mean)
+                seconds = np.mean([mine[variant][s]["seconds"] for s in seeds])
+                lines.append(f"| {label} | {name} | {variant} | {len(seeds)} | {cells[0]} | {cells[1]} | "
+                             f"{means[0] / means[1]:.2f} | {seconds:.1f} |")
+    return "\n".join(lines)
+
+
+def plot_traces(runs: list[dict], before: str, after: str, level: float = 1.05) -> Path | None:
+    """Ratio traces of the runs ``before`` missed at ``level``, with ``after``'s runs on the same plant and seeds."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    missed = [r for r in runs if r["variant"] == before and min(r["ratios"]) > level]
+    if not missed:
+        return None
+    by_key = {(r["plant"], r["variant"], r["seed"]): r for r in runs}
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    for ax, variant in zip(axes, (before, after)):
+        for r in missed:
+            run = by_key.get((r["plant"], variant, r["seed"]))
+            if run is not None:
+                ax.plot(np.arange(1, len(run["ratios"]) + 1), run["ratios"], label=f"{r['plant']} seed {r['seed']}")
+        ax.axhline(level, color="k", ls="--", lw=0.8)
+        ax.set(title=variant, xlabel="real experiments (-)", ylim=(0.98, 1.6))
+    axes[0].set_ylabel("best optimality ratio J / J* (-)")
+    axes[1].legend(fontsize=7)
+    fig.suptitle(f"Runs that '{before}' missed at ratio {level}, and '{after}' on the same seeds")
+    path = RESULTS / "guided_bo_misses.png"
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--plants", nargs="+", default=["DCMotor-v0"], choices=list(PLANTS))
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    parser.add_argument("--seeds", type=int, default=30, help="seeds 0..N-1 (default 30)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--summary", action="store_true", help="only write the table of the runs so far")
+    parser.add_argument("--traces", nargs=2, metavar=("BEFORE", "AFTER"), choices=list(VARIANTS),
+                        help="plot the runs BEFORE missed at ratio 1.05 next to AFTER's on the same seeds")
+    args = parser.parse_args()
+    runs = load_runs(RUNS)
+    if not args.summary:
+        optima = {label: optimum(label)["cost"] for label in args.plants}
+        done = {(r["plant"], r["variant"], r["seed"]) for r in runs}
+        todo = [(p, v, s, optima[p]) for p in args.plants for v in args.variants for s in range(args.seeds)
+                if (p, v, s) not in done]
+        runs += append_runs(RUNS, run_one, todo, args.workers)
+    table = summarise(runs)
+    (RESULTS / "guided_bo_ablation.md").write_text(
+        "Real experiments to each optimality ratio, mean [95 % CI] (misses; a miss counts as budget + 1), "
+        "each variant against bo on the seeds both ran (benchmarks/guided_bo_ablation.py).\n\n" + table + "\n")
+    print(table)
+    if args.traces:
+        print(plot_traces(runs, *args.traces) or f"'{args.traces[0]}' missed no run")
+
+
+if __name__ == "__main__":
+    main()
