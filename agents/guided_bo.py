@@ -341,9 +341,9 @@ class GuidedBO(BayesianOptimization):
         if self.guidance == "prior" and record is not None and record.get("unstable", False):
             # a diverging experiment keeps the metric GPs (and the twin prior) in use: its metrics are
             # those of J = unstable_cost, as the twin's diverging points (agents.twin.prior.TwinMetrics)
-            env = self._plant_env
-            self._plant_F[-1] = (np.asarray(env.normalizers, dtype=float) * float(env.unstable_cost)
-                                 / float(np.sum(env.weights)))
+            from agents.twin.prior import unstable_metrics
+
+            self._plant_F[-1] = unstable_metrics(self._plant_env)
         self._check_promise(gains, cost)
         if record is None or record.get("unstable", False) or not all(key in record for key in ("t", "r", "u", "y")):
             return  # nothing to identify from (or a diverging response)

@@ -17,7 +17,17 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["TwinMetrics"]
+__all__ = ["TwinMetrics", "unstable_metrics"]
+
+
+def unstable_metrics(env) -> np.ndarray:
+    """Metrics of shape (n_metrics,) whose cost is the env's ``unstable_cost``: ``n_i unstable_cost / sum_j w_j``.
+
+    ``J = sum_i w_i f_i / n_i`` (eq. (J_used)) of these metrics is ``unstable_cost``; they
+    stand for a diverging experiment (plant or twin) in the metric GPs.
+    """
+    weights = np.asarray(env.weights, dtype=float)
+    return np.asarray(env.normalizers, dtype=float) * float(env.unstable_cost) / float(np.sum(weights))
 
 
 class TwinMetrics:
@@ -46,9 +56,7 @@ class TwinMetrics:
     def __init__(self, twin_env, space) -> None:
         self.twin_env = twin_env
         self.space = space
-        weights = np.asarray(twin_env.weights, dtype=float)
-        normalizers = np.asarray(twin_env.normalizers, dtype=float)
-        self._unstable = normalizers * float(twin_env.unstable_cost) / float(np.sum(weights))
+        self._unstable = unstable_metrics(twin_env)
         self._rows: dict[bytes, np.ndarray] = {}
         self._last: tuple[np.ndarray, np.ndarray] | None = None
         self.simulations_ = 0
@@ -61,9 +69,11 @@ class TwinMetrics:
         keys = [row.tobytes() for row in X]
         missing = [i for i, key in enumerate(keys) if key not in self._rows]
         if missing:
-            unique = list(dict.fromkeys(keys[i] for i in missing))
-            first = {key: i for i, key in reversed(list(enumerate(keys)))}
-            rows = X[[first[key] for key in unique]]
+            first: dict[bytes, int] = {}  # each new gain once, at its first row
+            for i in missing:
+                first.setdefault(keys[i], i)
+            unique = list(first)
+            rows = X[list(first.values())]
             metrics = self.twin_env.evaluate(self.space.from_unit(rows))[0]
             bad = ~np.all(np.isfinite(metrics), axis=1)
             metrics = np.where(bad[:, None], self._unstable, metrics)
