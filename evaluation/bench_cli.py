@@ -17,6 +17,8 @@ import importlib.util
 import sys
 from pathlib import Path
 
+from evaluation.cli_args import positive_int
+
 __all__ = ["add_parser", "bench"]
 
 
@@ -28,11 +30,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "then write report.md and PNG figures.")
     parser.add_argument("study", nargs="?", help="a shipped study name (see --list) or a path to a .toml/.yaml spec")
     parser.add_argument("--list", action="store_true", help="list the shipped studies and exit")
-    parser.add_argument("--batches", type=int, help="run only the first N batches of every tuner")
+    parser.add_argument("--batches", type=positive_int, help="run only the first N batches of every tuner")
     parser.add_argument("--backend", choices=("local", "dask"), default="local",
                         help="local: joblib processes (default); dask: dask.distributed")
     parser.add_argument("--address", help="dask scheduler address (default with --backend dask: a LocalCluster)")
-    parser.add_argument("--workers", type=int, help="worker processes (default: all cores; 1 = in this process)")
+    parser.add_argument("--workers", type=positive_int,
+                        help="worker processes (default: all cores; 1 = in this process)")
     parser.add_argument("--out", help="output folder (default: out/studies/<study>)")
     parser.add_argument("--no-report", action="store_true", help="only run the batches")
     parser.add_argument("--report-only", action="store_true", help="only write the report from saved batches")
@@ -43,7 +46,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def bench(args: argparse.Namespace) -> int:
     """Handler of ``gbo bench``; returns the exit status (130 after Ctrl-C, 1 if a batch failed)."""
-    from evaluation.study import StudySpecError, load_study, shipped_studies
+    from evaluation.study import load_study, shipped_studies
     from evaluation.study_runner import default_out_dir, run_study
 
     if args.list:
@@ -62,22 +65,14 @@ def bench(args: argparse.Namespace) -> int:
         print("gbo bench: the batch results are Parquet files and need pyarrow, a dependency of gbo-envs "
               "missing from this environment; install it with `pip install pyarrow`", file=sys.stderr)
         return 2
-    try:
-        study = load_study(args.study)
-        if args.batches is not None:
-            study = study.with_batches(args.batches)
-    except StudySpecError as exc:
-        print(f"gbo bench: {exc}", file=sys.stderr)
-        return 2
+    study = load_study(args.study)  # StudySpecError (a ValueError) names file, key and allowed values
+    if args.batches is not None:
+        study = study.with_batches(args.batches)
     out = Path(args.out) if args.out else default_out_dir(study)
     status = 0
     if not args.report_only:
-        try:
-            run = run_study(study, out, backend=args.backend, address=args.address, workers=args.workers,
-                            progress=not args.quiet)
-        except ValueError as exc:  # unknown tuner or rejected params
-            print(f"gbo bench: {exc}", file=sys.stderr)
-            return 2
+        run = run_study(study, out, backend=args.backend, address=args.address, workers=args.workers,
+                        progress=not args.quiet)  # ValueError before anything is written: unknown env or tuner
         print(f"{study.name}: {run.skipped + run.completed} of {run.total} batches finished "
               f"({run.completed} now, {run.wall_time:.1f} s); results in {out / 'results'}")
         if run.interrupted:

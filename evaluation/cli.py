@@ -1,7 +1,12 @@
 """The ``gbo`` command line: ``gbo demo``, and the sub-commands of later modules.
 
 Each sub-command lives in its own module with an ``add_parser(subparsers)``
-function; this file only wires them together.
+function; this file only wires them together and holds the one error boundary:
+bad input (an argument out of range, a bad file, a value the Python API
+refuses with ``ValueError`` or ``TypeError``) ends every command with exit
+status 2 and one line on stderr that names the argument, file or value;
+``gbo --debug ...`` shows the traceback instead. The argument types live in
+:mod:`evaluation.cli_args`.
 """
 
 from __future__ import annotations
@@ -10,6 +15,17 @@ import argparse
 import importlib
 import sys
 from pathlib import Path
+
+from evaluation.cli_args import (
+    EXIT_BAD_INPUT,
+    EnvId,
+    OneLineParser,
+    check_env_id,
+    env_id,
+    error_message,
+    import_modules,
+    positive_int,
+)
 
 __all__ = ["main"]
 
@@ -26,13 +42,16 @@ def _demo(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``gbo`` argument parser with every available sub-command."""
-    parser = argparse.ArgumentParser(prog="gbo", description="Data-efficient controller tuning with guided BO.")
+    parser = OneLineParser(prog="gbo", description="Data-efficient controller tuning with guided BO.")
+    parser.add_argument("--debug", action="store_true",
+                        help="show the full traceback of an error (allowed anywhere on the line)")
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="ground truth, figures and a short tuning run on the default plant")
     demo.add_argument("--out", default="out/demo", help="output folder for the PNGs (default: out/demo)")
-    demo.add_argument("--env", default="gbo_envs/DCMotor-v0", help="env id (default: gbo_envs/DCMotor-v0)")
+    demo.add_argument("--env", type=env_id, default=EnvId("gbo_envs/DCMotor-v0"),
+                      help="env id (default: gbo_envs/DCMotor-v0)")
     demo.add_argument("--seed", type=int, default=0, help="seed of the tuning runs (default: 0)")
-    demo.add_argument("--budget", type=int, default=20, help="plant experiments per tuner (default: 20)")
+    demo.add_argument("--budget", type=positive_int, default=20, help="plant experiments per tuner (default: 20)")
     demo.add_argument("--no-tuners", action="store_true", help="only the ground truth and its figures")
     demo.set_defaults(handler=_demo)
     for module in SUBCOMMAND_MODULES:
@@ -44,14 +63,45 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``gbo`` script."""
+    """Entry point of the ``gbo`` script; returns the exit status (2: bad input, one line on stderr)."""
     import gbo_envs  # noqa: F401  (registers the envs)
 
-    args = build_parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv  # anywhere on the line, not only before the sub-command
+    args = build_parser().parse_args([a for a in argv if a != "--debug"])
+    args.debug = debug
+    command = " ".join(["gbo", args.command, *(getattr(args, key) for key in vars(args)
+                                               if key.endswith("_command") and getattr(args, key))])
     if not hasattr(args, "handler"):
-        print(f"gbo {args.command}: this command needs an optional extra; see README", file=sys.stderr)
-        return 2
-    return int(args.handler(args) or 0)
+        print(f"{command}: this command needs an optional extra; see README", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        _prepare(args)
+        return int(args.handler(args) or 0)
+    except KeyboardInterrupt:
+        if args.debug:
+            raise
+        print(f"{command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if args.debug:
+            raise
+        message = error_message(exc)
+        if message is None:  # a bug, not bad input: still one line, and the way to the traceback
+            print(f"{command}: internal error: {type(exc).__name__}: {exc} (rerun with gbo --debug for the "
+                  "traceback)", file=sys.stderr)
+            return 1
+        print(f"{command}: error: {' '.join(message.split())}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+def _prepare(args: argparse.Namespace) -> None:
+    """Run the ``--import`` modules, then check every ``--env`` against the registry they may extend."""
+    imports = getattr(args, "imports", None) or []
+    import_modules(imports)
+    for key, value in vars(args).items():
+        if isinstance(value, EnvId):
+            setattr(args, key, check_env_id(value, imported=imports))
 
 
 if __name__ == "__main__":

@@ -61,6 +61,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from evaluation.cli_args import NAME_PATTERN
+
 __all__ = [
     "Study",
     "StudySpecError",
@@ -247,8 +249,11 @@ def resolve_study_path(study: str | Path) -> Path:
     path = Path(study)
     if path.is_file():
         return path
+    if path.is_dir():
+        raise StudySpecError(f"study {str(study)!r}: is a folder; expected a .toml/.yaml spec or a shipped study "
+                             f"name ({', '.join(shipped_studies())})")
     shipped = STUDIES_DIR / f"{study}.toml"
-    if shipped.is_file():
+    if NAME_PATTERN.fullmatch(str(study)) and shipped.is_file():
         return shipped
     raise StudySpecError(f"study {str(study)!r}: no such file and no shipped study of that name; "
                          f"shipped studies: {', '.join(shipped_studies())}")
@@ -263,7 +268,11 @@ def load_study(study: str | Path) -> Study:
         On a syntax error or an invalid key; the message names file, key and allowed values.
     """
     path = resolve_study_path(study)
-    text = path.read_text(encoding="utf-8")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise StudySpecError(f"{path}: not UTF-8 text (byte {exc.object[exc.start:exc.start + 1]!r} at position "
+                             f"{exc.start}); save the spec as UTF-8") from None
     try:
         if path.suffix in (".yaml", ".yml"):
             import yaml
@@ -355,8 +364,9 @@ def _parse(data: dict, name: str, path: Path | None, text: str) -> Study:
     if n_initial is not None:
         n_initial = _positive_int(n_initial, "n_initial", "[study] n_initial")
     study_name = head.get("name", name)
-    if not isinstance(study_name, str) or not re.fullmatch(r"[A-Za-z0-9_.-]+", study_name):
-        raise StudySpecError(f"[study] name: expected letters, digits, '_', '.', '-' only, got {study_name!r}")
+    if not isinstance(study_name, str) or not NAME_PATTERN.fullmatch(study_name):
+        raise StudySpecError(f"[study] name: expected letters, digits, '_' and '-' only (the default is the file "
+                             f"name), got {study_name!r}")
     seed = head.get("seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise StudySpecError(f"[study] seed: expected an integer >= 0, got {seed!r}")

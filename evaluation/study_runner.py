@@ -37,7 +37,8 @@ import numpy as np
 
 from agents.jsonable import to_json
 from agents.thread_limits import single_thread
-from evaluation.study import Study, TunerEntry, slugify
+from evaluation.study import Study, StudySpecError, TunerEntry, slugify
+from gbo_envs.physics.block import validated_count
 
 __all__ = ["BatchTask", "StudyRun", "BACKENDS", "default_out_dir", "plan_batches", "finished_files",
            "run_batch", "run_study", "resolve_params"]
@@ -156,8 +157,36 @@ def _accepts(cls: type, name: str) -> bool:
     return name in parameters or any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())
 
 
+def check_env(env_id: str) -> None:
+    """Refuse an env id that names no registered env (``MODULE:ID`` imports ``MODULE`` first, as gymnasium does).
+
+    Raises
+    ------
+    StudySpecError
+        The id is unknown, or its module cannot be imported; the message lists the registered ids.
+    """
+    import gymnasium as gym
+
+    import gbo_envs  # noqa: F401  (registers the envs)
+
+    try:
+        gym.spec(env_id)
+        return
+    except (gym.error.Error, ImportError) as exc:
+        reason = " ".join(str(exc).split())
+    ours = sorted(k for k in gym.registry if k.startswith("gbo_envs/"))
+    raise StudySpecError(f"[env] id {env_id!r}: not a registered env ({reason}); registered: {', '.join(ours)}")
+
+
 def plan_batches(study: Study) -> list[BatchTask]:
-    """Every batch of ``study``, batch-major (batch 0 of every tuner first) so partial runs stay balanced."""
+    """Every batch of ``study``, batch-major (batch 0 of every tuner first) so partial runs stay balanced.
+
+    Raises
+    ------
+    StudySpecError, ValueError
+        An unknown env (:func:`check_env`) or tuner, or params a tuner rejects.
+    """
+    check_env(study.env_id)
     params = {entry.label: resolve_params(entry, study.n_initial) for entry in study.tuners}
     return [BatchTask(study=study.name, label=entry.label, tuner=entry.name, params=params[entry.label],
                       batch=batch, seed=study.seed + batch, env_id=study.env_id, env_kwargs=dict(study.env_kwargs),
@@ -330,6 +359,8 @@ def run_study(study: Study, out: Path | str | None = None, backend: str = "local
         raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
     if address and backend != "dask":
         raise ValueError("address: only used with backend='dask'")
+    if workers is not None:
+        workers = validated_count("workers", workers, low=1)
     log = log or (lambda message: print(message, file=sys.stderr))
     out = Path(out) if out is not None else default_out_dir(study)
     tasks = plan_batches(study)  # raises on unknown tuners or rejected params before anything is written
@@ -345,7 +376,7 @@ def run_study(study: Study, out: Path | str | None = None, backend: str = "local
             "running the rest")
     if not pending:
         return run
-    workers = int(workers) if workers else (os.cpu_count() or 1)
+    workers = workers or os.cpu_count() or 1
     workers = max(1, min(workers, len(pending)))
     start = time.perf_counter()
     bar = _bar(run.total, run.skipped, study.name, progress)

@@ -15,10 +15,11 @@ for envs and tuners registered outside this package (e.g. an
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import logging
 import sys
+
+from evaluation.cli_args import EnvId, env_id, int_at_least, json_object, positive_int
 
 __all__ = ["add_parser"]
 
@@ -29,20 +30,22 @@ def add_parser(subparsers) -> None:
                                  description="Run a tuner on an env for a budget of plant experiments, committing "
                                              "every experiment to the database before the next is proposed. "
                                              "Rerun the same command to resume after an interruption.")
-    tune.add_argument("--env", default="gbo_envs/DCMotor-v0", help="env id (default: gbo_envs/DCMotor-v0)")
+    tune.add_argument("--env", type=env_id, default=EnvId("gbo_envs/DCMotor-v0"),
+                      help="registered env id (default: gbo_envs/DCMotor-v0; your own: see --import)")
     tune.add_argument("--tuner", default="bo", help="tuner registry name (default: bo)")
-    tune.add_argument("--budget", type=int, required=True, help="plant experiments the tuner learns from")
+    tune.add_argument("--budget", type=positive_int, required=True, help="plant experiments the tuner learns from")
     tune.add_argument("--db", default="runs.sqlite", help="SQLite file (default: runs.sqlite)")
     tune.add_argument("--seed", type=int, default=0, help="seed of env and tuner (default: 0)")
-    tune.add_argument("--env-kwargs", type=_json_object, default={}, metavar="JSON",
+    tune.add_argument("--env-kwargs", type=json_object, default={}, metavar="JSON",
                       help='gym.make keyword arguments, e.g. \'{"noise": false}\'')
-    tune.add_argument("--tuner-kwargs", type=_json_object, default={}, metavar="JSON",
+    tune.add_argument("--tuner-kwargs", type=json_object, default={}, metavar="JSON",
                       help="tuner constructor keyword arguments as a JSON object")
     tune.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",
-                      help="import MODULE first (registers your own envs or tuners); repeatable")
+                      help="import MODULE first, found as `python -m` finds it (the current folder first): "
+                           "it registers your own envs or tuners; repeatable")
     tune.add_argument("--on-crash", choices=("rerun", "stop"), default="rerun",
                       help="an experiment cut by a crash: run it again (default) or stop for a check of the rig")
-    tune.add_argument("--max-skips", type=int, default=5,
+    tune.add_argument("--max-skips", type=int_at_least(0), default=5,
                       help="stop after this many skipped failed experiments in a row (default: 5)")
     tune.add_argument("--force", action="store_true",
                       help="take over a session whose recorded owner process is gone (e.g. crashed on another host)")
@@ -56,21 +59,11 @@ def add_parser(subparsers) -> None:
 
     export = subparsers.add_parser("export", help="write a session as workbench CSV (experiment,t,r,u,y + gains)")
     export.add_argument("--db", default="runs.sqlite", help="SQLite file (default: runs.sqlite)")
-    export.add_argument("--session", type=int, default=None, help="session id (default: the latest session)")
+    export.add_argument("--session", type=positive_int, default=None, help="session id (default: the latest session)")
     export.add_argument("--csv", required=True, help="output CSV file")
     export.add_argument("--include-twin", action="store_true", help="also twin evaluations with stored arrays")
     export.add_argument("--include-failed", action="store_true", help="also failed experiments with stored arrays")
     export.set_defaults(handler=_export)
-
-
-def _json_object(text: str) -> dict:
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise argparse.ArgumentTypeError(f"not valid JSON: {exc}") from exc
-    if not isinstance(value, dict):
-        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
-    return value
 
 
 class _PrintEvents(logging.Handler):
@@ -83,13 +76,9 @@ class _PrintEvents(logging.Handler):
 def _tune(args: argparse.Namespace) -> int:
     import math
 
-    from gymnasium.error import Error as GymError
-
     from agents import TuningStopped
     from evaluation.sessions import ReplayMismatch, SessionBusy, TuningSession
 
-    for module in args.imports:
-        importlib.import_module(module)
     if args.no_progress:  # without a bar the tuner's events (e.g. "twin: + saturation ...") go to the log
         events = logging.getLogger("agents.base")
         if not any(isinstance(h, _PrintEvents) for h in events.handlers):
@@ -104,7 +93,7 @@ def _tune(args: argparse.Namespace) -> int:
         print("gbo tune: interrupted; finished experiments are stored, rerun the same command to resume",
               file=sys.stderr)
         return 130
-    except (TuningStopped, ReplayMismatch, SessionBusy, ValueError, GymError) as exc:
+    except (TuningStopped, ReplayMismatch, SessionBusy) as exc:
         print(f"gbo tune: {exc}", file=sys.stderr)
         return 1
     resumed = f" (resumed after {session.n_replayed})" if session.n_replayed else ""

@@ -17,9 +17,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import warnings
 from pathlib import Path
+
+from evaluation.cli_args import int_at_least, positive_int
 
 __all__ = ["add_parser"]
 
@@ -36,9 +37,10 @@ def add_parser(subparsers) -> None:
         p.add_argument("data", help="CSV with the columns experiment,t,r,u,y")
         p.add_argument("--effects", default="", help="effects of the current model, comma-separated catalogue "
                                                       "names (default: the linear model alone)")
-        p.add_argument("--poles", type=int, default=2, help="poles of the linear part (default 2)")
-        p.add_argument("--zeros", type=int, default=0, help="zeros of the linear part (default 0)")
-        p.add_argument("--integrators", type=int, default=0, help="poles at s = 0 (default 0; 1 for a position loop)")
+        p.add_argument("--poles", type=positive_int, default=2, help="poles of the linear part (default 2)")
+        p.add_argument("--zeros", type=int_at_least(0), default=0, help="zeros of the linear part (default 0)")
+        p.add_argument("--integrators", type=int_at_least(0), default=0,
+                       help="poles at s = 0 (default 0; 1 for a position loop)")
         p.add_argument("--output", choices=("speed", "position"), default="speed",
                        help="what y measures (friction acts on y or on dy/dt; default speed)")
 
@@ -55,12 +57,14 @@ def add_parser(subparsers) -> None:
     p = sub.add_parser("diagnose", help="rank every catalogued effect as an addition to the model")
     common(p)
     p.add_argument("--json", action="store_true", help="print exactly one JSON object")
-    p.add_argument("--folds", type=int, default=4, help="folds of the cross-validation over experiments")
+    p.add_argument("--folds", type=int_at_least(2), default=None,
+                   help="folds of the cross-validation over experiments, 2 to the number of experiments "
+                        "(default: 4, or one per experiment when there are fewer)")
     p.set_defaults(handler=_diagnose)
     p = sub.add_parser("report", help="self-contained HTML report with the error ladder")
     common(p)
     p.add_argument("--out", required=True, help="output folder (index.html)")
-    p.add_argument("--max-steps", type=int, default=3, help="effects added at most (default 3)")
+    p.add_argument("--max-steps", type=positive_int, default=3, help="effects added at most (default 3)")
     p.set_defaults(handler=_report)
 
 
@@ -85,14 +89,11 @@ def _fit(data, spec, effects):
 
 
 def _run(handler):
+    """The handler without the fitting's numerical warnings; bad input ends in :func:`evaluation.cli.main`."""
     def wrapped(args: argparse.Namespace) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            try:
-                return handler(args)
-            except (ValueError, FileNotFoundError) as exc:
-                print(f"gbo twin {args.twin_command}: error: {exc}", file=sys.stderr)
-                return 2
+            return handler(args)
 
     return wrapped
 

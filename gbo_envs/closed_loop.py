@@ -23,7 +23,7 @@ from scipy.signal import lfilter
 
 from gbo_envs.controllers import Controller
 from gbo_envs.metrics import step_metrics
-from gbo_envs.physics.block import RowNoise
+from gbo_envs.physics.block import RowNoise, validated_finite
 from gbo_envs.physics.lti import ContinuousPlant
 
 __all__ = ["ClosedLoop", "SIMULATION_METHODS", "StepResponse", "UNSTABLE_LIMIT"]
@@ -111,8 +111,8 @@ class ClosedLoop:
             raise ValueError(f"duration: must exceed dt = {self.dt} s, got {self.duration}")
         if self.r1 == self.r2:
             raise ValueError("r1, r2: the reference step must have non-zero height")
-        if self.output_noise_std < 0.0:
-            raise ValueError(f"output_noise_std: must be >= 0, got {self.output_noise_std}")
+        object.__setattr__(self, "output_noise_std", validated_finite("output_noise_std", self.output_noise_std,
+                                                                      "output units"))
         object.__setattr__(self, "_discrete", self.current_plant.discretize(self.dt))
         num_p, den_p = self._discrete.transfer_function()
         _, u0 = self._discrete.equilibrium(self.r1)

@@ -59,17 +59,25 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
         (:func:`gbo_envs.experiment.validate_signals`), or an experiment with
         fewer than 3 samples; the message names the row (file line) and the column.
     FileNotFoundError
-        If ``path`` does not exist.
+        If ``path`` does not exist. A folder, a file that is not UTF-8 text
+        or not a table raises ``ValueError`` naming the file.
     """
     import pandas as pd
 
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder; expected a CSV file with the header {','.join(REQUIRED_COLUMNS)}")
     try:
-        frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+        frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True, encoding="utf-8")
     except pd.errors.EmptyDataError as exc:
         raise ValueError(f"{path}: the file is empty; expected a header {','.join(REQUIRED_COLUMNS)}") from exc
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text (it holds the byte {exc.object[exc.start:exc.start + 1]!r}); "
+                         f"a workbench CSV is UTF-8 text with the header {','.join(REQUIRED_COLUMNS)}") from None
+    except pd.errors.ParserError as exc:
+        raise ValueError(f"{path}: not a CSV table ({' '.join(str(exc).split())})") from None
     frame.columns = [str(c).strip() for c in frame.columns]
     missing = [c for c in REQUIRED_COLUMNS if c not in frame.columns]
     if gain_names is not None:

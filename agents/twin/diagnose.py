@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -28,6 +29,9 @@ from agents.twin.greybox import FITTED_PARAMETERS, GreyData, GreyFit, ModelSpec,
 from agents.twin.greybox_twin import GreyBoxTwin
 from agents.twin.noise_floor import noise_floor
 from gbo_envs.physics.effects import EFFECT_NAMES, EFFECTS
+
+#: Folds of the cross-validation over experiments when none are given (fewer with fewer experiments).
+DEFAULT_FOLDS = 4
 
 __all__ = ["Diagnosis", "diagnose", "error_ladder", "heldout_rss"]
 
@@ -65,6 +69,20 @@ def _variants(name: str, spec: ModelSpec) -> list[dict]:
         dens = [f"den{i}" for i in range(1, spec.n_poles - spec.n_integrators + 1)]
         return [{"parameter": p} for p in ["gain", *dens]]
     return [{}]
+
+
+def _validated_folds(n_folds, n_records: int) -> int:
+    """``n_folds`` checked against the data (``None``: 4, or one fold per experiment when there are fewer)."""
+    if n_folds is None:
+        return min(DEFAULT_FOLDS, max(n_records, 2))
+    if isinstance(n_folds, bool) or not isinstance(n_folds, numbers.Integral):
+        raise TypeError(f"n_folds: expected an integer from 2 to the number of experiments ({n_records}), "
+                        f"got {n_folds!r}")
+    if not 2 <= n_folds <= max(n_records, 2) or n_records < 2:
+        what = ("one experiment has nothing to hold out; leave the folds at their default" if n_records < 2 else
+                f"must be from 2 to the number of experiments ({n_records})")
+        raise ValueError(f"n_folds (--folds): {what}, got {n_folds}")
+    return int(n_folds)
 
 
 def _folds(data: GreyData, n_folds: int) -> list[np.ndarray]:
@@ -127,8 +145,8 @@ def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_i
 
 @single_thread()
 def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
-             current: GreyFit | None = None, n_folds: int = 4, bic_margin: float = 10.0, min_gain: float = 0.02,
-             max_iter: int = 20, *, noise_gain: float = 0.05, skip_unexcited: bool = True,
+             current: GreyFit | None = None, n_folds: int | None = None, bic_margin: float = 10.0,
+             min_gain: float = 0.02, max_iter: int = 20, *, noise_gain: float = 0.05, skip_unexcited: bool = True,
              screen_iter: int = 8, _restarts: int = 0, _starts: dict | None = None) -> Diagnosis:
     """Try every catalogued effect as an addition to the model and rank them on held-out experiments.
 
@@ -143,8 +161,9 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         Orders and output kind of the linear part.
     current : GreyFit, optional
         An already fitted current model (skips its fit).
-    n_folds : int, default 4
-        Folds of the cross-validation over experiments (at most one per experiment).
+    n_folds : int, optional
+        Folds of the cross-validation over experiments, from 2 to the number of
+        experiments (default: 4, or one per experiment when there are fewer).
     bic_margin : float, default 10.0
         ``best`` needs ``delta_bic < -bic_margin`` ("very strong" evidence on the
         Kass-Raftery scale); two improving effects whose ``delta_bic`` differ by
@@ -205,6 +224,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     curvature), which only makes the noise rule stricter there; a quantized
     output without noise uses ``q / sqrt(12)``.
     """
+    n_folds = _validated_folds(n_folds, data.n_records)
     if not np.isfinite(noise_gain) or noise_gain < 0.0:
         raise ValueError(f"noise_gain: must be a finite number >= 0, got {noise_gain}")
     if int(screen_iter) < 1:

@@ -154,6 +154,7 @@ def prepare_signals(records, orders: srivc.Orders, n_samples: int | None = None,
         One per batch.
     """
     raw = as_records(records, min_steps=3)
+    _check_excitation(raw)
     data = [decimate(rec, n_samples) for rec in raw]
     total = sum(rec.n_steps for rec in data)
     if total < orders.n_params + 3:
@@ -163,6 +164,21 @@ def prepare_signals(records, orders: srivc.Orders, n_samples: int | None = None,
     batches = make_batches(data)
     signals = [srivc.prepare(b.dt, b.u, b.y, b.r2, offset, hold, int(oversample)) for b in batches]
     return data, batches, signals
+
+
+def _check_excitation(records) -> None:
+    """Refuse records without excitation: a constant input, or a constant output, in every experiment.
+
+    Raises
+    ------
+    ValueError
+        Naming the signal; SRIVC would otherwise diverge at every delay.
+    """
+    for name in ("u", "y"):
+        if all(np.ptp(getattr(rec, name)) == 0.0 for rec in records):
+            what = "input u" if name == "u" else "output y"
+            raise ValueError(f"records: the {what} is constant in every experiment (e.g. all zero), so the data has "
+                             "no excitation to identify a model from; record experiments with a reference step")
 
 
 def simulation_error(orders: srivc.Orders, theta: np.ndarray, delay: float, signals, offset: bool = True):

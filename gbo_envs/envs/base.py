@@ -22,6 +22,8 @@ __all__ = ["ControllerTuningEnv", "OUT_OF_BOUNDS_POLICIES", "expected_outcome"]
 
 #: What :meth:`ControllerTuningEnv.step` does with gains outside the feasible set.
 OUT_OF_BOUNDS_POLICIES = ("raise", "clip", "allow")
+#: Smallest normaliser computed from the reference gains (a metric they never show, e.g. no overshoot).
+NORMALIZER_FLOOR = 1e-9
 
 
 class ControllerTuningEnv(gym.Env):
@@ -39,7 +41,8 @@ class ControllerTuningEnv(gym.Env):
         Gains whose mean metrics normalise the cost (paper: 5 gains evenly
         spanning the feasible set). Ignored when ``normalizers`` is given.
     normalizers : array_like of shape (4,), optional
-        Explicit normalisers (a digital twin reuses its plant's).
+        Explicit normalisers (a digital twin reuses its plant's), each finite
+        and ``> 0``. Computed ones are at least :data:`NORMALIZER_FLOOR`.
     cost_noise_std : float
         Standard deviation of the additive cost noise ``epsilon`` of
         ``J = J_hat + epsilon`` (paper, Sec. II), dimensionless.
@@ -113,12 +116,11 @@ class ControllerTuningEnv(gym.Env):
                                    np.full(n_obs - high.size, np.inf)])
         self.observation_space = spaces.Box(low=obs_low, high=obs_high, dtype=np.float64)
         self.weights = _validated_vector("weights", weights, len(METRIC_NAMES), positive=True)
-        if normalizers is None:
+        if normalizers is None:  # a metric the reference gains never show (e.g. no overshoot) still normalises
             reference = np.atleast_2d(np.asarray(reference_gains, dtype=float))
-            normalizers = expected_outcome(loop, reference, self.expectation_draws, self.expectation_seed,
-                                           cost=None)[0].mean(axis=0)
-        self.normalizers = _validated_vector("normalizers", normalizers, len(METRIC_NAMES), positive=True,
-                                             floor=1e-9)
+            normalizers = np.maximum(expected_outcome(loop, reference, self.expectation_draws, self.expectation_seed,
+                                                      cost=None)[0].mean(axis=0), NORMALIZER_FLOOR)
+        self.normalizers = _validated_vector("normalizers", normalizers, len(METRIC_NAMES), positive=True)
         if not np.isfinite(cost_noise_std) or cost_noise_std < 0.0:
             raise ValueError(f"cost_noise_std: must be a finite number >= 0, got {cost_noise_std}")
         self.cost_noise_std = float(cost_noise_std)
@@ -220,6 +222,9 @@ class ControllerTuningEnv(gym.Env):
             Wrong shape, NaN/inf, or (with ``out_of_bounds="raise"``) a gain
             outside the feasible set; the message names the gain and its range.
         """
+        if _is_complex(action):
+            raise TypeError(f"action: gains {self.gain_names} must be real numbers, got the complex value(s) "
+                            f"{action!r}")
         try:
             gains = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError) as exc:
@@ -347,12 +352,23 @@ def expected_outcome(loop: ClosedLoop, gains: np.ndarray, draws: int, seed: int,
     return np.concatenate(metrics), (np.concatenate(costs) if cost is not None else None), record
 
 
-def _validated_vector(name: str, values, size: int, positive: bool = False, floor: float | None = None) -> np.ndarray:
-    array = np.asarray(values, dtype=float)
+def _is_complex(values) -> bool:
+    """Whether ``values`` holds a complex number (``np.asarray(..., dtype=float)`` would drop its imaginary part)."""
+    try:
+        return bool(np.iscomplexobj(np.asarray(values)))
+    except (TypeError, ValueError):  # ragged: the float conversion reports it
+        return False
+
+
+def _validated_vector(name: str, values, size: int, positive: bool = False) -> np.ndarray:
+    if _is_complex(values):
+        raise TypeError(f"{name}: expected {size} real numbers, got complex values {values!r}")
+    try:
+        array = np.asarray(values, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name}: expected {size} real numbers, got {values!r}") from exc
     if array.shape != (size,) or not np.all(np.isfinite(array)):
         raise ValueError(f"{name}: expected {size} finite numbers, got {values!r}")
-    if floor is not None:
-        array = np.maximum(array, floor)
     if positive and np.any(array <= 0.0):
         raise ValueError(f"{name}: every entry must be > 0, got {array}")
     return array

@@ -13,7 +13,7 @@ import numpy as np
 
 from gbo_envs.closed_loop import UNSTABLE_LIMIT, ClosedLoop
 from gbo_envs.controllers import Controller
-from gbo_envs.envs.base import ControllerTuningEnv
+from gbo_envs.envs.base import NORMALIZER_FLOOR, ControllerTuningEnv
 from gbo_envs.experiment import SIGNALS, Experiment, validate_signals
 from gbo_envs.metrics import METRIC_NAMES, step_metrics
 
@@ -466,7 +466,7 @@ class ExternalPlantEnv(ControllerTuningEnv):
             self.reference_records.append({**arrays, "gains": gains.copy()})
             r1, r2 = self.loop.r1, self.loop.r2
             metrics.append(step_metrics(arrays["t"], arrays["y"][None, :], r1, r2)[0])
-        return np.mean(metrics, axis=0)
+        return np.maximum(np.mean(metrics, axis=0), NORMALIZER_FLOOR)  # a metric never shown still normalises
 
 
 def _bounds(gain_bounds, gain_names, controller) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:

@@ -1,0 +1,195 @@
+"""The validation layer of the ``gbo`` command line: argument types and the one-line error policy.
+
+Every sub-command declares its arguments with the ``type=`` callables of this
+module (:func:`positive_int`, :func:`json_object`, :func:`safe_name`,
+:func:`env_id`), so a bad value is refused while parsing with a message that
+names the argument and the allowed range. What only the running command can
+find out (a CSV row, an unknown tuner, a rejected keyword argument) comes as a
+``ValueError`` or ``TypeError`` from the Python API; :func:`error_message`
+turns those, and the file errors, into the one line that :func:`evaluation.cli.main`
+prints before it exits with :data:`EXIT_BAD_INPUT`.
+
+``--import MODULE`` (:func:`import_modules`) imports a module the way
+``python -m`` finds it: the current folder comes first on ``sys.path``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import re
+import sqlite3
+import sys
+
+__all__ = [
+    "EXIT_BAD_INPUT",
+    "NAME_PATTERN",
+    "EnvId",
+    "OneLineParser",
+    "check_env_id",
+    "env_id",
+    "error_message",
+    "import_modules",
+    "json_object",
+    "positive_int",
+    "safe_name",
+]
+
+#: Exit status of a command refused for bad input (argparse's own status for usage errors).
+EXIT_BAD_INPUT = 2
+#: Study and session names: letters, digits, ``_`` and ``-`` (no dots: ``..`` is no name).
+NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]+")
+
+
+#: File errors and what they mean, most specific first.
+_FILE_ERRORS = ((IsADirectoryError, "is a folder, expected a file"),
+                (NotADirectoryError, "a part of the path is not a folder"),
+                (FileNotFoundError, "no such file or folder"), (PermissionError, "permission denied"),
+                (FileExistsError, "already exists"))
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose usage errors are one line on stderr (exit status 2), not usage + error."""
+
+    def error(self, message: str):
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def positive_int(text: str) -> int:
+    """An integer ``>= 1`` (``--workers``, ``--budget``, ``--batches``)."""
+    return _int_at_least(text, 1)
+
+
+def int_at_least(low: int):
+    """A ``type=`` callable for an integer ``>= low`` (e.g. ``int_at_least(2)`` for ``--folds``)."""
+
+    def parse(text: str) -> int:
+        return _int_at_least(text, low)
+
+    parse.__name__ = f"integer >= {low}"
+    return parse
+
+
+def _int_at_least(text: str, low: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {text!r}") from None
+    if value < low:
+        raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {value}")
+    return value
+
+
+def json_object(text: str) -> dict:
+    """A JSON object (``--env-kwargs``, ``--tuner-kwargs``); the message quotes the JSON error's position."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"not valid JSON ({exc.msg} at character {exc.pos}) in {text!r}; "
+                                         "expected an object such as '{\"noise\": false}'") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object such as '{{\"noise\": false}}', got {text!r}")
+    return value
+
+
+def safe_name(text: str) -> str:
+    """A study or session name: ``[A-Za-z0-9_-]+`` (so it can never leave its folder)."""
+    if not NAME_PATTERN.fullmatch(text):
+        raise argparse.ArgumentTypeError(f"expected letters, digits, '_' and '-' only, got {text!r}")
+    return text
+
+
+class EnvId(str):
+    """An env id from the command line, checked against the registry by :func:`check_env_id` after ``--import``."""
+
+
+def env_id(text: str) -> EnvId:
+    """An env id (``--env``); whether it is registered is checked once the ``--import`` modules ran."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a registered env id such as 'gbo_envs/DCMotor-v0', got ''")
+    return EnvId(text.strip())
+
+
+def check_env_id(value: str, imported=()) -> str:
+    """``value`` if it is a registered env id, else ``ValueError`` listing the registered ids.
+
+    Parameters
+    ----------
+    value : str
+        An id such as ``gbo_envs/DCMotor-v0``; ``MODULE:ID`` only when ``MODULE``
+        is among ``imported`` (gymnasium would otherwise import any module named
+        in an id, without a word).
+    imported : sequence of str
+        Modules given with ``--import``.
+
+    Raises
+    ------
+    ValueError
+        An unregistered id, or ``MODULE:ID`` without ``--import MODULE``.
+    """
+    import gymnasium as gym
+
+    import gbo_envs  # noqa: F401  (registers the envs)
+
+    module, colon, name = value.rpartition(":")
+    if colon and module not in imported:
+        raise ValueError(f"--env {value!r}: ids of the form MODULE:ID are not imported implicitly; pass "
+                         f"--import {module} (the current folder is searched first) and --env {name}")
+    if (name if colon else value) in gym.registry:
+        return value
+    ours = sorted(k for k in gym.registry if k.startswith("gbo_envs/"))
+    raise ValueError(f"--env {value!r}: not a registered env id; registered: {', '.join(ours)} "
+                     "(for your own env: --import MODULE that registers it)")
+
+
+def import_modules(modules) -> None:
+    """Import each module as ``python -m`` would find it (the current folder first on ``sys.path``).
+
+    Raises
+    ------
+    ValueError
+        A module that cannot be found, or whose import raises; the message names it.
+    """
+    if not modules:
+        return
+    here = os.getcwd()
+    if here not in sys.path and "" not in sys.path:
+        sys.path.insert(0, here)
+    for module in modules:
+        try:
+            importlib.import_module(module)
+        except ModuleNotFoundError as exc:
+            missing = exc.name or module
+            detail = "" if module == missing or module.startswith(f"{missing}.") else f" (it imports {missing!r})"
+            raise ValueError(f"--import {module}: no module named {missing!r}{detail} in the current folder "
+                             f"({here}) or the installed packages") from exc
+        except Exception as exc:
+            raise ValueError(f"--import {module}: importing it raised {type(exc).__name__}: {exc}") from exc
+
+
+def error_message(exc: BaseException) -> str | None:
+    """The one line for a user-facing error, or None for an unexpected one (a bug).
+
+    ``ValueError`` and ``TypeError`` carry the API's own message; file errors
+    name the file; a codec error names the codec and the byte.
+    """
+    if isinstance(exc, UnicodeDecodeError):
+        return f"not {exc.encoding} text: byte {exc.object[exc.start:exc.start + 1]!r} at position {exc.start}"
+    if isinstance(exc, (ValueError, TypeError)):
+        return str(exc) or type(exc).__name__
+    for kind, what in _FILE_ERRORS:
+        if isinstance(exc, kind):
+            return f"{exc.filename}: {what}" if exc.filename else str(exc)
+    if isinstance(exc, sqlite3.DatabaseError):
+        return f"database: {exc}"
+    if isinstance(exc, OSError) and exc.filename:
+        return f"{exc.filename}: {exc.strerror or exc}"
+    try:
+        from gymnasium.error import Error as GymError
+    except ImportError:  # pragma: no cover - gymnasium is a dependency
+        return None
+    if isinstance(exc, GymError):
+        return str(exc)
+    return None
