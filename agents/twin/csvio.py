@@ -28,6 +28,8 @@ REQUIRED_COLUMNS = ("experiment", *SIGNALS)
 #: Largest relative deviation of a sample step from the median step within an experiment of a CSV.
 UNIFORM_RTOL_CSV = 1e-3
 _MIN_SAMPLES = 3
+#: Bytes read to tell a binary file (NUL bytes) from text.
+_SNIFF_BYTES = 8192
 _MISSING = ("", "nan", "na", "null", "none")
 
 
@@ -69,6 +71,10 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
         raise FileNotFoundError(f"{path}: no such file")
     if path.is_dir():
         raise ValueError(f"{path}: is a folder; expected a CSV file with the header {','.join(REQUIRED_COLUMNS)}")
+    with open(path, "rb") as handle:
+        if b"\x00" in handle.read(_SNIFF_BYTES):
+            raise ValueError(f"{path}: a binary file (it holds NUL bytes); a workbench CSV is UTF-8 text with the "
+                             f"header {','.join(REQUIRED_COLUMNS)}")
     try:
         frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True, encoding="utf-8")
     except pd.errors.EmptyDataError as exc:
