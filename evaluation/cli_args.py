@@ -1,7 +1,7 @@
 """The validation layer of the ``gbo`` command line: argument types and the one-line error policy.
 
 Every sub-command declares its arguments with the ``type=`` callables of this
-module (:func:`positive_int`, :func:`json_object`, :func:`safe_name`,
+module (:func:`positive_int`, :func:`int_at_least`, :func:`json_object`,
 :func:`env_id`), so a bad value is refused while parsing with a message that
 names the argument and the allowed range. What only the running command can
 find out (a CSV row, an unknown tuner, a rejected keyword argument) comes as a
@@ -32,9 +32,9 @@ __all__ = [
     "env_id",
     "error_message",
     "import_modules",
+    "int_at_least",
     "json_object",
     "positive_int",
-    "safe_name",
 ]
 
 #: Exit status of a command refused for bad input (argparse's own status for usage errors).
@@ -92,13 +92,6 @@ def json_object(text: str) -> dict:
     if not isinstance(value, dict):
         raise argparse.ArgumentTypeError(f"expected a JSON object such as '{{\"noise\": false}}', got {text!r}")
     return value
-
-
-def safe_name(text: str) -> str:
-    """A study or session name: ``[A-Za-z0-9_-]+`` (so it can never leave its folder)."""
-    if not NAME_PATTERN.fullmatch(text):
-        raise argparse.ArgumentTypeError(f"expected letters, digits, '_' and '-' only, got {text!r}")
-    return text
 
 
 class EnvId(str):
