@@ -562,6 +562,7 @@ def _cases() -> list[Case]:
              needles=("--batches",), fast=True),
         Case("budget-0", 9, "gbo tune --budget 0", ("tune", "--budget", "0", "--db", "r.sqlite"),
              needles=("--budget",), fast=True),
+        Case("seed-negative", 9, "gbo tune --seed -1", (*tune, "--seed=-1"), needles=("--seed",), fast=True),
         Case("budget-minus3", 9, "gbo tune --budget -3", ("tune", "--budget=-3", "--db", "r.sqlite"),
              needles=("--budget",), fast=True),
         Case("complex-gain-array", 9, "env.step(array([0.5+0.1j, 1.2]))",

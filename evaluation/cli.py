@@ -24,6 +24,7 @@ from evaluation.cli_args import (
     env_id,
     error_message,
     import_modules,
+    int_at_least,
     positive_int,
 )
 
@@ -50,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", default="out/demo", help="output folder for the PNGs (default: out/demo)")
     demo.add_argument("--env", type=env_id, default=EnvId("gbo_envs/DCMotor-v0"),
                       help="env id (default: gbo_envs/DCMotor-v0)")
-    demo.add_argument("--seed", type=int, default=0, help="seed of the tuning runs (default: 0)")
+    demo.add_argument("--seed", type=int_at_least(0), default=0, help="seed of the tuning runs (default: 0)")
     demo.add_argument("--budget", type=positive_int, default=20, help="plant experiments per tuner (default: 20)")
     demo.add_argument("--no-tuners", action="store_true", help="only the ground truth and its figures")
     demo.set_defaults(handler=_demo)

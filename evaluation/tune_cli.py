@@ -35,7 +35,7 @@ def add_parser(subparsers) -> None:
     tune.add_argument("--tuner", default="bo", help="tuner registry name (default: bo)")
     tune.add_argument("--budget", type=positive_int, required=True, help="plant experiments the tuner learns from")
     tune.add_argument("--db", default="runs.sqlite", help="SQLite file (default: runs.sqlite)")
-    tune.add_argument("--seed", type=int, default=0, help="seed of env and tuner (default: 0)")
+    tune.add_argument("--seed", type=int_at_least(0), default=0, help="seed of env and tuner (default: 0)")
     tune.add_argument("--env-kwargs", type=json_object, default={}, metavar="JSON",
                       help='gym.make keyword arguments, e.g. \'{"noise": false}\'')
     tune.add_argument("--tuner-kwargs", type=json_object, default={}, metavar="JSON",
