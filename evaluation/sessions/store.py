@@ -413,8 +413,8 @@ class SessionStore:
                            (session_id,)).fetchone()
         token = self._claims.get(session_id)
         if token is None or row is None or row["owner_token"] != token:
-            owner = "no process" if row is None or row["owner_pid"] is None else \
-                f"process {row['owner_pid']} on {row['owner_host']}"
+            owner = "another process (which has released it since)" if row is None or row["owner_pid"] is None \
+                else f"process {row['owner_pid']} on {row['owner_host']}"
             raise SessionBusy(f"session {session_id} was taken over by {owner} (gbo tune --force); this process "
                               "stops without writing to it")
 

@@ -393,3 +393,25 @@ def test_cli_tune_prints_when_the_twin_changes(tmp_path, capsys):
                 "--tuner-kwargs", '{"grid_points": 30}', "--no-progress"]) == 0
     out = capsys.readouterr().out
     assert "guided-bo: twin: linear, RMSE" in out and "(after 1 experiments)" in out
+
+
+def test_force_takes_a_session_over_and_fences_its_previous_owner(tmp_path, monkeypatch):
+    # the previous owner is still running when another process takes the session over (gbo tune --force):
+    # its next write must stop it, instead of interleaving experiments (an IntegrityError once both told the same)
+    db = tmp_path / "runs.sqlite"
+    uninterrupted = TuningSession(tmp_path / "ref.sqlite", ENV, "test-cost-aware", budget=6, seed=1).run()
+    original, taken = SessionStore.add_twins, []
+
+    def add_twins_then_taken_over(self, session_id, experiment, *args, **kwargs):
+        original(self, session_id, experiment, *args, **kwargs)
+        if experiment == 3 and not taken:
+            taken.append(TuningSession(db, ENV, "test-cost-aware", budget=6, seed=1, force=True).run())
+
+    monkeypatch.setattr(SessionStore, "add_twins", add_twins_then_taken_over)
+    with pytest.raises(SessionBusy, match="session 1 was taken over by another process"):
+        TuningSession(db, ENV, "test-cost-aware", budget=6, seed=1).run()
+    assert _gains_costs(taken[0]) == _gains_costs(uninterrupted)
+    assert [r.experiment for r in _plant(db, told=None)] == list(range(1, 7))  # each once, none begun after
+    with SessionStore(db) as store:
+        (info,) = store.sessions()
+        assert (info.status, info.done) == ("done", 6) and store.integrity_check() == "ok"
