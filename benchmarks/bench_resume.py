@@ -14,7 +14,7 @@ the tuner back to its state is measured:
 * ``next_equal``: the proposal after the resume equals that of the tuner
   which ran the session without stopping.
 
-Prints one JSON object per tuner. Usage:
+Prints one JSON object, ``{"tuners": [figures per tuner]}``. Usage:
 ``python benchmarks/bench_resume.py [--tuner bo] [--tuner guided-bo] [--stored 30]``.
 """
 
@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -61,7 +62,7 @@ def resume_figures(workdir: Path, tuner: str, env_id: str = "gbo_envs/DCMotor-v0
             "resume_cpu_s": round(resume_cpu, 3), "rerun_cpu_s": round(rerun_cpu, 3), "next_equal": next_equal}
 
 
-def main(argv: list[str] | None = None) -> list[dict]:
+def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tuner", action="append", default=None, help="registry name; repeatable (default: bo)")
     parser.add_argument("--env", default="gbo_envs/DCMotor-v0")
@@ -72,10 +73,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     with tempfile.TemporaryDirectory() as tmp:
         for tuner in args.tuner or ["bo"]:
             figures = resume_figures(Path(tmp), tuner, env_id=args.env, stored=args.stored, seed=args.seed)
-            print(json.dumps(figures), flush=True)
+            print(json.dumps(figures), file=sys.stderr, flush=True)
             out.append(figures)
-    return out
+    return {"tuners": out}
 
 
 if __name__ == "__main__":
-    main()
+    print(json.dumps(main()))
