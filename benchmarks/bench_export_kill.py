@@ -12,8 +12,8 @@ export, and :func:`agents.twin.csvio.read_csv` must read it.
 
 Prints one JSON object: ``kills`` delivered, how many left the ``old`` and the
 ``new`` content, ``torn`` (neither: a partial file), ``unreadable`` (read_csv
-raised), ``stray_tmp`` (temporary files left beside it by the kills; harmless,
-they never replace the file), ``export_s`` (wall time of one unkilled export)
+raised), ``stray_tmp`` (temporary files left beside it by kills inside the write;
+harmless, they never replace the file; removed before the next run), ``export_s`` (wall time of one unkilled export)
 ``write_s`` (its time from the first write to the end) and ``wall_s``. Usage:
 ``python benchmarks/bench_export_kill.py [--kills 20] [--experiments 30]``.
 """
@@ -82,8 +82,11 @@ def export_kill_trial(workdir: Path, kills: int = 20, experiments: int = 30, rng
     export_s, write_s = time.perf_counter() - tick, time.perf_counter() - writing
 
     rng = np.random.default_rng(rng_seed)
-    tally = {"kills": 0, "old": 0, "new": 0, "torn": 0, "unreadable": 0, "finished_before_kill": 0}
+    tally = {"kills": 0, "old": 0, "new": 0, "torn": 0, "unreadable": 0, "finished_before_kill": 0, "stray_tmp": 0}
     while tally["kills"] < kills:
+        for stray in workdir.glob(f".{csv.name}.*"):  # left by the last kill; removed so that the next run's shows
+            stray.unlink()
+            tally["stray_tmp"] += 1
         csv.write_bytes(old)
         proc = _gbo("export", "--db", str(db), "--session", "2", "--csv", str(csv))
         _wait_for_write(proc, csv)
@@ -101,7 +104,7 @@ def export_kill_trial(workdir: Path, kills: int = 20, experiments: int = 30, rng
             read_csv(csv, gain_names=("Kp", "Ki"))
         except ValueError:
             tally["unreadable"] += 1
-    tally["stray_tmp"] = len(list(workdir.glob(".data.csv.*.tmp")))
+    tally["stray_tmp"] += len(list(workdir.glob(f".{csv.name}.*")))
     tally["export_s"], tally["write_s"] = round(export_s, 2), round(write_s, 2)
     tally["wall_s"] = round(time.perf_counter() - start, 1)
     return tally

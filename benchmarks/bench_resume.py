@@ -12,7 +12,9 @@ the tuner back to its state is measured:
   (:meth:`evaluation.sessions.TuningSession.run`: open, resume, nothing to
   run, read the result back);
 * ``next_equal``: the proposal after the resume equals that of the tuner
-  which ran the session without stopping.
+  which ran the session without stopping;
+* ``snapshot_bytes``: size of the stored tuner snapshot (None on code
+  without snapshots).
 
 Prints one JSON object, ``{"tuners": [figures per tuner]}``. Usage:
 ``python benchmarks/bench_resume.py [--tuner bo] [--tuner guided-bo] [--stored 30]``.
@@ -51,6 +53,7 @@ def resume_figures(workdir: Path, tuner: str, env_id: str = "gbo_envs/DCMotor-v0
         session.env.reset(seed=seed)
         told, _ = recorder.resume(session.tuner, session.env)
         resume_cpu = time.process_time() - start
+        snapshot = store.snapshot(info.id) if hasattr(store, "snapshot") else None
         store.release_session(info.id, "done")
     next_equal = session.tuner.ask() == expected
 
@@ -59,7 +62,8 @@ def resume_figures(workdir: Path, tuner: str, env_id: str = "gbo_envs/DCMotor-v0
     rerun.run()
     rerun_cpu = time.process_time() - start
     return {"tuner": tuner, "env": env_id, "stored": told, "run_cpu_s": round(run_cpu, 3),
-            "resume_cpu_s": round(resume_cpu, 3), "rerun_cpu_s": round(rerun_cpu, 3), "next_equal": next_equal}
+            "resume_cpu_s": round(resume_cpu, 3), "rerun_cpu_s": round(rerun_cpu, 3), "next_equal": next_equal,
+            "snapshot_bytes": None if snapshot is None else len(snapshot[1])}
 
 
 def main(argv: list[str] | None = None) -> dict:

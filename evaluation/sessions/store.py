@@ -278,6 +278,8 @@ class SessionStore:
         the file is left untouched.
     FileNotFoundError
         With ``read_only``, if ``path`` does not exist.
+    PermissionError
+        Without ``read_only``, if the file or its folder cannot be written.
     """
 
     def __init__(self, path: str | Path, read_only: bool = False) -> None:
@@ -291,6 +293,17 @@ class SessionStore:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.conn = sqlite3.connect(str(self.path), timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None)
         self.conn.row_factory = sqlite3.Row
+        try:
+            self._set_up(kind)
+        except sqlite3.OperationalError as exc:
+            self.conn.close()
+            if "readonly" not in str(exc) and "unable to open" not in str(exc):
+                raise
+            raise PermissionError(f"{self.path}: cannot be written ({exc}); running a session needs write access "
+                                  "to the file and its folder (gbo sessions and gbo export only read)") from None
+
+    def _set_up(self, kind: str) -> None:
+        """Pragmas, the schema (created or upgraded) and the application id, on a read-write connection."""
         self.conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
         if kind == "new":  # marked as ours first, in the rollback journal: straight into the file's header
             self.conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")

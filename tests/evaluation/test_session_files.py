@@ -140,3 +140,26 @@ def test_a_version_1_database_is_upgraded_in_place(tmp_path):
     with SessionStore(db) as store:
         assert [s.done for s in store.sessions()] == [4]
         assert store.conn.execute("PRAGMA user_version").fetchone()[0] == 2
+
+
+@pytest.mark.skipif(sys.platform == "win32" or (os.geteuid() == 0 and not shutil.which("setpriv")),
+                    reason="POSIX permissions; as root, setpriv runs the reader as nobody")
+def test_a_session_on_a_read_only_database_is_a_clear_error():
+    root = tempfile.mkdtemp()
+    try:
+        db = os.path.join(root, "runs.sqlite")
+        TuningSession(db, ENV, "random", budget=1, seed=0).run()
+        os.chmod(db, 0o444)
+        os.chmod(root, 0o755)
+        code = ("import sys\nfrom evaluation.sessions import TuningSession\n"
+                "try:\n    TuningSession(sys.argv[1], 'gbo_envs/DCMotor-v0', 'random', budget=2, seed=0).run()\n"
+                "except PermissionError as exc:\n    print(exc)\n    raise SystemExit(3)\n")
+        command = [sys.executable, "-c", code, db]
+        if os.geteuid() == 0:
+            command = [shutil.which("setpriv"), "--reuid=65534", "--regid=65534", "--clear-groups", *command]
+        done = subprocess.run(command, cwd=root, env={**os.environ, "PYTHONPATH": str(REPO_ROOT), "HOME": root},
+                              capture_output=True, text=True, timeout=120)
+        assert done.returncode == 3, done.stderr
+        assert f"{db}: cannot be written" in done.stdout and "needs write access" in done.stdout
+    finally:
+        shutil.rmtree(root)

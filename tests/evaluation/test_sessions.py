@@ -131,14 +131,16 @@ def test_session_matches_tuner_run_and_stores_records(tmp_path):
     assert info_row.best_cost == min(r["cost"] for r in reference.plant_rows)
 
 
-def test_rerun_of_a_finished_session_runs_nothing(tmp_path):
+def test_rerun_of_a_finished_session_runs_nothing_and_asks_nothing(tmp_path, monkeypatch):
     db = tmp_path / "runs.sqlite"
     first = TuningSession(db, ENV, "test-cost-aware", budget=5, seed=1).run()
     counting = RaiseAt(gym.make(ENV), calls=range(1, 101), error=AssertionError("the plant must not run"))
     session = TuningSession(db, counting, "test-cost-aware", budget=5, seed=1, env_id=ENV)
+    asks = []
+    monkeypatch.setattr(CostAwareRandom, "_ask", lambda self: asks.append(1) or self.space.low)
     again = session.run()
     assert session.n_replayed == 5 and counting.count == 0
-    assert session.n_asked == 0  # the tuner's snapshot was loaded: no stored proposal was asked for again
+    assert asks == [] and session.n_asked == 0  # the tuner's snapshot was loaded: no proposal asked for again
     assert _gains_costs(again) == _gains_costs(first)
     assert again.n_twin == first.n_twin == 10
 
