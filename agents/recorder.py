@@ -24,9 +24,11 @@ class ExperimentRecorder(Protocol):
         """Bring a freshly set-up ``tuner`` and a freshly reset ``env`` up to the committed experiments.
 
         Called once, after ``tuner.setup(...)`` and ``env.reset(seed=seed)``.
-        The recorder replays its committed experiments through the tuner's
-        public ``ask`` / ``tell`` / ``drain_twin_log`` and restores the env's
-        random state, so the loop continues as if it had never stopped.
+        The recorder brings the tuner to its state after the committed
+        experiments (the session loads a snapshot of the tuner, or replays the
+        experiments through its public ``ask`` / ``tell`` / ``drain_twin_log``)
+        and restores the env's random state, so the loop continues as if it
+        had never stopped.
 
         Returns
         -------

@@ -15,6 +15,7 @@ import gymnasium as gym
 import numpy as np
 
 import gbo_envs
+from evaluation.figures import save
 from gbo_envs.lazy_pyplot import pyplot
 from gbo_envs.plotting import response_figure
 
@@ -68,15 +69,13 @@ def run_demo(out: Path, env_id: str = "gbo_envs/DCMotor-v0", seed: int = 0, budg
         labels.append(f"paper's nominal PGM {_fmt(names, nominal)}")
     response = env.loop.simulate(np.array(gains), rng=np.random.default_rng(0))
     fig = response_figure(env.loop, response, labels=labels, title=f"{env_id}: step responses")
-    fig.savefig(out / "optimal_step_response.png", dpi=120)
-    plt.close(fig)
+    save(fig, out / "optimal_step_response.png", dpi=120)
 
     fig, ax = plt.subplots(figsize=(6.5, 5))
     truth.plot(ax=ax)
     ax.set_title(f"{env_id}: noise-free cost surface")
     fig.tight_layout()
-    fig.savefig(out / "cost_surface.png", dpi=120)
-    plt.close(fig)
+    save(fig, out / "cost_surface.png", dpi=120)
     print(f"Wrote {out / 'optimal_step_response.png'} and {out / 'cost_surface.png'}")
 
     if tuners:
@@ -109,8 +108,7 @@ def _run_tuners(out: Path, env_id: str, truth, seed: int, budget: int) -> dict:
     ax.set_title(f"{env_id}, seed {seed}")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "tuner_convergence.png", dpi=120)
-    plt.close(fig)
+    save(fig, out / "tuner_convergence.png", dpi=120)
     print(f"Wrote {out / 'tuner_convergence.png'}")
     return rows
 

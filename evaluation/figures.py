@@ -1,7 +1,7 @@
 """Figures of a study: optimality-ratio curves with the paper's bands, histograms, cost surfaces, sweeps.
 
 Every function returns a matplotlib ``Figure`` (Agg backend; nothing is shown);
-:func:`save` writes one as PNG and closes it.
+:func:`save` writes one as PNG (atomically) and closes it.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from evaluation.analysis import PAPER_BANDS, percentile_bands
+from gbo_envs.atomic_write import atomic_write
 from gbo_envs.lazy_pyplot import pyplot
 
 __all__ = [
@@ -32,8 +33,8 @@ def _colors(n: int) -> list:
 def save(fig, path: Path | str, dpi: int = 120) -> Path:
     """Write ``fig`` as PNG to ``path`` (folders created) and close it."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
+    with atomic_write(path, "wb") as handle:
+        fig.savefig(handle, dpi=dpi, format="png")
     pyplot().close(fig)
     return path
 

@@ -17,6 +17,7 @@ import pandas as pd
 
 from evaluation import analysis, figures
 from evaluation.study import Study
+from gbo_envs.atomic_write import atomic_write
 
 __all__ = ["write_report", "write_figures", "markdown_table"]
 
@@ -128,7 +129,8 @@ def write_report(study: Study, out: Path | str, frame: pd.DataFrame | None = Non
     if frame.empty:
         lines += ["No finished batches yet: run `gbo bench` first.", ""]
         path = out / "report.md"
-        path.write_text("\n".join(lines), encoding="utf-8")
+        with atomic_write(path) as handle:
+            handle.write("\n".join(lines))
         return path
 
     truth = analysis.study_ground_truth(study, out)
@@ -167,7 +169,8 @@ def write_report(study: Study, out: Path | str, frame: pd.DataFrame | None = Non
         language = "yaml" if study.path is not None and study.path.suffix in (".yaml", ".yml") else "toml"
         lines += ["## Spec", "", f"```{language}", study.text.rstrip(), "```", ""]
     path = out / "report.md"
-    path.write_text("\n".join(lines), encoding="utf-8")
+    with atomic_write(path) as handle:
+        handle.write("\n".join(lines))
     return path
 
 

@@ -7,8 +7,8 @@ Results layout (``OUT`` is the study's output folder)::
     OUT/runs.jsonl                                            one line per `gbo bench` run (runtime)
 
 Each batch (one tuner entry x one seed) is written by the main process as soon as
-it finishes: to a temporary name, then ``os.replace`` (atomic), so a file is
-either complete or absent. ``key`` hashes everything that determines the batch
+it finishes, atomically (:func:`gbo_envs.atomic_write.atomic_write`: a temporary
+file, then ``os.replace``), so a file is either complete or absent. ``key`` hashes everything that determines the batch
 (env id and kwargs, tuner name and params, budget, seed), so a rerun skips
 exactly the batches that already exist and reruns those whose spec changed.
 Ctrl-C stops the run and keeps every finished batch; rerunning resumes.
@@ -38,6 +38,7 @@ import numpy as np
 from agents.jsonable import to_json
 from agents.thread_limits import single_thread
 from evaluation.study import Study, StudySpecError, TunerEntry, slugify
+from gbo_envs.atomic_write import atomic_write
 from gbo_envs.physics.block import validated_count
 
 __all__ = ["BatchTask", "StudyRun", "BACKENDS", "default_out_dir", "plan_batches", "finished_files",
@@ -264,13 +265,10 @@ def _is_missing(value: Any) -> bool:
 
 
 def write_batch(frame, out: Path, filename: str) -> Path:
-    """Write a batch table atomically to ``out/results/filename`` (temp file, then ``os.replace``)."""
-    folder = Path(out) / RESULTS_DIR
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / filename
-    tmp = folder / f".{filename}.{os.getpid()}.tmp"
-    frame.to_parquet(tmp, index=False)
-    os.replace(tmp, path)
+    """Write a batch table atomically to ``out/results/filename`` (:func:`gbo_envs.atomic_write.atomic_write`)."""
+    path = Path(out) / RESULTS_DIR / filename
+    with atomic_write(path, "wb") as handle:
+        frame.to_parquet(handle, index=False)
     return path
 
 
@@ -367,7 +365,8 @@ def run_study(study: Study, out: Path | str | None = None, backend: str = "local
     out.mkdir(parents=True, exist_ok=True)
     if study.text:
         suffix = study.path.suffix if study.path is not None else ".toml"
-        (out / f"study{suffix}").write_text(study.text, encoding="utf-8")
+        with atomic_write(out / f"study{suffix}") as handle:
+            handle.write(study.text)
     done = finished_files(out)
     pending = [task for task in tasks if task.filename not in done]
     run = StudyRun(out=out, total=len(tasks), skipped=len(tasks) - len(pending))

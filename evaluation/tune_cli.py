@@ -7,7 +7,10 @@
     gbo export --db runs.sqlite --csv out/session.csv        # the latest session
 
 Rerunning an interrupted ``gbo tune`` command resumes its session (see
-:mod:`evaluation.sessions.recorder`). ``--import MODULE`` imports a module first,
+:mod:`evaluation.sessions.recorder`); rerunning it with another ``--budget``
+extends or shortens the same session. ``gbo sessions`` and ``gbo export`` open
+the database read-only, and every command refuses a file that is not a
+session database without changing it. ``--import MODULE`` imports a module first,
 for envs and tuners registered outside this package (e.g. an
 :class:`~gbo_envs.envs.external.ExternalPlantEnv` around your rig).
 """
@@ -97,6 +100,8 @@ def _tune(args: argparse.Namespace) -> int:
         print(f"gbo tune: {exc}", file=sys.stderr)
         return 1
     resumed = f" (resumed after {session.n_replayed})" if session.n_replayed else ""
+    if result.n_experiments > args.budget:
+        resumed += f"; the session already held more than --budget {args.budget}, nothing was run"
     failed = sum(row.get("status") == "failed" for row in result.plant_rows)
     print(f"session {session.session_id} in {args.db}: {result.n_experiments}/{args.budget} plant experiments"
           f"{resumed}, {failed} failed, {result.n_twin} twin evaluations")
@@ -110,15 +115,14 @@ def _tune(args: argparse.Namespace) -> int:
 
 
 def _existing_store(db: str, command: str):
-    """The session store in ``db``, or None (with a message on stderr) if the file does not exist."""
-    from pathlib import Path
-
+    """The session store in ``db`` opened read-only, or None (with one line on stderr) if it cannot be read."""
     from evaluation.sessions import SessionStore
 
-    if not Path(db).exists():
-        print(f"gbo {command}: {db} does not exist", file=sys.stderr)
+    try:
+        return SessionStore(db, read_only=True)
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"gbo {command}: {exc}", file=sys.stderr)
         return None
-    return SessionStore(db)
 
 
 def _sessions(args: argparse.Namespace) -> int:

@@ -108,10 +108,9 @@ def _compare(args) -> int:
     res = compare(data, fit, experiments=[r.index for r in records])
     if args.out:
         from agents.twin.report import compare_figure
+        from evaluation.figures import save
 
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        compare_figure(data, [fit]).savefig(out / "compare.png", dpi=100)
+        save(compare_figure(data, [fit]), Path(args.out) / "compare.png", dpi=100)
     if args.json:
         payload = res.to_dict()
         payload["params"] = fit.effect_params
@@ -136,10 +135,9 @@ def _resid(args) -> int:
     ra = residuals(data, fit)
     if args.out:
         from agents.twin.report import residual_figure
+        from evaluation.figures import save
 
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        residual_figure(ra, fit.spec.label).savefig(out / "residuals.png", dpi=100)
+        save(residual_figure(ra, fit.spec.label), Path(args.out) / "residuals.png", dpi=100)
     if args.json:
         payload = ra.to_dict()
         payload["model"] = fit.spec.label

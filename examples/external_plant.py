@@ -123,13 +123,13 @@ def main(argv: list[str] | None = None) -> int:
     failed = [row for row in rows if row["status"] == "failed"]
     ok = [row for row in rows if row["status"] == "ok"]
     best = min(ok, key=lambda row: row["cost"])
-    print(f"session {session.session_id}: {len(rows)} experiments ({session.n_replayed} replayed from {args.db}), "
+    print(f"session {session.session_id}: {len(rows)} experiments ({session.n_replayed} resumed from {args.db}), "
           f"{len(failed)} failed")
     for row in failed:
         print(f"  experiment {row['experiment']} failed: {row['reason']} -> the tuner was told cost {row['cost']:g}")
     print(f"best: Kp = {best['Kp']:.3f}, Ki = {best['Ki']:.3f}, cost J = {best['cost']:.4f} "
           f"(overshoot {best['overshoot_pct']:.2f} %, settling {best['settling_time']:.3f} s)")
-    with SessionStore(args.db) as store:
+    with SessionStore(args.db, read_only=True) as store:
         _, count = export_csv(store, args.csv, session_id=session.session_id)
     print(f"wrote {count} experiments to {args.csv} (gbo twin compare {args.csv})")
     return 0

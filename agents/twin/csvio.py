@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gbo_envs.atomic_write import atomic_write
 from gbo_envs.experiment import SIGNALS, SOURCES, Experiment, RecordError, validate_signals
 
 __all__ = ["REQUIRED_COLUMNS", "UNIFORM_RTOL_CSV", "read_csv", "records_from_env", "records_from_loop", "write_csv"]
@@ -58,8 +59,10 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
         non-integer experiment id, a value of an optional column that changes
         within an experiment, a time that does not increase or is not
         uniformly spaced within an experiment
-        (:func:`gbo_envs.experiment.validate_signals`), or an experiment with
-        fewer than 3 samples; the message names the row (file line) and the column.
+        (:func:`gbo_envs.experiment.validate_signals`), an experiment with
+        fewer than 3 samples, or a last row without a line break at its end (a
+        file cut short, e.g. by an interrupted copy); the message names the
+        row (file line) and the column.
     FileNotFoundError
         If ``path`` does not exist. A folder, a file that is not UTF-8 text
         or not a table raises ``ValueError`` naming the file.
@@ -75,6 +78,7 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
         if b"\x00" in handle.read(_SNIFF_BYTES):
             raise ValueError(f"{path}: a binary file (it holds NUL bytes); a workbench CSV is UTF-8 text with the "
                              f"header {','.join(REQUIRED_COLUMNS)}")
+    _check_complete(path)
     try:
         frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True, encoding="utf-8")
     except pd.errors.EmptyDataError as exc:
@@ -137,7 +141,8 @@ def write_csv(records, path: str | Path, gain_names: Sequence[str] | None = None
         :meth:`~gbo_envs.Experiment.from_mapping`, e.g. env ``info`` dicts).
         The experiment id is each record's ``index``.
     path : str or Path
-        File to write (its folder is created).
+        File to write (its folder is created), atomically (:func:`gbo_envs.atomic_write.atomic_write`):
+        an existing file is replaced whole or not at all.
     gain_names : sequence of str, optional
         Names of the gain columns (default ``gain0, gain1, ...``).
 
@@ -168,9 +173,30 @@ def write_csv(records, path: str | Path, gain_names: Sequence[str] | None = None
     if not frames:
         raise ValueError("records: need at least one record to write, got none")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    pd.concat(frames, ignore_index=True).to_csv(path, index=False)  # shortest exact repr: a lossless round trip
+    with atomic_write(path, newline="") as handle:  # a reader sees the whole old or the whole new file
+        pd.concat(frames, ignore_index=True).to_csv(handle, index=False)  # shortest exact repr: lossless round trip
     return path
+
+
+def _check_complete(path: Path) -> None:
+    """Raise if a non-empty file does not end with a line break: its last row may be cut mid-value.
+
+    Every CSV writer (pandas, the ``csv`` module, spreadsheets, :func:`write_csv`)
+    ends each row, the last one included, with a line break; a file cut short
+    by an interrupted write ends inside a row, where a cut number (``305.1``
+    read as ``30``) would pass every other check.
+    """
+    with open(path, "rb") as handle:
+        if handle.seek(0, 2) == 0:
+            return  # empty: reported by the parser
+        handle.seek(-1, 2)
+        if handle.read(1) in (b"\n", b"\r"):
+            return
+        handle.seek(0)
+        lines = sum(chunk.count(b"\n") for chunk in iter(lambda: handle.read(1 << 20), b"")) + 1
+    raise ValueError(f"{path}, row {lines}: the last row ends without a line break, so the file may have been cut "
+                     "short mid-row (an interrupted write or copy); if the row is complete, add a line break at "
+                     "the end of the file")
 
 
 def _numbers(path: Path, column: str, text, allow_missing: bool = False) -> np.ndarray:

@@ -18,6 +18,7 @@ import numpy as np
 
 from agents.twin.greybox import GreyData, GreyFit
 from agents.twin.workbench import Diagnosis, ResidualAnalysis, compare
+from gbo_envs.atomic_write import atomic_write
 from gbo_envs.lazy_pyplot import pyplot
 
 __all__ = ["compare_figure", "figure_to_base64", "ladder_figure", "residual_figure", "write_report"]
@@ -181,5 +182,6 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
                   _table(analysis.worst, ["experiment", "t_start", "t_end", "rms", "mean"])]
     parts.append("</body></html>")
     path = out / "index.html"
-    path.write_text("\n".join(parts), encoding="utf-8")
+    with atomic_write(path) as handle:
+        handle.write("\n".join(parts))
     return path

@@ -1,4 +1,4 @@
-"""The session's side of the tuning loop: commit every experiment to the log, and resume by replay.
+"""The session's side of the tuning loop: commit every experiment to the log, and resume from it.
 
 :class:`SessionRecorder` implements :class:`agents.recorder.ExperimentRecorder`
 over one session of a :class:`~evaluation.sessions.store.SessionStore`;
@@ -10,18 +10,25 @@ over one session of a :class:`~evaluation.sessions.store.SessionStore`;
 2. ``env.step(gains)``;
 3. :meth:`~SessionRecorder.finish` commits the record (status ``ok`` or
    ``failed``, cost, metrics, ``t, r, u, y`` as BLOBs, the env's random state)
-   in one transaction;
+   and a snapshot of the tuner as it proposed the experiment
+   (:mod:`evaluation.sessions.snapshot`) in one transaction;
 4. ``tell()``, then :meth:`~SessionRecorder.add_twins` commits the twin
    evaluations made while learning.
 
 Resume (:meth:`~SessionRecorder.resume`, rerunning the same session): the
-tuner was set up with the same seed and the env reset with it; the stored
-experiments are replayed in order - for each, ``ask()`` must return the stored
-gains (else :class:`ReplayMismatch`: the tuner is not deterministic) and
-``tell()`` gets the stored gains, cost and record. This replays the tuner's
-random draws too, so later proposals equal those of an uninterrupted run. The
-env's ``np_random`` state and experiment counter are then restored from the
-last committed row, so its noise continues as if it had never stopped.
+tuner was set up with the same seed and the env reset with it. The tuner's
+snapshot is loaded - its data, models and random generator state as when it
+proposed the last finished experiment - and, if that experiment was told,
+``tell()`` gets its stored gains, cost and record: the tuner is then exactly
+where an uninterrupted run's is, in time independent of the number of stored
+experiments. Without a snapshot (a tuner that cannot be pickled, or a snapshot
+that cannot be loaded), the stored experiments after the last snapshot (all
+of them without one) are replayed in order - for each, ``ask()`` must return
+the stored gains (else :class:`ReplayMismatch`: the tuner is not
+deterministic) and ``tell()`` gets the stored gains, cost and record, which
+replays the tuner's random draws too. The env's ``np_random`` state and
+experiment counter are then restored from the last committed row, so its noise
+continues as if it had never stopped.
 
 Crash policy (``on_crash``): an intent row still ``running`` on resume means
 the process died between committing the intent and committing the result, so
@@ -41,7 +48,8 @@ from typing import Any
 import numpy as np
 
 from agents.base import TuningStopped
-from evaluation.sessions.store import SessionStore
+from evaluation.sessions.snapshot import restore_tuner, tuner_snapshot
+from evaluation.sessions.store import ExperimentRow, SessionStore
 
 __all__ = ["CRASH_POLICIES", "ReplayMismatch", "SessionRecorder", "env_state", "restore_env_state"]
 
@@ -69,7 +77,10 @@ class SessionRecorder:
     Attributes
     ----------
     n_replayed : int
-        Plant experiments replayed by :meth:`resume`.
+        Plant experiments the tuner had learned from when :meth:`resume` returned.
+    n_asked : int
+        Stored experiments whose proposal :meth:`resume` asked the tuner for
+        again (0 when it loaded a snapshot of the last one).
     """
 
     def __init__(self, store: SessionStore, session_id: int, on_crash: str = "rerun") -> None:
@@ -79,13 +90,16 @@ class SessionRecorder:
         self.session_id = session_id
         self.on_crash = on_crash
         self.n_replayed = 0
+        self.n_asked = 0
         self._env = None
+        self._tuner = None
+        self._snapshots = True  # False once the tuner turned out not to pickle
 
     # -- resume --------------------------------------------------------------------------------------
     def resume(self, tuner, env) -> tuple[int, int]:
-        """Replay the stored experiments into ``tuner`` and restore ``env``; return (told, trailing skips).
+        """Bring ``tuner`` and ``env`` to the stored experiments; return (told, trailing skips).
 
-        ``env`` is also the env whose state :meth:`finish` stores.
+        ``env`` and ``tuner`` are also those whose states :meth:`finish` stores.
 
         Raises
         ------
@@ -95,7 +109,7 @@ class SessionRecorder:
             When the tuner proposes other gains than the stored ones.
         """
         store, sid = self.store, self.session_id
-        self._env = env
+        self._env, self._tuner = env, tuner
         rows = store.experiments(sid)
         plant = [r for r in rows if r.source == "plant" and r.status not in ("lost-in-crash", "interrupted")]
         for row in plant:
@@ -110,28 +124,40 @@ class SessionRecorder:
             _log.warning("session %s: experiment %s was cut by a crash; running it again", sid, row.experiment)
         plant = [r for r in plant if r.status != "running"]
         tell_twins = {r.parent_id for r in rows if r.source == "twin" and r.phase == "tell" and r.status == "ok"}
+        start = 0
+        snapshot = store.snapshot(sid)
+        if snapshot is not None:
+            row_id, state = snapshot
+            index = next((i for i, row in enumerate(plant) if row.id == row_id), None)
+            if index is not None and restore_tuner(tuner, state, env):
+                self._learn(tuner, plant[index], tell_twins)
+                start = index + 1
         span = tuner.space.high - tuner.space.low
-        told = skips = 0
-        for row in plant:
+        for row in plant[start:]:
             proposal = tuner.ask()
             tuner.drain_twin_log()  # stored with the intent
+            self.n_asked += 1
             if not np.all(np.abs(np.asarray(proposal) - np.asarray(row.gains)) <= 1e-9 * span):
                 raise ReplayMismatch(
                     f"replaying experiment {row.experiment} (row {row.seq}): {tuner.name} proposed {proposal}, "
                     f"the database holds {row.gains}; the tuner is not deterministic for a fixed seed, so this "
                     "session cannot be resumed (start a new session with another seed or database)")
-            if row.told:
-                tuner.tell(row.gains, row.told_cost, row.record() if row.status == "ok" else None)
-                twins = tuner.drain_twin_log()
-                if twins and row.id not in tell_twins:  # the crash came between tell and its commit
-                    store.add_twins(sid, row.experiment, row.id, "tell", twins)
-                told, skips = told + 1, 0
-            else:
-                skips += 1
+            self._learn(tuner, row, tell_twins)
         if plant and plant[-1].env_state is not None:
             restore_env_state(env, plant[-1].env_state)
+        told = sum(row.told for row in plant)
+        skips = next((i for i, row in enumerate(reversed(plant)) if row.told), len(plant))
         self.n_replayed = told
         return told, skips
+
+    def _learn(self, tuner, row: ExperimentRow, tell_twins: set[int]) -> None:
+        """Tell ``tuner`` a stored experiment it was told (storing its twin rows if a crash lost them)."""
+        if not row.told:
+            return
+        tuner.tell(row.gains, row.told_cost, row.record() if row.status == "ok" else None)
+        twins = tuner.drain_twin_log()
+        if twins and row.id not in tell_twins:  # the crash came between tell and its commit
+            self.store.add_twins(self.session_id, row.experiment, row.id, "tell", twins)
 
     # -- one experiment ------------------------------------------------------------------------------
     def begin(self, experiment: int, gains, twins: list[dict]) -> tuple[int, int]:
@@ -140,11 +166,21 @@ class SessionRecorder:
 
     def finish(self, handle: tuple[int, int], record: Mapping, *, failed: bool, reason: str | None,
                told_cost: float | None) -> None:
-        """Commit the outcome with the env's state; a failed experiment's cost is stored only as ``told_cost``."""
+        """Commit the outcome with the env's state and the tuner's snapshot.
+
+        A failed experiment's cost is stored only as ``told_cost``. The tuner
+        has proposed this experiment and not yet learned from it: the snapshot
+        plus a ``tell`` of this row is the tuner of an uninterrupted run.
+        """
         if failed:
             record = {k: v for k, v in record.items() if k != "cost"}
+        snapshot = None
+        if self._snapshots and self._tuner is not None:
+            snapshot = tuner_snapshot(self._tuner, self._env)
+            self._snapshots = snapshot is not None
         self.store.finish_plant(handle[0], "failed" if failed else "ok", record, reason=reason,
-                                told=told_cost is not None, told_cost=told_cost, env_state=env_state(self._env))
+                                told=told_cost is not None, told_cost=told_cost, env_state=env_state(self._env),
+                                snapshot=snapshot)
 
     def abandon(self, handle: tuple[int, int], reason: str) -> None:
         """Mark the intent ``interrupted`` (Ctrl-C): it is not replayed and is run again."""

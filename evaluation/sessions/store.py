@@ -1,5 +1,11 @@
 """The experiment log: one SQLite file, written through the standard library's ``sqlite3``.
 
+The file is identified before it is opened (:mod:`evaluation.sessions.identity`):
+a file that is not a session database is refused and never changed. Reading
+commands (``gbo sessions``, ``gbo export``) open it read-only
+(``SessionStore(path, read_only=True)``), which also works on a read-only file
+or folder.
+
 Every write is one short ``BEGIN IMMEDIATE ... COMMIT`` transaction, so a
 crash leaves either the whole change or none of it. The database runs in WAL
 mode with ``synchronous=FULL`` (a committed experiment survives a power cut),
@@ -10,20 +16,29 @@ Tables
 ------
 ``sessions``
     One row per tuning session, keyed by a hash of its specification (env id
-    and kwargs, tuner name and parameters, budget, seed).
+    and kwargs, tuner name and parameters, seed; not the budget, which a rerun
+    may change: :func:`session_key`). The claiming process's ``owner_token``
+    fences every write: a process whose session was taken over
+    (``gbo tune --force``) cannot write to it any more.
 ``experiments``
     One row per plant experiment attempt or twin evaluation, in the order they
     happened (``seq``). Plant rows go through ``running`` (the intent, committed
     before the plant is touched) to ``ok`` / ``failed``; an intent found on
     resume becomes ``lost-in-crash``, one cut short by Ctrl-C ``interrupted``.
+``snapshots``
+    Per session, the tuner as it was when the last plant experiment finished
+    (a pickle, :mod:`evaluation.sessions.snapshot`), committed with that
+    experiment; a resume loads it instead of replaying the history.
 """
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import math
 import os
+import secrets
 import socket
 import sqlite3
 import time
@@ -36,17 +51,17 @@ from typing import Any
 import numpy as np
 
 from agents.jsonable import to_json
+from evaluation.sessions.identity import APPLICATION_ID, SCHEMA_VERSION, NotASessionDatabase, identify
 from gbo_envs.experiment import SIGNALS, Experiment
 
-__all__ = ["ARRAY_FIELDS", "PLANT_STATUSES", "ExperimentRow", "SessionBusy", "SessionInfo", "SessionStore",
-           "array_from_blob", "array_to_blob"]
+__all__ = ["ARRAY_FIELDS", "PLANT_STATUSES", "ExperimentRow", "NotASessionDatabase", "SessionBusy", "SessionInfo",
+           "SessionStore", "array_from_blob", "array_to_blob", "session_key"]
 
 #: Status values of an experiment row.
 PLANT_STATUSES = ("running", "ok", "failed", "lost-in-crash", "interrupted")
 #: Record arrays stored as BLOBs (the signals of :class:`~gbo_envs.Experiment`).
 ARRAY_FIELDS = SIGNALS
 
-SCHEMA_VERSION = 1
 BUSY_TIMEOUT_MS = 60_000
 
 _SCHEMA = """
@@ -63,6 +78,7 @@ CREATE TABLE IF NOT EXISTS sessions (
     message     TEXT,
     owner_host  TEXT,
     owner_pid   INTEGER,
+    owner_token TEXT,
     created_at  REAL NOT NULL,
     updated_at  REAL NOT NULL
 );
@@ -96,11 +112,28 @@ CREATE TABLE IF NOT EXISTS experiments (
 CREATE UNIQUE INDEX IF NOT EXISTS experiments_told_once
     ON experiments (session_id, experiment) WHERE source = 'plant' AND told = 1;
 CREATE INDEX IF NOT EXISTS experiments_parent ON experiments (parent_id);
+CREATE TABLE IF NOT EXISTS snapshots (
+    session_id  INTEGER PRIMARY KEY REFERENCES sessions(id) ON DELETE CASCADE,
+    row_id      INTEGER NOT NULL REFERENCES experiments(id) ON DELETE CASCADE,
+    tuner       BLOB NOT NULL,
+    updated_at  REAL NOT NULL
+);
 """
 
 
+def session_key(spec: Mapping) -> str:
+    """The key of a session: SHA-256 of its specification's JSON without the budget.
+
+    A rerun with another budget is the same session, extended or shortened
+    (as Optuna's ``n_trials``). Tuners that size themselves to the budget (a
+    grid) carry it in their parameters, so for them another budget is another
+    session.
+    """
+    return hashlib.sha256(to_json({k: v for k, v in spec.items() if k != "budget"}).encode()).hexdigest()
+
+
 class SessionBusy(RuntimeError):
-    """Another live process is running this session."""
+    """Another live process is running this session, or took it over from this one."""
 
 
 @dataclass(frozen=True)
@@ -233,15 +266,47 @@ class SessionStore:
     Parameters
     ----------
     path : str or Path
-        SQLite file (created with its folder if missing).
+        SQLite file (created with its folder if missing, unless ``read_only``).
+    read_only : bool, default False
+        Open for reading only (``gbo sessions``, ``gbo export``): nothing is
+        written, and a read-only file or folder can be read.
+
+    Raises
+    ------
+    NotASessionDatabase
+        If ``path`` is not a session database (see :func:`~evaluation.sessions.identity.identify`);
+        the file is left untouched.
+    FileNotFoundError
+        With ``read_only``, if ``path`` does not exist.
+    PermissionError
+        Without ``read_only``, if the file or its folder cannot be written.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, read_only: bool = False) -> None:
         self.path = Path(path)
+        self.read_only = bool(read_only)
+        self._claims: dict[int, str] = {}  # session id -> owner token of this connection's claim
+        kind = identify(self.path)
+        if self.read_only:
+            self.conn = self._connect_read_only(kind)
+            return
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.conn = sqlite3.connect(str(self.path), timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None)
         self.conn.row_factory = sqlite3.Row
+        try:
+            self._set_up(kind)
+        except sqlite3.OperationalError as exc:
+            self.conn.close()
+            if "readonly" not in str(exc) and "unable to open" not in str(exc):
+                raise
+            raise PermissionError(f"{self.path}: cannot be written ({exc}); running a session needs write access "
+                                  "to the file and its folder (gbo sessions and gbo export only read)") from None
+
+    def _set_up(self, kind: str) -> None:
+        """Pragmas, the schema (created or upgraded) and the application id, on a read-write connection."""
         self.conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
+        if kind == "new":  # marked as ours first, in the rollback journal: straight into the file's header
+            self.conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
         mode = self.conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
         if str(mode).lower() != "wal":
             raise RuntimeError(f"{self.path}: could not switch to WAL mode (got {mode!r})")
@@ -249,12 +314,34 @@ class SessionStore:
         self.conn.execute("PRAGMA foreign_keys = ON")
         with self.transaction() as conn:
             version = conn.execute("PRAGMA user_version").fetchone()[0]
-            if version not in (0, SCHEMA_VERSION):
-                raise RuntimeError(f"{self.path}: schema version {version}, this code reads {SCHEMA_VERSION}")
             for statement in _SCHEMA.split(";"):
                 if statement.strip():
                     conn.execute(statement)
+            if version == 1:
+                _upgrade_from_version_1(conn)
+            conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
             conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+        if kind == "version 1":  # the header's new application id into the main file, where identify() reads it
+            self.conn.execute("PRAGMA wal_checkpoint(PASSIVE)")
+
+    def _connect_read_only(self, kind: str) -> sqlite3.Connection:
+        if kind == "new":
+            what = "no such file" if not self.path.exists() else "an empty file, not a gbo session database"
+            error = FileNotFoundError if not self.path.exists() else NotASessionDatabase
+            raise error(f"{self.path}: {what}")
+        uri = self.path.resolve().as_uri()
+        for options in ("mode=ro", "mode=ro&immutable=1"):  # immutable: a read-only folder without the -shm file
+            conn = sqlite3.connect(f"{uri}?{options}", uri=True, timeout=BUSY_TIMEOUT_MS / 1000,
+                                   isolation_level=None)
+            conn.row_factory = sqlite3.Row
+            try:
+                conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
+                conn.execute("SELECT COUNT(*) FROM sessions").fetchone()
+                return conn
+            except sqlite3.OperationalError as exc:
+                conn.close()
+                error = exc
+        raise NotASessionDatabase(f"{self.path}: cannot be read ({error})")
 
     def close(self) -> None:
         """Close the connection."""
@@ -269,6 +356,8 @@ class SessionStore:
     @contextmanager
     def transaction(self) -> Iterator[sqlite3.Connection]:
         """``BEGIN IMMEDIATE`` (takes the write lock up front, waiting up to the busy timeout) ... ``COMMIT``."""
+        if self.read_only:
+            raise RuntimeError(f"{self.path}: opened read-only; open SessionStore(path) to write")
         self.conn.execute("BEGIN IMMEDIATE")
         try:
             yield self.conn
@@ -279,7 +368,13 @@ class SessionStore:
 
     # -- sessions ------------------------------------------------------------------------------------
     def open_session(self, key: str, spec: dict, gain_names, claim: bool = True, force: bool = False) -> SessionInfo:
-        """The session of ``key``, created if new; with ``claim``, this process becomes its owner.
+        """The session of ``key``, created if new; with ``claim``, this connection becomes its owner.
+
+        A claim sets the session's budget to ``spec["budget"]`` (a rerun with
+        another budget extends or shortens the session) and a fresh owner
+        token: from then on only this connection can write to the session; a
+        previous owner that is still running gets :class:`SessionBusy` at its
+        next write, so two processes never interleave their experiments.
 
         Raises
         ------
@@ -307,15 +402,34 @@ class SessionStore:
                                       f"{row['owner_host']}; wait for it to finish (or end it) first, or take "
                                       "it over if that process is gone (gbo tune --force)")
             if claim:
-                conn.execute("UPDATE sessions SET owner_host = ?, owner_pid = ?, status = 'running', message = NULL,"
-                             " updated_at = ? WHERE id = ?", (host, pid, now, row["id"]))
+                token = secrets.token_hex(8)
+                conn.execute("UPDATE sessions SET owner_host = ?, owner_pid = ?, owner_token = ?, status = 'running', "
+                             "message = NULL, budget = ?, spec = ?, updated_at = ? WHERE id = ?",
+                             (host, pid, token, int(spec["budget"]), to_json(spec), now, row["id"]))
+                self._claims[row["id"]] = token
         return self.session(row["id"])
 
     def release_session(self, session_id: int, status: str, message: str | None = None) -> None:
-        """Drop this process's claim and set the session status (``done``, ``stopped``, ``failed`` ...)."""
+        """Drop this connection's claim and set the session status (``done``, ``stopped``, ``failed`` ...).
+
+        A no-op when the session was taken over by another process meanwhile.
+        """
+        token = self._claims.pop(session_id, None)
         with self.transaction() as conn:
-            conn.execute("UPDATE sessions SET owner_host = NULL, owner_pid = NULL, status = ?, message = ?, "
-                         "updated_at = ? WHERE id = ?", (status, message, time.time(), session_id))
+            conn.execute("UPDATE sessions SET owner_host = NULL, owner_pid = NULL, owner_token = NULL, status = ?, "
+                         "message = ?, updated_at = ? WHERE id = ? AND owner_token = ?",
+                         (status, message, time.time(), session_id, token))
+
+    def _require_claim(self, conn: sqlite3.Connection, session_id: int) -> None:
+        """Raise :class:`SessionBusy` unless this connection still owns the session (inside a transaction)."""
+        row = conn.execute("SELECT owner_host, owner_pid, owner_token FROM sessions WHERE id = ?",
+                           (session_id,)).fetchone()
+        token = self._claims.get(session_id)
+        if token is None or row is None or row["owner_token"] != token:
+            owner = "another process (which has released it since)" if row is None or row["owner_pid"] is None \
+                else f"process {row['owner_pid']} on {row['owner_host']}"
+            raise SessionBusy(f"session {session_id} was taken over by {owner} (gbo tune --force); this process "
+                              "stops without writing to it")
 
     def session(self, session_id: int) -> SessionInfo:
         """One session with its counts.
@@ -381,6 +495,7 @@ class SessionStore:
         """
         now = time.time()
         with self.transaction() as conn:
+            self._require_claim(conn, session_id)
             seq = self._next_seq(conn, session_id)
             cursor = conn.execute(
                 "INSERT INTO experiments (session_id, seq, experiment, source, status, gains, started_at) "
@@ -391,8 +506,14 @@ class SessionStore:
         return row_id
 
     def finish_plant(self, row_id: int, status: str, record: Mapping | None, *, reason: str | None = None,
-                     told: bool, told_cost: float | None, env_state: dict | None) -> None:
-        """Complete a plant row with the experiment record (arrays as BLOBs) in one transaction."""
+                     told: bool, told_cost: float | None, env_state: dict | None,
+                     snapshot: bytes | None = None) -> None:
+        """Complete a plant row with the experiment record (arrays as BLOBs) in one transaction.
+
+        ``snapshot``, the tuner as it proposed this experiment
+        (:func:`evaluation.sessions.snapshot.tuner_snapshot`), replaces the
+        session's snapshot in the same transaction.
+        """
         if status not in ("ok", "failed"):
             raise ValueError(f"status: expected 'ok' or 'failed', got {status!r}")
         record = dict(record or {})
@@ -405,6 +526,8 @@ class SessionStore:
         unstable = record.get("unstable")
         now = time.time()
         with self.transaction() as conn:
+            session_id = self._session_of(conn, row_id)
+            self._require_claim(conn, session_id)
             cursor = conn.execute(
                 "UPDATE experiments SET status = ?, reason = ?, told = ?, cost = ?, told_cost = ?, true_cost = ?, "
                 "unstable = ?, metrics = ?, t = ?, r = ?, u = ?, y = ?, extra = ?, env_state = ?, finished_at = ? "
@@ -415,7 +538,10 @@ class SessionStore:
                  to_json(extra), None if env_state is None else to_json(env_state), now, row_id))
             if cursor.rowcount != 1:
                 raise RuntimeError(f"experiment row {row_id}: not an open intent (already completed?)")
-            self._touch_row(conn, row_id, now)
+            if snapshot is not None:
+                conn.execute("INSERT OR REPLACE INTO snapshots (session_id, row_id, tuner, updated_at) "
+                             "VALUES (?, ?, ?, ?)", (session_id, row_id, snapshot, now))
+            self._touch(conn, session_id, now)
 
     def abandon_plant(self, row_id: int, status: str, reason: str) -> None:
         """Mark an intent (and its twin rows) ``lost-in-crash`` or ``interrupted``: it is not replayed."""
@@ -423,9 +549,11 @@ class SessionStore:
             raise ValueError(f"status: expected 'lost-in-crash' or 'interrupted', got {status!r}")
         now = time.time()
         with self.transaction() as conn:
+            session_id = self._session_of(conn, row_id)
+            self._require_claim(conn, session_id)
             conn.execute("UPDATE experiments SET status = ?, reason = ?, finished_at = ? WHERE id = ? OR parent_id = ?",
                          (status, reason, now, row_id, row_id))
-            self._touch_row(conn, row_id, now)
+            self._touch(conn, session_id, now)
 
     def add_twins(self, session_id: int, experiment: int, parent_id: int, phase: str, twin_rows) -> None:
         """Commit twin evaluations made while the tuner learned from plant row ``parent_id``."""
@@ -433,9 +561,15 @@ class SessionStore:
             return
         now = time.time()
         with self.transaction() as conn:
+            self._require_claim(conn, session_id)
             seq = self._next_seq(conn, session_id)
             self._insert_twins(conn, session_id, seq, experiment, parent_id, phase, twin_rows, now)
             self._touch(conn, session_id, now)
+
+    def snapshot(self, session_id: int) -> tuple[int, bytes] | None:
+        """The session's tuner snapshot as ``(row id of its experiment, pickle)``, or None."""
+        row = self.conn.execute("SELECT row_id, tuner FROM snapshots WHERE session_id = ?", (session_id,)).fetchone()
+        return None if row is None else (int(row["row_id"]), bytes(row["tuner"]))
 
     def integrity_check(self) -> str:
         """``PRAGMA integrity_check`` (``"ok"`` for a sound file)."""
@@ -469,9 +603,12 @@ class SessionStore:
     def _touch(conn, session_id: int, now: float) -> None:
         conn.execute("UPDATE sessions SET updated_at = ? WHERE id = ?", (now, session_id))
 
-    def _touch_row(self, conn, row_id: int, now: float) -> None:
-        conn.execute("UPDATE sessions SET updated_at = ? WHERE id = (SELECT session_id FROM experiments "
-                     "WHERE id = ?)", (now, row_id))
+    @staticmethod
+    def _session_of(conn, row_id: int) -> int:
+        row = conn.execute("SELECT session_id FROM experiments WHERE id = ?", (row_id,)).fetchone()
+        if row is None:
+            raise KeyError(f"experiment row {row_id}: not in the database")
+        return int(row[0])
 
 
 def _blob_or_none(value) -> bytes | None:
@@ -494,6 +631,23 @@ def _decode(row: sqlite3.Row) -> ExperimentRow:
         blobs={name: row[name] for name in ARRAY_FIELDS}, extra=json.loads(row["extra"] or "{}"),
         env_state=None if row["env_state"] is None else json.loads(row["env_state"]),
         started_at=row["started_at"], finished_at=row["finished_at"])
+
+
+def _upgrade_from_version_1(conn: sqlite3.Connection) -> None:
+    """Schema 1 -> 2 (inside the opening transaction): the owner token, and keys without the budget.
+
+    A key shared by several version-1 sessions that differ only in their
+    budget stays with the most recently updated one; the others keep their old key.
+    """
+    columns = {row[1] for row in conn.execute("SELECT * FROM pragma_table_info('sessions')")}
+    if "owner_token" not in columns:
+        conn.execute("ALTER TABLE sessions ADD COLUMN owner_token TEXT")
+    taken = {row[0] for row in conn.execute("SELECT key FROM sessions")}
+    for row in conn.execute("SELECT id, key, spec FROM sessions ORDER BY updated_at DESC").fetchall():
+        key = session_key(json.loads(row[2]))
+        if key not in taken:
+            conn.execute("UPDATE sessions SET key = ? WHERE id = ?", (key, row[0]))
+            taken.add(key)
 
 
 def _alive(pid: int) -> bool:

@@ -3,14 +3,13 @@
 The loop and its failure policy are :meth:`agents.Tuner.run`'s; the session
 adds a :class:`~evaluation.sessions.recorder.SessionRecorder` that commits
 every experiment to the SQLite log of :mod:`evaluation.sessions.store` before
-the next one is proposed, and resumes a session by replaying the log (see
-:mod:`evaluation.sessions.recorder` for the commits, the replay and the crash
+the next one is proposed, and resumes a session from the log (see
+:mod:`evaluation.sessions.recorder` for the commits, the resume and the crash
 policy).
 """
 
 from __future__ import annotations
 
-import hashlib
 import inspect
 from pathlib import Path
 from typing import Any
@@ -18,18 +17,17 @@ from typing import Any
 import numpy as np
 
 from agents.base import TuningInterrupted, TuningStopped
-from agents.jsonable import to_json
 from agents.run_display import env_id as env_name
 from agents.space import GainSpace
 from evaluation.sessions.recorder import CRASH_POLICIES, SessionRecorder
-from evaluation.sessions.store import SessionStore
+from evaluation.sessions.store import SessionStore, session_key
 
 __all__ = ["TuningSession", "session_spec"]
 
 
 def session_spec(env_id: str, env_kwargs: dict, tuner: str, tuner_params: dict, budget: int, seed: int | None,
                  env=None) -> dict[str, Any]:
-    """The specification that identifies a session (its key is the SHA-256 of its JSON).
+    """The specification of a session (its key, :func:`~evaluation.sessions.store.session_key`, leaves out the budget).
 
     The env's cost weights and normalisers are part of it (rounded to 12
     digits) when the env has them, so that a resume never mixes cost scales.
@@ -61,6 +59,8 @@ class TuningSession:
         fresh tuner instance.
     budget : int
         Plant experiments the tuner learns from (skipped failures do not count).
+        Rerunning with another budget extends the session, or shortens it
+        (nothing is run once it holds ``budget`` experiments; none is deleted).
     seed : int or None, default 0
         Seeds the env and the tuner. ``None`` cannot be resumed exactly.
     env_kwargs, tuner_kwargs : dict, optional
@@ -111,11 +111,13 @@ class TuningSession:
         self.space = GainSpace.from_env(self.env)
         params = {**self.tuner_kwargs, **self.tuner.get_params()}
         self.spec = session_spec(self.env_id, self.env_kwargs, self.tuner_name, params, self.budget, seed, self.env)
-        self.key = hashlib.sha256(to_json(self.spec).encode()).hexdigest()
+        self.key = session_key(self.spec)
         self.db = Path(db)
         self.session_id: int | None = None
-        #: Plant experiments replayed from the database at the start of the last :meth:`run`.
+        #: Plant experiments the tuner had learned from when the last :meth:`run` resumed the session.
         self.n_replayed = 0
+        #: Stored experiments whose proposals the last :meth:`run` asked for again (0 with a tuner snapshot).
+        self.n_asked = 0
 
     def run(self, progress: bool = False):
         """Run the session to its budget, resuming from the database.
@@ -166,6 +168,6 @@ class TuningSession:
                 message = f"{type(exc).__name__}: {exc}"
                 raise
             finally:
-                self.n_replayed = recorder.n_replayed
+                self.n_replayed, self.n_asked = recorder.n_replayed, recorder.n_asked
                 store.release_session(sid, status, message)
             return load_result(store, sid)

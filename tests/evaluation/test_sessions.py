@@ -131,18 +131,36 @@ def test_session_matches_tuner_run_and_stores_records(tmp_path):
     assert info_row.best_cost == min(r["cost"] for r in reference.plant_rows)
 
 
-def test_rerun_of_a_finished_session_runs_nothing(tmp_path):
+def test_rerun_of_a_finished_session_runs_nothing_and_asks_nothing(tmp_path, monkeypatch):
     db = tmp_path / "runs.sqlite"
     first = TuningSession(db, ENV, "test-cost-aware", budget=5, seed=1).run()
     counting = RaiseAt(gym.make(ENV), calls=range(1, 101), error=AssertionError("the plant must not run"))
     session = TuningSession(db, counting, "test-cost-aware", budget=5, seed=1, env_id=ENV)
+    asks = []
+    monkeypatch.setattr(CostAwareRandom, "_ask", lambda self: asks.append(1) or self.space.low)
     again = session.run()
     assert session.n_replayed == 5 and counting.count == 0
+    assert asks == [] and session.n_asked == 0  # the tuner's snapshot was loaded: no proposal asked for again
     assert _gains_costs(again) == _gains_costs(first)
     assert again.n_twin == first.n_twin == 10
-    other = TuningSession(db, ENV, "test-cost-aware", budget=6, seed=1)
-    other.run()
-    assert other.session_id == 2  # another budget is another session
+
+
+def test_another_budget_extends_or_shortens_the_session(tmp_path):
+    db = tmp_path / "runs.sqlite"
+    uninterrupted = TuningSession(tmp_path / "ref.sqlite", ENV, "test-cost-aware", budget=7, seed=1).run()
+    TuningSession(db, ENV, "test-cost-aware", budget=4, seed=1).run()
+    longer = TuningSession(db, ENV, "test-cost-aware", budget=7, seed=1)
+    result = longer.run()
+    assert longer.session_id == 1 and longer.n_replayed == 4  # the same session, extended by 3 experiments
+    assert _gains_costs(result) == _gains_costs(uninterrupted)
+    counting = RaiseAt(gym.make(ENV), calls=range(1, 101), error=AssertionError("the plant must not run"))
+    shorter = TuningSession(db, counting, "test-cost-aware", budget=2, seed=1, env_id=ENV)
+    assert shorter.run().n_experiments == 7 and counting.count == 0  # nothing run, nothing deleted
+    with SessionStore(db) as store:
+        (info,) = store.sessions()
+    assert (info.id, info.budget, info.done, info.status) == (1, 2, 7, "done")
+    TuningSession(db, ENV, "test-cost-aware", budget=8, seed=1).run()
+    assert [r.experiment for r in _plant(db)] == list(range(1, 9))
 
 
 @pytest.mark.parametrize("cut", ["ctrl-c", "crash-before-commit", "crash-before-twin-commit"])
@@ -194,20 +212,37 @@ def test_resume_after_an_interruption_equals_an_uninterrupted_run(tmp_path, monk
         (k, phase) for k in range(1, 9) for phase in ("ask", "tell"))
 
 
-def test_a_nondeterministic_or_tampered_session_fails_loudly(tmp_path):
+def _drop_snapshots(db) -> None:
+    conn = sqlite3.connect(db)
+    conn.execute("DELETE FROM snapshots")
+    conn.commit()
+    conn.close()
+
+
+def test_a_replay_without_snapshot_fails_loudly_on_a_nondeterministic_or_tampered_session(tmp_path):
     db = tmp_path / "runs.sqlite"
     TuningSession(db, ENV, "random", budget=3, seed=0).run()
     conn = sqlite3.connect(db)
     conn.execute("UPDATE experiments SET gains = '[0.5, 1.0]' WHERE seq = 2")
     conn.commit()
     conn.close()
+    _drop_snapshots(db)
     with pytest.raises(ReplayMismatch, match="not deterministic"):
         TuningSession(db, ENV, "random", budget=3, seed=0).run()
-    env = RaiseAt(gym.make(ENV), calls=[3], error=KeyboardInterrupt())
-    with pytest.raises(KeyboardInterrupt):
-        TuningSession(db, env, "test-global-random", budget=4, seed=0, env_id=ENV).run()
-    with pytest.raises(ReplayMismatch):
-        TuningSession(db, ENV, "test-global-random", budget=4, seed=0).run()
+    for name, snapshot in (("with.sqlite", True), ("without.sqlite", False)):
+        db = tmp_path / name
+        env = RaiseAt(gym.make(ENV), calls=[3], error=KeyboardInterrupt())
+        with pytest.raises(KeyboardInterrupt):
+            TuningSession(db, env, "test-global-random", budget=4, seed=0, env_id=ENV).run()
+        stored = [r.gains for r in _plant(db)]
+        if snapshot:  # the snapshot holds the tuner's state: it resumes without asking for anything again
+            session = TuningSession(db, ENV, "test-global-random", budget=4, seed=0)
+            session.run()
+            assert session.n_asked == 0 and [r.gains for r in _plant(db)][:2] == stored
+        else:
+            _drop_snapshots(db)
+            with pytest.raises(ReplayMismatch):
+                TuningSession(db, ENV, "test-global-random", budget=4, seed=0).run()
 
 
 def test_env_error_is_recorded_and_the_session_can_go_on(tmp_path):
@@ -360,3 +395,25 @@ def test_cli_tune_prints_when_the_twin_changes(tmp_path, capsys):
                 "--tuner-kwargs", '{"grid_points": 30}', "--no-progress"]) == 0
     out = capsys.readouterr().out
     assert "guided-bo: twin: linear, RMSE" in out and "(after 1 experiments)" in out
+
+
+def test_force_takes_a_session_over_and_fences_its_previous_owner(tmp_path, monkeypatch):
+    # the previous owner is still running when another process takes the session over (gbo tune --force):
+    # its next write must stop it, instead of interleaving experiments (an IntegrityError once both told the same)
+    db = tmp_path / "runs.sqlite"
+    uninterrupted = TuningSession(tmp_path / "ref.sqlite", ENV, "test-cost-aware", budget=6, seed=1).run()
+    original, taken = SessionStore.add_twins, []
+
+    def add_twins_then_taken_over(self, session_id, experiment, *args, **kwargs):
+        original(self, session_id, experiment, *args, **kwargs)
+        if experiment == 3 and not taken:
+            taken.append(TuningSession(db, ENV, "test-cost-aware", budget=6, seed=1, force=True).run())
+
+    monkeypatch.setattr(SessionStore, "add_twins", add_twins_then_taken_over)
+    with pytest.raises(SessionBusy, match="session 1 was taken over by another process"):
+        TuningSession(db, ENV, "test-cost-aware", budget=6, seed=1).run()
+    assert _gains_costs(taken[0]) == _gains_costs(uninterrupted)
+    assert [r.experiment for r in _plant(db, told=None)] == list(range(1, 7))  # each once, none begun after
+    with SessionStore(db) as store:
+        (info,) = store.sessions()
+        assert (info.status, info.done) == ("done", 6) and store.integrity_check() == "ok"

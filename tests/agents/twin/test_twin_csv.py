@@ -14,8 +14,9 @@ HEADER = "experiment,t,r,u,y"
 
 
 def _write(tmp_path, text: str):
+    """``text`` as ``data.csv``, its last row ended with a line break as every CSV writer does."""
     path = tmp_path / "data.csv"
-    path.write_text(text)
+    path.write_text(text if not text or text.endswith("\n") else text + "\n")
     return path
 
 
@@ -100,3 +101,17 @@ def test_missing_file_and_empty_file(tmp_path):
         read_csv(tmp_path / "nope.csv")
     with pytest.raises(ValueError, match="empty"):
         read_csv(_write(tmp_path, ""))
+
+
+@pytest.mark.parametrize("cut", [1, 3, 9])
+def test_a_file_cut_mid_row_is_an_error_naming_file_and_row(tmp_path, cut):
+    # cut 1 leaves "246" of "2463": a cut number that every other check would take
+    text = HEADER + "\n" + "\n".join(_good_rows(n=5)[:4] + ["0,0.008,306,104,2463.25"]) + "\n"
+    path = tmp_path / "cut.csv"
+    path.write_text(text[:-1 - cut])
+    with pytest.raises(ValueError, match=r"cut\.csv, row 6: the last row ends without a line break"):
+        read_csv(path)
+    path.write_text(text)
+    assert read_csv(path)[0].y[-1] == 2463.25
+    path.write_text(text.replace("\n", "\r\n"))  # Windows line ends
+    assert read_csv(path)[0].n_steps == 5
