@@ -313,6 +313,12 @@ KILL_TUNE = ("tune", "--env", ENV, "--tuner", "random", "--budget", "30", "--db"
              '{"noise": false}', "--no-progress")
 
 
+def some_experiments_stored(folder: Path) -> bool:
+    """True once the session's write-ahead log holds about 5 experiments (t, r, u, y of 2501 samples each)."""
+    wal = folder / "runs.sqlite-wal"
+    return wal.exists() and wal.stat().st_size > 5 * 4 * 2501 * 8
+
+
 def resume_after_kill(folder: Path, fx: Fixtures, run: Run) -> str | None:
     run.notes.append("killed" if run.killed else "finished before the kill")
     again = run_command(["-m", "evaluation.cli", *KILL_TUNE], folder, 300, 3000)
@@ -519,8 +525,8 @@ def _cases() -> list[Case]:
         Case("resume-finished-session", 7, "rerunning a finished session stores nothing new",
              (*FIXTURE_TUNE, "--db", "runs.sqlite"), expect="ok", needs=("db",), setup=copy_db,
              check=session_grew(3)),
-        Case("tune-kill-resume", 7, "SIGKILL of gbo tune after 10 s, then resume to 30 experiments", KILL_TUNE,
-             expect="ok", kill_when=lambda folder: False, check=resume_after_kill, timeout=10),
+        Case("tune-kill-resume", 7, "SIGKILL of gbo tune after about 5 stored experiments, then resume to 30",
+             KILL_TUNE, expect="ok", kill_when=some_experiments_stored, check=resume_after_kill, timeout=120),
         # 8. names and ids
         Case("study-name-dotdot", 8, "a study spec named '..'", ("bench", "spec.toml", "--quiet"),
              needles=("[study] name",), setup=write_spec(".."), fast=True),
@@ -817,12 +823,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", help="also write the Markdown tally to this file")
     parser.add_argument("--keep", help="work in this folder and keep it (default: a temporary folder)")
     parser.add_argument("--list", action="store_true", help="list the cases and exit")
+    parser.add_argument("--repo", help="attack the code in this checkout (default: the one holding this script), "
+                                       "e.g. the main branch for a before/after table")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     parser.add_argument("--dir", help=argparse.SUPPRESS)
     parser.add_argument("--fixtures", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
-    if args.child:
-        sys.path.insert(0, str(REPO))
+    global REPO
+    REPO = Path(args.repo).resolve() if args.repo else REPO
+    if args.child:  # the parent put the attacked checkout on PYTHONPATH
         case = next(c for c in CASES if c.id == args.child)
         return _child_api(case, Path(args.dir), Fixtures(Path(args.fixtures)))
     cases = [c for c in CASES if (not args.only or re.search(args.only, c.id)) and (not args.fast or c.fast)]
@@ -851,7 +860,9 @@ def main(argv: list[str] | None = None) -> int:
         if not args.keep:
             shutil.rmtree(root, ignore_errors=True)
     command = "python benchmarks/attack.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    report = tally_markdown(results, command.strip())
+    commit = subprocess.run(["git", "-C", str(REPO), "log", "-1", "--format=%h %s"], capture_output=True,
+                            text=True).stdout.strip()
+    report = tally_markdown(results, f"{command.strip()}` on `{REPO}` at `{commit[:70]}")
     print()
     print(report.split("\n## Cases")[0])
     if args.out:
