@@ -91,6 +91,7 @@ def _as_reader(argv: list[str], cwd) -> subprocess.CompletedProcess:
     return subprocess.run(command, cwd=cwd, env=env, capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.slow  # runs gbo in fresh interpreters
 @pytest.mark.skipif(sys.platform == "win32" or (os.geteuid() == 0 and not shutil.which("setpriv")),
                     reason="POSIX permissions; as root, setpriv runs the reader as nobody")
 def test_a_read_only_database_in_a_read_only_folder_can_be_listed_and_exported():
@@ -142,6 +143,7 @@ def test_a_version_1_database_is_upgraded_in_place(tmp_path):
         assert store.conn.execute("PRAGMA user_version").fetchone()[0] == 2
 
 
+@pytest.mark.slow  # runs gbo in fresh interpreters
 @pytest.mark.skipif(sys.platform == "win32" or (os.geteuid() == 0 and not shutil.which("setpriv")),
                     reason="POSIX permissions; as root, setpriv runs the reader as nobody")
 def test_a_session_on_a_read_only_database_is_a_clear_error():
