@@ -25,7 +25,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         "bench", help="run a Monte Carlo study (TOML spec) and write its report",
         description="Run a study's batches in parallel, saving each finished batch at once (rerun to resume), "
-                    "then write report.md and PNG figures.")
+                    "then write report.md and PNG figures.",
+        epilog="Examples:\n  gbo bench --list\n  gbo bench smoke --out /tmp/smoke\n"
+               "  gbo bench performance --batches 10 --workers 2",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("study", nargs="?", help="a shipped study name (see --list) or a path to a .toml/.yaml spec")
     parser.add_argument("--list", action="store_true", help="list the shipped studies and exit")
     parser.add_argument("--batches", type=int, help="run only the first N batches of every tuner")
@@ -36,7 +39,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--out", help="output folder (default: out/studies/<study>)")
     parser.add_argument("--no-report", action="store_true", help="only run the batches")
     parser.add_argument("--report-only", action="store_true", help="only write the report from saved batches")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress bar (without it, a bar on stderr when stderr is a terminal)")
     parser.set_defaults(handler=bench)
     return parser
 
@@ -74,7 +78,7 @@ def bench(args: argparse.Namespace) -> int:
     if not args.report_only:
         try:
             run = run_study(study, out, backend=args.backend, address=args.address, workers=args.workers,
-                            progress=not args.quiet)
+                            progress=False if args.quiet else None)
         except ValueError as exc:  # unknown tuner or rejected params
             print(f"gbo bench: {exc}", file=sys.stderr)
             return 2

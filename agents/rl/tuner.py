@@ -103,8 +103,8 @@ class RLTuner(Tuner):
         (plant mode) and of transitions before the first update; ``train_freq``
         and ``batch_size`` also pace the tuner's own updates. PPO's
         ``batch_size`` is capped at ``n_steps``.
-    progress : bool, default False
-        Show a progress bar over the model pre-training.
+    progress : bool or None, default False
+        Show a progress bar (stderr) over the model pre-training; ``None``: only when stderr is a terminal.
 
     Notes
     -----
@@ -128,7 +128,7 @@ class RLTuner(Tuner):
 
     def __init__(self, *, algorithm: str = "sac", mode: str = "plant", model_env=None, model_kwargs: dict | None = None,
                  pretrain_steps: int = 2000, gradient_steps: int = 32, algorithm_kwargs: dict | None = None,
-                 progress: bool = False) -> None:
+                 progress: bool | None = False) -> None:
         checked = validate_params(self._parameter_constraints, {
             "algorithm": algorithm, "mode": mode, "model_kwargs": model_kwargs, "pretrain_steps": pretrain_steps,
             "gradient_steps": gradient_steps, "algorithm_kwargs": algorithm_kwargs})
@@ -141,7 +141,7 @@ class RLTuner(Tuner):
         self.pretrain_steps = checked["pretrain_steps"]
         self.gradient_steps = checked["gradient_steps"]
         self.algorithm_kwargs = dict(algorithm_kwargs or {})
-        self.progress = bool(progress)
+        self.progress = None if progress is None else bool(progress)
         self._hyper = {**HYPERPARAMETERS[algorithm],
                                  **({"gradient_steps": self.gradient_steps} if algorithm == "sac" else {}),
                                  **self.algorithm_kwargs}
