@@ -46,7 +46,7 @@ def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int
             res = compare(data, fit)
             ax.plot(t, fit.y_sim[k][m], lw=1.2, label=f"{fit.spec.label} ({res.fit_percent[k]:.1f} %)")
             ax_err.plot(t, data.y[k][m] - fit.y_sim[k][m], lw=0.8, label=fit.spec.label)
-        ax.set_title(f"experiment {int(data.index[k])}")
+        ax.set_title(f"experiment {int(data.numbers[k])}")
         ax_err.set_xlabel("t (s)")
         ax.legend(fontsize=7)
     axes[0, 0].set_ylabel("y")

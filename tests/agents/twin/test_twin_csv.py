@@ -63,7 +63,7 @@ def test_writer_rejects_records_without_signals_and_wrong_gain_names(tmp_path):
 def test_extra_columns_and_order_of_experiments(tmp_path):
     rows = [HEADER + ",Kp,note"] + [r + ",0.5,x" for r in _good_rows(7)] + [r + ",0.6,y" for r in _good_rows(3)]
     recs = read_csv(_write(tmp_path, "\n".join(rows)))
-    assert [r.index for r in recs] == [7, 3]
+    assert [r.index for r in recs] == [6, 2]  # experiments 7 and 3 of the file: 0-based indices
     assert recs[0].u.tolist() == [100, 101, 102, 103]
     assert read_csv(_write(tmp_path, "\n".join(rows)), gain_names=["Kp"])[1].gains.tolist() == [0.6]
 
