@@ -2,9 +2,9 @@
 
 Whether the workbench finds the hidden effect, and with which parameters, is
 tested in ``tests/agents/twin/test_workbench.py``; here the command line: three
-1.5 s experiments (indices 4, 5, 6: numbered 5, 6, 7 in the CSV and the output) with a hidden saturation, long enough for
-the saturated model to beat the linear one. ``diagnose`` and ``report`` fit every
-catalogue effect, so they are marked slow.
+1.5 s experiments (indices 4, 5, 6: numbered 5, 6, 7 in the CSV and the output)
+with a hidden saturation, long enough for the saturated model to beat the linear
+one. ``diagnose`` and ``report`` fit every catalogue effect, so they are marked slow.
 """
 
 from __future__ import annotations
