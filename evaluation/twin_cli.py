@@ -144,6 +144,17 @@ def default_out(data_path: str) -> Path:
     return Path("out") / "twin" / Path(data_path).stem
 
 
+def _load_and_fit(args, bar):
+    """Read the data and fit the model, one step of ``bar`` each; returns ``(data, fit)``."""
+    bar.set_postfix_str("reading the data")
+    _, data, spec, effects = _load(args)
+    bar.update(1)
+    bar.set_postfix_str("fitting " + "+".join([spec.label, *effects]))
+    fit = _fit(data, spec, effects)
+    bar.update(1)
+    return data, fit
+
+
 @_run
 def _compare(args) -> int:
     from agents.jsonable import to_json
@@ -153,12 +164,7 @@ def _compare(args) -> int:
 
     bar = progress_bar(3, "twin compare", _progress(args), unit="step")
     try:
-        bar.set_postfix_str("reading the data")
-        records, data, spec, effects = _load(args)
-        bar.update(1)
-        bar.set_postfix_str(f"fitting {spec.label if not effects else '+'.join([spec.label, *effects])}")
-        fit = _fit(data, spec, effects)
-        bar.update(1)
+        data, fit = _load_and_fit(args, bar)
         res = compare(data, fit)  # experiments numbered from 1, as in the CSV
         bar.set_postfix_str("plotting")
         out = Path(args.out) if args.out else default_out(args.data)
@@ -188,23 +194,29 @@ def _compare(args) -> int:
 @_run
 def _resid(args) -> int:
     from agents.jsonable import to_json
+    from agents.run_display import progress_bar
     from agents.twin.workbench import residuals
 
-    _, data, spec, effects = _load(args)
-    fit = _fit(data, spec, effects)
-    ra = residuals(data, fit)
-    if args.out:
-        from agents.twin.report import residual_figure
+    bar = progress_bar(3, "twin resid", _progress(args), unit="step")
+    try:
+        data, fit = _load_and_fit(args, bar)
+        bar.set_postfix_str("residual analysis")
+        ra = residuals(data, fit)
+        if args.out:
+            from agents.twin.report import residual_figure
 
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        residual_figure(ra, fit.spec.label).savefig(out / "residuals.png", dpi=100)
+            out = Path(args.out)
+            out.mkdir(parents=True, exist_ok=True)
+            residual_figure(ra, fit.spec.label).savefig(out / "residuals.png", dpi=100)
+        bar.update(1)
+    finally:
+        bar.close()
     if args.json:
         payload = ra.to_dict()
         payload["model"] = fit.spec.label
         print(to_json(payload, finite=True, sort_keys=False))
         return 0
-    print(f"model {fit.spec.label}: RMSE {fit.rmse:.5g}; 99 % band +-{ra.band:.3g}")
+    print(f"model {fit.spec.label}: RMSE {fit.rmse:.5g} {_y_unit(args)}; 99 % band +-{ra.band:.3g}")
     outside = float((abs(ra.acf[1:]) > ra.band).mean())
     print(f"whiteness: {'white' if ra.white else 'NOT white'} ({100 * outside:.0f} % of acf lags outside)")
     peak = int(ra.ccf_lags[abs(ra.ccf).argmax()])
