@@ -22,6 +22,11 @@ def env_id(env) -> str:
 class _NoBar:
     """Stands in for a disabled bar: a disabled tqdm still allocates a multiprocessing lock."""
 
+    total = None
+
+    def refresh(self) -> None:
+        pass
+
     def update(self, n: int = 1) -> None:
         pass
 

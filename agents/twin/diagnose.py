@@ -509,6 +509,8 @@ def error_ladder(data: GreyData, effects=None, spec: ModelSpec | None = None, ma
             rungs.append(rung)
             bar.update(1)
             if d.best is None or len(rungs) > max_steps:
+                bar.total = len(rungs)  # nothing more to add: the ladder is complete
+                bar.refresh()
                 break
             added, current = d.best, d.fits[d.best]
     finally:
