@@ -100,3 +100,15 @@ def test_missing_file_and_empty_file(tmp_path):
         read_csv(tmp_path / "nope.csv")
     with pytest.raises(ValueError, match="empty"):
         read_csv(_write(tmp_path, ""))
+
+
+def test_csv_numbers_experiments_as_the_result_table_does(tmp_path):
+    import pandas as pd
+
+    import agents
+
+    result = agents.make("random").run(gym.make("gbo_envs/DCMotor-v0", noise=False), budget=2, seed=0)
+    path = write_csv(result.experiments, tmp_path / "run.csv")
+    numbers = pd.read_csv(path)["experiment"].unique().tolist()
+    assert numbers == result.to_pandas()["experiment"].tolist() == [1, 2]  # counted from 1 in both
+    assert [r.index for r in read_csv(path)] == [r.index for r in result.experiments] == [0, 1]
