@@ -238,6 +238,7 @@ class Tuner(abc.ABC):
             raise ValueError(f"max_consecutive_skips: must be an integer >= 1, got {max_consecutive_skips}")
         budget, max_consecutive_skips = int(budget), int(max_consecutive_skips)
         space = GainSpace.from_env(env)
+        self._run_progress = progress  # inner loops of a tuner (e.g. RL pre-training) draw their bars alike
         self.setup(space, seed=seed, env=env)
         env.reset(seed=seed)
         recorder = InMemory() if recorder is None else recorder

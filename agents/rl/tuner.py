@@ -105,6 +105,7 @@ class RLTuner(Tuner):
         ``batch_size`` is capped at ``n_steps``.
     progress : bool or None, default False
         Show a progress bar (stderr) over the model pre-training; ``None``: only when stderr is a terminal.
+        Without it, the pre-training bar follows ``run(..., progress=...)`` (so ``gbo tune`` shows it).
 
     Notes
     -----
@@ -227,7 +228,8 @@ class RLTuner(Tuner):
         plant_gradient_steps = getattr(self._driver, "gradient_steps", None)
         if plant_gradient_steps is not None:
             self._driver.gradient_steps = 1
-        bar = progress_bar(self.pretrain_steps, f"rl pre-training on {env_id(model_env)}", self.progress)
+        bar = progress_bar(self.pretrain_steps, f"rl pre-training on {env_id(model_env)}",
+                           self.progress or getattr(self, "_run_progress", False))
         observation, _ = mdp.reset(seed=self._sb3_seed)
         try:
             for step in range(self.pretrain_steps):

@@ -192,3 +192,12 @@ def test_twin_mode_on_a_rig_needs_an_explicit_nominal_model():
         pytest.skip("rig env not registered")
     with pytest.raises(ValueError, match="model_env"):
         RLTuner(mode="twin", pretrain_steps=2, **FAST).run(gym.make("gbo_envs/DCMotorRig-v0"), budget=1, seed=0)
+
+
+def test_pretraining_bar_follows_the_run_progress(capsys):
+    tuner = RLTuner(algorithm="sac", mode="twin", pretrain_steps=4, **FAST)
+    tuner.run(gym.make(ENV_ID), budget=1, seed=0)
+    assert "rl pre-training" not in capsys.readouterr().err  # the library is quiet by default
+    tuner.run(gym.make(ENV_ID), budget=1, seed=0, progress=True)
+    err = capsys.readouterr().err
+    assert "rl pre-training on gbo_envs/DCMotor-v0" in err and "4/4" in err
