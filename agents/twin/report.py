@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.twin.greybox import GreyData, GreyFit
+from agents.twin.ladder_text import advice, unobservable_lines
 from agents.twin.workbench import Diagnosis, ResidualAnalysis, compare
 from gbo_envs.lazy_pyplot import pyplot
 
@@ -151,6 +152,7 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
     first, last = diagnoses[0], diagnoses[-1]
     fits = [first.current] + ([last.current] if last is not first else [])
     noise = first.noise_rmse
+    next_step = advice(last, last.current.spec.effect_names, source or "DATA.csv", stopped_at_max=last.best is not None)
     parts = [
         "<!DOCTYPE html><html><head><meta charset='utf-8'><title>twin workbench report</title><style>"
         "body{font-family:sans-serif;max-width:1400px;margin:auto;padding:1em}"
@@ -158,11 +160,13 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
         "img{max-width:100%}</style></head><body>",
         f"<h1>Twin workbench: {html.escape(source)}</h1>",
         f"<p>{data.n_records} experiments, {data.n_samples} samples, dt = {data.dt:g} s; "
-        f"noise floor estimate {'n/a' if noise is None else f'{noise:.4g}'} (units of y).</p>",
+        f"{html.escape(first.noise_label)}: {'n/a' if noise is None else f'{noise:.4g}'} (units of y).</p>",
         "<h2>Error ladder</h2>",
         "<p>RMSE of the linear model, then with the best effect added, then the next, until no effect improves "
         "the held-out error beyond its complexity cost.</p>",
         _table(rungs, ["model", "added", "rmse", "heldout_rmse", "fit_percent", "params"]),
+        "<ul>" + "".join(f"<li>{html.escape(r['text'])}</li>" for r in rungs if "text" in r) + "</ul>",
+        f"<p><b>{html.escape(next_step)}</b></p>",
         _img(ladder_figure(rungs, noise), "error ladder"),
         "<h2>Measured vs simulated</h2>",
         _img(compare_figure(data, fits), "compare"),
@@ -171,6 +175,9 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
         f"validation: {html.escape(first.validation)}.</p>",
         _table(first.candidates, ["effect", "rmse", "train_rmse", "delta_bic", "params", "evidence", "note"]),
     ]
+    if last.unobservable:
+        parts += ["<h3>Not observable in this data</h3>",
+                  "<ul>" + "".join(f"<li>{html.escape(line)}</li>" for line in unobservable_lines(last)) + "</ul>"]
     if first.indistinguishable:
         parts.append(f"<p>Indistinguishable on this data: {html.escape(str(first.indistinguishable))}; "
                      f"{html.escape(str(first.suggested_experiment))}.</p>")

@@ -106,6 +106,8 @@ def test_report_is_one_self_contained_page(csv_path, tmp_path, capsys):
     page = (tmp_path / "index.html").read_text()
     assert page.count("data:image/png;base64,") >= 4
     assert "error ladder" in page
+    assert "+ saturation (limit " in page and "Not observable in this data" in page  # the ladder in words
+    assert "not a lower bound" in page
     assert "src=\"http" not in page
     assert list(tmp_path.iterdir()) == [tmp_path / "index.html"]
 
