@@ -117,13 +117,13 @@ class TuningSession:
         #: Plant experiments replayed from the database at the start of the last :meth:`run`.
         self.n_replayed = 0
 
-    def run(self, progress: bool = False):
+    def run(self, progress: bool | None = False):
         """Run the session to its budget, resuming from the database.
 
         Parameters
         ----------
-        progress : bool, default False
-            Show a tqdm progress bar (stderr).
+        progress : bool or None, default False
+            Show a tqdm progress bar (stderr); ``None``: only when stderr is a terminal (``gbo tune``).
 
         Returns
         -------
