@@ -93,10 +93,11 @@ def ladder_figure(rungs: Sequence[dict], noise_rmse: float | None = None):
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(1.8 * len(rungs) + 3, 3.8))
     labels = [r["model"] for r in rungs]
-    ax.bar(range(len(rungs)), [r["rmse"] for r in rungs], color="tab:blue", label="RMSE (fit)")
+    ax.bar(range(len(rungs)), [r["rmse"] for r in rungs], color="tab:blue", label="RMSE (fit to all data)")
     ax.plot(range(len(rungs)), [r["heldout_rmse"] for r in rungs], "o", color="tab:red", label="held-out RMSE")
     if noise_rmse is not None:
-        ax.axhline(noise_rmse, color="tab:orange", ls="--", label=f"noise floor {noise_rmse:.3g}")
+        ax.axhline(noise_rmse, color="tab:orange", ls="--",
+                   label=f"noise-floor estimate {noise_rmse:.3g} (not a lower bound)")
     ax.set_xticks(range(len(rungs)), labels, rotation=15, fontsize=8)
     ax.set_ylabel("RMSE (units of y)")
     ax.set_title("error ladder")
