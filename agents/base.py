@@ -163,7 +163,7 @@ class Tuner(abc.ABC):
         return dict(getattr(self, "_params", {}))
 
     # -- the one tuning loop ----------------------------------------------------------------------
-    def run(self, env, budget: int, seed: int | None = None, progress: bool = False, callback=None,
+    def run(self, env, budget: int, seed: int | None = None, progress: bool | None = False, callback=None,
             recorder: ExperimentRecorder | None = None, max_consecutive_skips: int = 5) -> TuningResult:
         """Tune on ``env`` for ``budget`` plant experiments; with a ``recorder``, a crash-safe session.
 
@@ -182,8 +182,8 @@ class Tuner(abc.ABC):
             experiments included; skipped failures do not count).
         seed : int, optional
             Seeds both the env (``reset(seed=seed)``) and the tuner.
-        progress : bool, default False
-            Show a progress bar.
+        progress : bool or None, default False
+            Show a progress bar on stderr; ``None``: only when stderr is a terminal.
         callback : callable, optional
             Called as ``callback(row)`` after every plant experiment the tuner learned from.
         recorder : agents.recorder.ExperimentRecorder, optional
@@ -238,6 +238,7 @@ class Tuner(abc.ABC):
             raise ValueError(f"max_consecutive_skips: must be an integer >= 1, got {max_consecutive_skips}")
         budget, max_consecutive_skips = int(budget), int(max_consecutive_skips)
         space = GainSpace.from_env(env)
+        self._run_progress = progress  # inner loops of a tuner (e.g. RL pre-training) draw their bars alike
         self.setup(space, seed=seed, env=env)
         env.reset(seed=seed)
         recorder = InMemory() if recorder is None else recorder

@@ -27,7 +27,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         "bench", help="run a Monte Carlo study (TOML spec) and write its report",
         description="Run a study's batches in parallel, saving each finished batch at once (rerun to resume), "
-                    "then write report.md and PNG figures.")
+                    "then write report.md and PNG figures.",
+        epilog="Examples:\n  gbo bench --list\n  gbo bench smoke --out /tmp/smoke\n"
+               "  gbo bench performance --batches 10 --workers 2",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("study", nargs="?", help="a shipped study name (see --list) or a path to a .toml/.yaml spec")
     parser.add_argument("--list", action="store_true", help="list the shipped studies and exit")
     parser.add_argument("--batches", type=positive_int, help="run only the first N batches of every tuner")
@@ -39,7 +42,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--out", help="output folder (default: out/studies/<study>)")
     parser.add_argument("--no-report", action="store_true", help="only run the batches")
     parser.add_argument("--report-only", action="store_true", help="only write the report from saved batches")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress bar (without it, a bar on stderr when stderr is a terminal)")
     parser.set_defaults(handler=bench)
     return parser
 
@@ -72,7 +76,7 @@ def bench(args: argparse.Namespace) -> int:
     status = 0
     if not args.report_only:
         run = run_study(study, out, backend=args.backend, address=args.address, workers=args.workers,
-                        progress=not args.quiet)  # ValueError before anything is written: unknown env or tuner
+                        progress=False if args.quiet else None)  # ValueError before anything is written
         print(f"{study.name}: {run.skipped + run.completed} of {run.total} batches finished "
               f"({run.completed} now, {run.wall_time:.1f} s); results in {out / 'results'}")
         if run.interrupted:

@@ -37,23 +37,34 @@ SUBCOMMAND_MODULES: tuple[str, ...] = ("evaluation.bench_cli", "evaluation.tune_
 def _demo(args: argparse.Namespace) -> int:
     from evaluation.demo import run_demo
 
-    run_demo(Path(args.out), env_id=args.env, seed=args.seed, budget=args.budget, tuners=not args.no_tuners)
+    run_demo(Path(args.out), env_id=args.env, seed=args.seed, budget=args.budget, tuners=not args.no_tuners,
+             progress=False if args.quiet else None)
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``gbo`` argument parser with every available sub-command."""
-    parser = OneLineParser(prog="gbo", description="Data-efficient controller tuning with guided BO.")
+    parser = OneLineParser(prog="gbo", description="Data-efficient controller tuning with guided BO.",
+                           epilog="Example:
+  gbo demo
+  gbo tune --budget 20 && gbo export --csv "
+                                  "out/run.csv && gbo twin diagnose out/run.csv",
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--debug", action="store_true",
                         help="show the full traceback of an error (allowed anywhere on the line)")
     sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="ground truth, figures and a short tuning run on the default plant")
+    demo = sub.add_parser("demo", help="ground truth, figures and a short tuning run on the default plant",
+                          description="Compute the ground-truth cost surface of a plant, plot it, and tune it "
+                                      "briefly with each available tuner.",
+                          epilog="Example:\n  gbo demo --out out/demo --budget 10",
+                          formatter_class=argparse.RawDescriptionHelpFormatter)
     demo.add_argument("--out", default="out/demo", help="output folder for the PNGs (default: out/demo)")
     demo.add_argument("--env", type=env_id, default=EnvId("gbo_envs/DCMotor-v0"),
                       help="env id (default: gbo_envs/DCMotor-v0)")
     demo.add_argument("--seed", type=int_at_least(0), default=0, help="seed of the tuning runs (default: 0)")
     demo.add_argument("--budget", type=positive_int, default=20, help="plant experiments per tuner (default: 20)")
     demo.add_argument("--no-tuners", action="store_true", help="only the ground truth and its figures")
+    demo.add_argument("--quiet", action="store_true", help="no progress bars (default: on stderr when a terminal)")
     demo.set_defaults(handler=_demo)
     for module in SUBCOMMAND_MODULES:
         try:

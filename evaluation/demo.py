@@ -26,7 +26,7 @@ PAPER_NOMINAL = {"Kp": 0.85, "Ki": 1.07}
 
 
 def run_demo(out: Path, env_id: str = "gbo_envs/DCMotor-v0", seed: int = 0, budget: int = 20,
-             tuners: bool = True) -> dict:
+             tuners: bool = True, progress: bool | None = False) -> dict:
     """Run the demo and write its figures into ``out``; returns the figures printed.
 
     Parameters
@@ -41,6 +41,8 @@ def run_demo(out: Path, env_id: str = "gbo_envs/DCMotor-v0", seed: int = 0, budg
         Plant experiments per tuner.
     tuners : bool
         Also run the tuners (BO, guided BO) when they are available.
+    progress : bool or None, default False
+        A progress bar per tuning run on stderr; ``None``: only when stderr is a terminal.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -79,11 +81,11 @@ def run_demo(out: Path, env_id: str = "gbo_envs/DCMotor-v0", seed: int = 0, budg
     print(f"Wrote {out / 'optimal_step_response.png'} and {out / 'cost_surface.png'}")
 
     if tuners:
-        summary["tuners"] = _run_tuners(out, env_id, truth, seed, budget)
+        summary["tuners"] = _run_tuners(out, env_id, truth, seed, budget, progress)
     return summary
 
 
-def _run_tuners(out: Path, env_id: str, truth, seed: int, budget: int) -> dict:
+def _run_tuners(out: Path, env_id: str, truth, seed: int, budget: int, progress: bool | None) -> dict:
     import agents
 
     available = [name for name in ("bo", "guided-bo") if name in agents.registered_names()]
@@ -94,7 +96,7 @@ def _run_tuners(out: Path, env_id: str, truth, seed: int, budget: int) -> dict:
     rows = {}
     print(f"\nTuning {env_id} with {', '.join(available)} (seed {seed}, {budget} plant experiments each):")
     for name in available:
-        result = agents.make(name).run(gym.make(env_id), budget=budget, seed=seed)
+        result = agents.make(name).run(gym.make(env_id), budget=budget, seed=seed, progress=progress)
         ratio = result.min_true_cost_curve() / truth.cost
         ax.plot(np.arange(1, ratio.size + 1), ratio, label=name)
         best = result.best_gains

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from agents.jsonable import to_json
+from agents.run_display import progress_bar
 from agents.thread_limits import single_thread
 from evaluation.study import Study, StudySpecError, TunerEntry, slugify
 from gbo_envs.atomic_write import atomic_write
@@ -327,7 +328,7 @@ class _sigint_ignored:
 
 # -- a whole study ------------------------------------------------------------------------------------
 def run_study(study: Study, out: Path | str | None = None, backend: str = "local", address: str | None = None,
-              workers: int | None = None, progress: bool = True, log=None) -> StudyRun:
+              workers: int | None = None, progress: bool | None = False, log=None) -> StudyRun:
     """Run every unfinished batch of ``study`` and write each one as it finishes.
 
     Parameters
@@ -344,8 +345,9 @@ def run_study(study: Study, out: Path | str | None = None, backend: str = "local
     workers : int, optional
         Worker processes (default: all cores; ignored with a dask ``address``).
         ``1`` runs the batches in this process, one after the other.
-    progress : bool
-        Show a tqdm bar (batches done, ETA).
+    progress : bool or None, default False
+        Show a tqdm bar on stderr (batches done, ETA); ``None``: only when stderr is a terminal
+        (:func:`agents.run_display.progress_bar`).
     log : callable, optional
         Message sink (default ``print`` to stderr).
 
@@ -378,7 +380,7 @@ def run_study(study: Study, out: Path | str | None = None, backend: str = "local
     workers = workers or os.cpu_count() or 1
     workers = max(1, min(workers, len(pending)))
     start = time.perf_counter()
-    bar = _bar(run.total, run.skipped, study.name, progress)
+    bar = progress_bar(run.total, study.name, progress, initial=run.skipped, unit="batch")
     results: Iterable = _local(pending, workers) if backend == "local" else _dask(pending, workers, address)
     try:
         for task, frame, error in results:
@@ -404,12 +406,6 @@ def run_study(study: Study, out: Path | str | None = None, backend: str = "local
         run.wall_time = time.perf_counter() - start
         _append_run_log(out, run, backend, workers, address)
     return run
-
-
-def _bar(total: int, initial: int, name: str, enabled: bool):
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, initial=initial, desc=name, unit="batch", disable=not enabled, smoothing=0.1)
 
 
 def _append_run_log(out: Path, run: StudyRun, backend: str, workers: int, address: str | None) -> None:

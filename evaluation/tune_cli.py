@@ -32,7 +32,13 @@ def add_parser(subparsers) -> None:
     tune = subparsers.add_parser("tune", help="run or resume a crash-safe tuning session stored in SQLite",
                                  description="Run a tuner on an env for a budget of plant experiments, committing "
                                              "every experiment to the database before the next is proposed. "
-                                             "Rerun the same command to resume after an interruption.")
+                                             "Rerun the same command to resume after an interruption. "
+                                             "--import MODULE imports your own module first, so that the envs "
+                                             "and tuners it registers can be named with --env and --tuner.",
+                                 epilog="Examples:\n"
+                                        "  gbo tune --env gbo_envs/DCMotor-v0 --tuner bo --budget 30 --db runs.sqlite\n"
+                                        "  gbo tune --import my_rig --env my_rig/Rig-v0 --tuner guided-bo --budget 20",
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     tune.add_argument("--env", type=env_id, default=EnvId("gbo_envs/DCMotor-v0"),
                       help="registered env id (default: gbo_envs/DCMotor-v0; your own: see --import)")
     tune.add_argument("--tuner", default="bo", help="tuner registry name (default: bo)")
@@ -52,15 +58,26 @@ def add_parser(subparsers) -> None:
                       help="stop after this many skipped failed experiments in a row (default: 5)")
     tune.add_argument("--force", action="store_true",
                       help="take over a session whose recorded owner process is gone (e.g. crashed on another host)")
-    tune.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tune.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
+                      help="no progress bar (without it, a bar on stderr when stderr is a terminal)")
     tune.set_defaults(handler=_tune)
 
-    sessions = subparsers.add_parser("sessions", help="list the tuning sessions of a database")
+    sessions = subparsers.add_parser("sessions", help="list the tuning sessions of a database",
+                                     description="List the tuning sessions stored in a gbo tune database: env, "
+                                                 "tuner, seed, progress, best cost and status.",
+                                     epilog="Example:\n  gbo sessions --db runs.sqlite",
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sessions.add_argument("--db", default="runs.sqlite", help="SQLite file (default: runs.sqlite)")
     sessions.add_argument("--json", action="store_true", help="print JSON instead of a table")
     sessions.set_defaults(handler=_sessions)
 
-    export = subparsers.add_parser("export", help="write a session as workbench CSV (experiment,t,r,u,y + gains)")
+    export = subparsers.add_parser("export", help="write a session as workbench CSV (experiment,t,r,u,y + gains)",
+                                   description="Write the plant experiments of a session as a workbench CSV "
+                                               "(experiment numbered from 1, t, r, u, y, the gains, source, cost) "
+                                               "for gbo twin.",
+                                   epilog="Example:\n  gbo export --db runs.sqlite --csv out/session.csv\n"
+                                          "  gbo twin diagnose out/session.csv",
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
     export.add_argument("--db", default="runs.sqlite", help="SQLite file (default: runs.sqlite)")
     export.add_argument("--session", type=positive_int, default=None, help="session id (default: the latest session)")
     export.add_argument("--csv", required=True, help="output CSV file")
@@ -80,9 +97,11 @@ def _tune(args: argparse.Namespace) -> int:
     import math
 
     from agents import TuningStopped
+    from agents.run_display import progress_enabled
     from evaluation.sessions import ReplayMismatch, SessionBusy, TuningSession
 
-    if args.no_progress:  # without a bar the tuner's events (e.g. "twin: + saturation ...") go to the log
+    progress = False if args.quiet else None
+    if not progress_enabled(progress):  # without a bar the tuner's events (e.g. "twin: + saturation ...") are printed
         events = logging.getLogger("agents.base")
         if not any(isinstance(h, _PrintEvents) for h in events.handlers):
             events.addHandler(_PrintEvents())
@@ -91,7 +110,7 @@ def _tune(args: argparse.Namespace) -> int:
         session = TuningSession(args.db, args.env, args.tuner, budget=args.budget, seed=args.seed,
                                 env_kwargs=args.env_kwargs, tuner_kwargs=args.tuner_kwargs, on_crash=args.on_crash,
                                 max_consecutive_skips=args.max_skips, force=args.force)
-        result = session.run(progress=not args.no_progress)
+        result = session.run(progress=progress)
     except KeyboardInterrupt:
         print("gbo tune: interrupted; finished experiments are stored, rerun the same command to resume",
               file=sys.stderr)

@@ -5,12 +5,16 @@
     gbo twin compare  DATA.csv [--effects saturation,coulomb_friction] [--out DIR] [--json]
     gbo twin resid    DATA.csv [--effects ...] [--out DIR] [--json]
     gbo twin diagnose DATA.csv [--effects ...] [--json]
-    gbo twin report   DATA.csv --out DIR [--effects ...]
+    gbo twin report   DATA.csv --out DIR [--effects ...] [--max-steps N]
 
-``DATA.csv`` has the header ``experiment,t,r,u,y`` (extra columns allowed);
-see :mod:`agents.twin.csvio`. ``diagnose --json`` prints exactly one JSON
-object on stdout. Bad data exits with status 2 and a message naming the row
-and the column.
+Every command also takes ``--y-unit``/``--u-unit`` (units in the printout) and
+``--quiet`` (no progress bar; without it a bar goes to stderr when stderr is a
+terminal). ``DATA.csv`` has the header ``experiment,t,r,u,y`` (extra columns
+allowed; experiments numbered from 1); see :mod:`agents.twin.csvio`.
+``compare`` writes its plot to ``out/twin/<data name>/`` unless ``--out`` says
+where, and prints the path. ``diagnose --json`` prints exactly one JSON object
+on stdout. Bad data exits with status 2 and a message naming the row and the
+column.
 """
 
 from __future__ import annotations
@@ -27,14 +31,18 @@ __all__ = ["add_parser"]
 
 def add_parser(subparsers) -> None:
     """Add ``twin`` with its sub-commands to the ``gbo`` sub-command parsers."""
+    raw = argparse.RawDescriptionHelpFormatter
     twin = subparsers.add_parser("twin", help="twin workbench: compare, residuals, diagnose, report",
                                  description="Compare a digital twin with measured closed-loop data "
                                              "(CSV: experiment,t,r,u,y), see where it fails and which physical "
-                                             "effect it misses.")
+                                             "effect it misses.",
+                                 epilog="Examples:\n  gbo twin compare data.csv\n  gbo twin diagnose data.csv\n"
+                                        "  gbo twin report data.csv --out out/twin/report",
+                                 formatter_class=raw)
     sub = twin.add_subparsers(dest="twin_command", required=True)
 
     def common(p):
-        p.add_argument("data", help="CSV with the columns experiment,t,r,u,y")
+        p.add_argument("data", help="CSV with the columns experiment,t,r,u,y (experiments numbered from 1)")
         p.add_argument("--effects", default="", help="effects of the current model, comma-separated catalogue "
                                                       "names (default: the linear model alone)")
         p.add_argument("--poles", type=positive_int, default=2, help="poles of the linear part (default 2)")
@@ -43,29 +51,63 @@ def add_parser(subparsers) -> None:
                        help="poles at s = 0 (default 0; 1 for a position loop)")
         p.add_argument("--output", choices=("speed", "position"), default="speed",
                        help="what y measures (friction acts on y or on dy/dt; default speed)")
+        p.add_argument("--y-unit", default=None, help="unit of y for the printout, e.g. rad/s (default: units of y)")
+        p.add_argument("--u-unit", default=None, help="unit of u for the printout, e.g. V (default: input units)")
+        p.add_argument("--quiet", action="store_true",
+                       help="no progress bar (without it, a bar on stderr when stderr is a terminal)")
 
-    p = sub.add_parser("compare", help="fit %% and RMSE per experiment, overlay plots")
+    p = sub.add_parser("compare", help="fit %% and RMSE per experiment, overlay plots",
+                       description="Fit the model to the data and print fit %% and RMSE per experiment; the "
+                                   "overlay plot goes to out/twin/<data name>/compare.png unless --out says where.",
+                       epilog="Example:\n  gbo twin compare data.csv --effects saturation --out out/twin/sat",
+                       formatter_class=raw)
     common(p)
-    p.add_argument("--out", default=None, help="folder for compare.png")
+    p.add_argument("--out", default=None, help="folder for compare.png (default: out/twin/<data name>)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(handler=_compare)
-    p = sub.add_parser("resid", help="residual whiteness, input cross-correlation and where the model fails")
+    p = sub.add_parser("resid", help="residual whiteness, input cross-correlation and where the model fails",
+                       description="Residual analysis of the fitted model: whiteness, cross-correlation with the "
+                                   "input, residual RMS by time, experiment, input and output level.",
+                       epilog="Example:\n  gbo twin resid data.csv --effects saturation --out out/twin/sat",
+                       formatter_class=raw)
     common(p)
     p.add_argument("--out", default=None, help="folder for residuals.png")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(handler=_resid)
-    p = sub.add_parser("diagnose", help="rank every catalogued effect as an addition to the model")
+    p = sub.add_parser("diagnose", help="rank every catalogued effect as an addition to the model",
+                       description="Try every catalogued effect as an addition to the model, rank them on held-out "
+                                   "experiments, list what the data cannot show, and say what to do next.",
+                       epilog="Examples:\n  gbo twin diagnose data.csv --y-unit rad/s --u-unit V\n"
+                              "  gbo twin diagnose data.csv --effects saturation   # look for a second effect",
+                       formatter_class=raw)
     common(p)
     p.add_argument("--json", action="store_true", help="print exactly one JSON object")
     p.add_argument("--folds", type=int_at_least(2), default=None,
                    help="folds of the cross-validation over experiments, 2 to the number of experiments "
                         "(default: 4, or one per experiment when there are fewer)")
     p.set_defaults(handler=_diagnose)
-    p = sub.add_parser("report", help="self-contained HTML report with the error ladder")
+    p = sub.add_parser("report", help="self-contained HTML report with the error ladder",
+                       description="Build the error ladder (add the best effect, diagnose again, until nothing "
+                                   "helps), print each step in words, and write one self-contained HTML page.",
+                       epilog="Example:\n  gbo twin report data.csv --out out/twin/report --y-unit rad/s --u-unit V",
+                       formatter_class=raw)
     common(p)
     p.add_argument("--out", required=True, help="output folder (index.html)")
     p.add_argument("--max-steps", type=positive_int, default=3, help="effects added at most (default 3)")
     p.set_defaults(handler=_report)
+
+
+def _progress(args):
+    """The ``progress`` of the library calls: off under ``--quiet``, else on when stderr is a terminal."""
+    return False if args.quiet else None
+
+
+def _units(args) -> dict:
+    return {key: value for key, value in (("y", args.y_unit), ("u", args.u_unit)) if value}
+
+
+def _y_unit(args) -> str:
+    return args.y_unit or "(units of y)"
 
 
 def _load(args):
@@ -98,58 +140,88 @@ def _run(handler):
     return wrapped
 
 
+def default_out(data_path: str) -> Path:
+    """Where ``gbo twin compare`` writes its plots without ``--out``: ``out/twin/<data file name>``."""
+    return Path("out") / "twin" / Path(data_path).stem
+
+
+def _load_and_fit(args, bar):
+    """Read the data and fit the model, one step of ``bar`` each; returns ``(data, fit)``."""
+    bar.set_postfix_str("reading the data")
+    _, data, spec, effects = _load(args)
+    bar.update(1)
+    bar.set_postfix_str("fitting " + "+".join([spec.label, *effects]))
+    fit = _fit(data, spec, effects)
+    bar.update(1)
+    return data, fit
+
+
 @_run
 def _compare(args) -> int:
     from agents.jsonable import to_json
+    from agents.run_display import progress_bar
+    from agents.twin.report import compare_figure
     from agents.twin.workbench import compare
+    from evaluation.figures import save
 
-    records, data, spec, effects = _load(args)
-    fit = _fit(data, spec, effects)
-    res = compare(data, fit, experiments=[r.index for r in records])
-    if args.out:
-        from agents.twin.report import compare_figure
-        from evaluation.figures import save
-
-        save(compare_figure(data, [fit]), Path(args.out) / "compare.png", dpi=100)
+    bar = progress_bar(3, "twin compare", _progress(args), unit="step")
+    try:
+        data, fit = _load_and_fit(args, bar)
+        res = compare(data, fit)  # experiments numbered from 1, as in the CSV
+        bar.set_postfix_str("plotting")
+        out = Path(args.out) if args.out else default_out(args.data)
+        plot = save(compare_figure(data, [fit]), out / "compare.png", dpi=100)  # atomic; folders created
+        bar.update(1)
+    finally:
+        bar.close()
     if args.json:
         payload = res.to_dict()
         payload["params"] = fit.effect_params
+        payload["plots"] = [str(plot)]
         print(to_json(payload, finite=True, sort_keys=False))
         return 0
-    print(f"model {res.model}: fit {res.fit_percent_all:.2f} %, RMSE {res.rmse_all:.5g} (units of y)")
+    y = _y_unit(args)
+    print(f"model {res.model}: fit {res.fit_percent_all:.2f} %, RMSE {res.rmse_all:.5g} {y}")
     if fit.effect_params:
         print("effect parameters: " + json.dumps(fit.effect_params))
     print(f"{'experiment':>10} {'fit %':>8} {'RMSE':>10}")
     for e, f, r in zip(res.experiments, res.fit_percent, res.rmse):
         print(f"{e:>10d} {f:8.2f} {r:10.4g}")
+    print(f"plots: {plot}")
     return 0
 
 
 @_run
 def _resid(args) -> int:
     from agents.jsonable import to_json
+    from agents.run_display import progress_bar
     from agents.twin.workbench import residuals
+    from evaluation.figures import save
 
-    _, data, spec, effects = _load(args)
-    fit = _fit(data, spec, effects)
-    ra = residuals(data, fit)
-    if args.out:
-        from agents.twin.report import residual_figure
-        from evaluation.figures import save
+    bar = progress_bar(3, "twin resid", _progress(args), unit="step")
+    try:
+        data, fit = _load_and_fit(args, bar)
+        bar.set_postfix_str("residual analysis")
+        ra = residuals(data, fit)
+        if args.out:
+            from agents.twin.report import residual_figure
 
-        save(residual_figure(ra, fit.spec.label), Path(args.out) / "residuals.png", dpi=100)
+            save(residual_figure(ra, fit.spec.label), Path(args.out) / "residuals.png", dpi=100)
+        bar.update(1)
+    finally:
+        bar.close()
     if args.json:
         payload = ra.to_dict()
         payload["model"] = fit.spec.label
         print(to_json(payload, finite=True, sort_keys=False))
         return 0
-    print(f"model {fit.spec.label}: RMSE {fit.rmse:.5g}; 99 % band +-{ra.band:.3g}")
+    print(f"model {fit.spec.label}: RMSE {fit.rmse:.5g} {_y_unit(args)}; 99 % band +-{ra.band:.3g}")
     outside = float((abs(ra.acf[1:]) > ra.band).mean())
     print(f"whiteness: {'white' if ra.white else 'NOT white'} ({100 * outside:.0f} % of acf lags outside)")
     peak = int(ra.ccf_lags[abs(ra.ccf).argmax()])
     print(f"input cross-correlation: {'independent' if ra.independent else 'correlated'} "
           f"(peak {ra.ccf[abs(ra.ccf).argmax()]:.3f} at lag {peak})")
-    for key, label in (("time", "time in experiment"), ("experiment", "experiment index"), ("input", "input level"),
+    for key, label in (("time", "time in experiment"), ("experiment", "experiment number"), ("input", "input level"),
                        ("output", "output level"), ("velocity_sign", "sign of velocity")):
         b = ra.bins[key]
         cells = ", ".join(f"{c:.4g}: {r:.3g}" for c, r in zip(b["centers"], b["rms"]))
@@ -164,41 +236,69 @@ def _resid(args) -> int:
 @_run
 def _diagnose(args) -> int:
     from agents.jsonable import to_json
+    from agents.twin.ladder_text import advice, unobservable_lines
     from agents.twin.workbench import diagnose
 
     _, data, spec, effects = _load(args)
-    result = diagnose(data, effects=effects, spec=spec, n_folds=args.folds)
+    result = diagnose(data, effects=effects, spec=spec, n_folds=args.folds, progress=_progress(args))
+    units = _units(args)
+    step = result.step(result.best, units) if result.best is not None else None
+    following = advice(result, result.current.spec.effect_names, args.data, units=units)
     payload = result.to_dict()
+    payload["best_step"] = step
+    payload["next"] = following
     if args.json:
         print(to_json(payload, finite=True, sort_keys=False))
         return 0
+    y = _y_unit(args)
     noise = payload["noise_rmse"]
-    print(f"model {payload['model']}: RMSE {payload['rmse']:.5g}, fit {payload['fit_percent']:.2f} %, "
-          f"held-out RMSE {payload['heldout_rmse']:.5g}; noise floor {'n/a' if noise is None else f'{noise:.4g}'}")
+    print(f"model {payload['model']}: RMSE {payload['rmse']:.4g} {y}, fit {payload['fit_percent']:.2f} % "
+          f"(fit to all data); held-out RMSE {payload['heldout_rmse']:.4g} {y}")
+    print(f"{result.noise_label}: " + ("n/a" if noise is None else f"{noise:.4g} {y}"))
     print(f"ranking ({payload['validation']}):")
     print(f"{'effect':>18} {'held-out RMSE':>14} {'delta BIC':>12}  evidence")
     for c in payload["candidates"]:
         print(f"{c['effect']:>18} {c['rmse']:14.5g} {c['delta_bic']:12.1f}  {c['evidence']}")
-    print(f"best: {payload['best']}" + ("" if payload["best"] is None else
-                                         f" with {json.dumps(payload['candidates'][0]['params'])}"))
+    print(f"best: {step['text']}" if step else "best: none (no effect improves the held-out error beyond its "
+                                               "complexity cost)")
+    lines = unobservable_lines(result)
+    if lines:
+        print("not observable in this data:")
+        for line in lines:
+            print(f"  {line}")
     for a, b in payload["indistinguishable"]:
         print(f"indistinguishable on this data: {a} and {b}")
     if payload["suggested_experiment"]:
         print(f"suggested experiment: {payload['suggested_experiment']}")
+    print(following)
     return 0
 
 
 @_run
 def _report(args) -> int:
+    from agents.twin.ladder_text import advice, unobservable_lines
     from agents.twin.report import write_report
     from agents.twin.workbench import error_ladder, residuals
 
     _, data, spec, effects = _load(args)
-    rungs, diagnoses = error_ladder(data, effects=effects, spec=spec, max_steps=args.max_steps)
+    rungs, diagnoses = error_ladder(data, effects=effects, spec=spec, max_steps=args.max_steps,
+                                    progress=_progress(args), units=_units(args))
     fits = [diagnoses[0].current] + ([diagnoses[-1].current] if len(diagnoses) > 1 else [])
     analyses = [residuals(data, f) for f in fits]
     path = write_report(args.out, data, rungs, diagnoses, analyses, source=str(args.data))
+    last = diagnoses[-1]
+    y = _y_unit(args)
+    print("error ladder (RMSE and fit % of the fit to all data; held-out RMSE ranks the effects):")
     for r in rungs:
-        print(f"{r['model']:>40}: RMSE {r['rmse']:.5g} (held-out {r['heldout_rmse']:.5g})")
+        print(f"  {r['text']}; held-out RMSE {r['heldout_rmse']:.4g} {y}")
+    noise = last.noise_rmse
+    print(f"{last.noise_label}: " + ("n/a" if noise is None else f"{noise:.4g} {y}"))
+    lines = unobservable_lines(last)
+    if lines:
+        print("not observable in this data:")
+        for line in lines:
+            print(f"  {line}")
+    print(advice(last, last.current.spec.effect_names, args.data,
+                 stopped_at_max=last.best is not None, units=_units(args)))
     print(f"report: {path}")
     return 0

@@ -23,10 +23,10 @@ def main() -> None:
     runs = {
         "SAC on the plant": RLTuner(algorithm="sac", mode="plant", gradient_steps=16),
         "SAC trained on the nominal model": RLTuner(algorithm="sac", mode="twin", pretrain_steps=600,
-                                                    gradient_steps=16),
+                                                    gradient_steps=16, progress=None),
     }
     for label, tuner in runs.items():
-        result = tuner.run(gym.make(ENV_ID), budget=BUDGET, seed=0, progress=False)
+        result = tuner.run(gym.make(ENV_ID), budget=BUDGET, seed=0, progress=None)  # bars when on a terminal
         ratio = result.best_true_cost_curve() / optimum
         gains = ", ".join(f"{name} = {value:.3f}" for name, value in zip(result.gain_names, result.best_gains))
         print(f"{label}: {result.n_experiments} plant experiments "

@@ -41,8 +41,14 @@ __all__ = ["TuningObserver", "TuningMDPEnv", "rescaled", "default_horizon"]
 
 
 def rescaled(env: gym.Env) -> RescaleAction:
-    """``env`` behind Gymnasium's ``RescaleAction`` so that actions live in ``[-1, 1]``."""
-    return RescaleAction(env, min_action=-1.0, max_action=1.0)
+    """``env`` behind Gymnasium's ``RescaleAction`` so that actions live in ``[-1, 1]``.
+
+    The action space is float32, the dtype stable-baselines3 wants (a float64 Box makes its
+    env checker warn); the gains handed to ``env`` are float64, rescaled with its float64 bounds.
+    """
+    wrapper = RescaleAction(env, min_action=-1.0, max_action=1.0)
+    wrapper.action_space = spaces.Box(-1.0, 1.0, shape=env.action_space.shape, dtype=np.float32)
+    return wrapper
 
 
 def default_horizon(env: gym.Env, fallback: int = 35) -> int:

@@ -103,8 +103,9 @@ class RLTuner(Tuner):
         (plant mode) and of transitions before the first update; ``train_freq``
         and ``batch_size`` also pace the tuner's own updates. PPO's
         ``batch_size`` is capped at ``n_steps``.
-    progress : bool, default False
-        Show a progress bar over the model pre-training.
+    progress : bool or None, default False
+        Show a progress bar (stderr) over the model pre-training; ``None``: only when stderr is a terminal.
+        Without it, the pre-training bar follows ``run(..., progress=...)`` (so ``gbo tune`` shows it).
 
     Notes
     -----
@@ -128,7 +129,7 @@ class RLTuner(Tuner):
 
     def __init__(self, *, algorithm: str = "sac", mode: str = "plant", model_env=None, model_kwargs: dict | None = None,
                  pretrain_steps: int = 2000, gradient_steps: int = 32, algorithm_kwargs: dict | None = None,
-                 progress: bool = False) -> None:
+                 progress: bool | None = False) -> None:
         checked = validate_params(self._parameter_constraints, {
             "algorithm": algorithm, "mode": mode, "model_kwargs": model_kwargs, "pretrain_steps": pretrain_steps,
             "gradient_steps": gradient_steps, "algorithm_kwargs": algorithm_kwargs})
@@ -141,7 +142,7 @@ class RLTuner(Tuner):
         self.pretrain_steps = checked["pretrain_steps"]
         self.gradient_steps = checked["gradient_steps"]
         self.algorithm_kwargs = dict(algorithm_kwargs or {})
-        self.progress = bool(progress)
+        self.progress = None if progress is None else bool(progress)
         self._hyper = {**HYPERPARAMETERS[algorithm],
                                  **({"gradient_steps": self.gradient_steps} if algorithm == "sac" else {}),
                                  **self.algorithm_kwargs}
@@ -227,7 +228,8 @@ class RLTuner(Tuner):
         plant_gradient_steps = getattr(self._driver, "gradient_steps", None)
         if plant_gradient_steps is not None:
             self._driver.gradient_steps = 1
-        bar = progress_bar(self.pretrain_steps, f"rl pre-training on {env_id(model_env)}", self.progress)
+        bar = progress_bar(self.pretrain_steps, f"rl pre-training on {env_id(model_env)}",
+                           self.progress or getattr(self, "_run_progress", False))
         observation, _ = mdp.reset(seed=self._sb3_seed)
         try:
             for step in range(self.pretrain_steps):

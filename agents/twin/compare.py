@@ -20,6 +20,7 @@ class CompareResult:
     Attributes
     ----------
     experiments : ndarray of int, shape (n_records,)
+        Experiment numbers, counted from 1 (:attr:`GreyData.numbers`).
     fit_percent, rmse : ndarray of shape (n_records,)
         ``100 (1 - ||y - y_sim|| / ||y - mean(y)||)`` (MATLAB ``compare``) and RMSE in units of ``y``.
     fit_percent_all, rmse_all : float
@@ -42,7 +43,10 @@ class CompareResult:
 
 
 def compare(data: GreyData, fit: GreyFit, experiments: Sequence[int] | None = None) -> CompareResult:
-    """Fit % and RMSE of ``fit`` on ``data`` per experiment and overall."""
+    """Fit % and RMSE of ``fit`` on ``data`` per experiment and overall.
+
+    ``experiments`` labels the records (default :attr:`GreyData.numbers`, counted from 1).
+    """
     err = np.where(data.mask, data.y - fit.y_sim, 0.0)
     mean = np.sum(np.where(data.mask, data.y, 0.0), axis=1) / data.mask.sum(axis=1)
     dev = np.where(data.mask, data.y - mean[:, None], 0.0)
@@ -51,5 +55,5 @@ def compare(data: GreyData, fit: GreyFit, experiments: Sequence[int] | None = No
     fitp = 100.0 * (1.0 - norm_e / np.where(norm_d > 0, norm_d, np.nan))
     per_record = np.array([rmse(err[k], mask=data.mask[k]) for k in range(data.n_records)])
     all_fit = 100.0 * (1.0 - np.sqrt(np.sum(err**2)) / max(np.sqrt(np.sum(dev**2)), 1e-300))
-    ids = np.asarray(experiments if experiments is not None else data.index, dtype=int)
+    ids = np.asarray(experiments if experiments is not None else data.numbers, dtype=int)
     return CompareResult(ids, fitp, per_record, float(all_fit), rmse(err, mask=data.mask), fit.spec.label)

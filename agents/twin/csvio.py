@@ -1,7 +1,8 @@
 """The workbench's measured-data CSV: :class:`~gbo_envs.Experiment` records in, records out.
 
 Format (docs/design.md, "Workbench CSV"): a header with at least
-``experiment,t,r,u,y``, one row per sample: experiment id (integer), time since
+``experiment,t,r,u,y``, one row per sample: experiment number (integer, counted
+from 1 as everywhere a person reads it: the record's 0-based ``index`` plus 1), time since
 the step in s (increasing and uniformly spaced within an experiment),
 reference, commanded plant input, measured output. Optional columns, constant
 within an experiment: the gains (``gain0, gain1, ...`` or named, e.g.
@@ -49,7 +50,8 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
     -------
     list of Experiment
         One record per experiment, in order of first appearance, with
-        ``index`` = the experiment id, ``source`` and ``cost`` from their
+        ``index`` = the experiment number minus 1 (0-based, as the env's
+        ``experiment_index``), ``source`` and ``cost`` from their
         columns when present (else ``"plant"`` and NaN) and empty ``metrics``.
 
     Raises
@@ -127,7 +129,7 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
             else "plant"
         if source not in SOURCES:
             raise ValueError(f"{path}, row {rows[0] + 2}, column 'source': must be one of {SOURCES}, got {source!r}")
-        records.append(Experiment(gains=gains, **signals, cost=cost, source=source, index=ident))
+        records.append(Experiment(gains=gains, **signals, cost=cost, source=source, index=ident - 1))
     return records
 
 
@@ -139,7 +141,7 @@ def write_csv(records, path: str | Path, gain_names: Sequence[str] | None = None
     records : sequence of Experiment or of mappings
         Records with signals (mappings are read by
         :meth:`~gbo_envs.Experiment.from_mapping`, e.g. env ``info`` dicts).
-        The experiment id is each record's ``index``.
+        The experiment number is each record's ``index`` plus 1 (counted from 1).
     path : str or Path
         File to write (its folder is created), atomically (:func:`gbo_envs.atomic_write.atomic_write`):
         an existing file is replaced whole or not at all.
@@ -164,7 +166,7 @@ def write_csv(records, path: str | Path, gain_names: Sequence[str] | None = None
             raise ValueError(f"gain_names: {len(names)} names {names} for records[{k}] with "
                              f"{record.gains.size} gains")
         n = record.n_steps
-        frame = {"experiment": np.full(n, record.index, dtype=int)}
+        frame = {"experiment": np.full(n, record.index + 1, dtype=int)}
         frame.update({name: getattr(record, name) for name in SIGNALS})
         frame.update({name: np.full(n, g) for name, g in zip(names, record.gains)})
         frame["source"] = np.full(n, record.source)

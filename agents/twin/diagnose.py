@@ -8,15 +8,22 @@
 from __future__ import annotations
 
 import numbers
-from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from agents.jsonable import jsonable
+from agents.run_display import progress_bar
 from agents.thread_limits import single_thread
 from agents.twin.compare import compare
-from agents.twin.evidence import effect_evidence, excitation_notes, separating_experiment
+from agents.twin.evidence import (
+    REVEALING_EXPERIMENTS,
+    effect_evidence,
+    excitation_notes,
+    separating_experiment,
+    unobservable_effects,
+)
 from agents.twin.fidelity import rmse
 from agents.twin.fitting import (
     candidate_problems,
@@ -27,13 +34,15 @@ from agents.twin.fitting import (
 )
 from agents.twin.greybox import FITTED_PARAMETERS, GreyData, GreyFit, ModelSpec, Problem, fit_problems, simulate_sets
 from agents.twin.greybox_twin import GreyBoxTwin
-from agents.twin.noise_floor import noise_floor
-from gbo_envs.physics.effects import EFFECT_NAMES, EFFECTS
+from agents.twin.ladder_text import rung_text
+from agents.twin.noise_floor import NOISE_FLOOR_LABELS, noise_floor, noise_floor_method
+from agents.twin.uncertainty import parameter_intervals
+from gbo_envs.physics.effects import EFFECT_NAMES, EFFECTS, describe_effect
 
 #: Folds of the cross-validation over experiments when none are given (fewer with fewer experiments).
 DEFAULT_FOLDS = 4
 
-__all__ = ["Diagnosis", "diagnose", "error_ladder", "heldout_rss"]
+__all__ = ["Diagnosis", "diagnose", "effect_intervals", "error_ladder", "heldout_rss"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,6 +50,9 @@ class Diagnosis:
     """Ranking of the catalogued effects as additions to a model; see :func:`diagnose`.
 
     ``fits`` maps each effect to the fitted model with it added; ``current`` is the model diagnosed.
+    ``unobservable`` lists the effects the data cannot show (``{"effect", "reason", "experiment"}``:
+    why, and the experiment that would show them); ``noise_method`` says how ``noise_rmse`` was
+    estimated (:func:`agents.twin.noise_floor.noise_floor_method`).
     """
 
     current: GreyFit
@@ -53,14 +65,37 @@ class Diagnosis:
     validation: str
     indistinguishable: list
     suggested_experiment: str | None
+    unobservable: list = field(default_factory=list)
+    noise_method: str = "none"
+    data_: GreyData | None = field(default=None, repr=False)
+
+    def step(self, name: str, units: Mapping[str, str] | None = None) -> dict:
+        """The ladder rung of adding candidate ``name`` to the current model (see :func:`error_ladder`).
+
+        RMSE and fit % are those of the fits to all data (``rmse``, ``fit_percent``), before and after.
+        """
+        fit = self.fits[name]
+        rung = {"model": fit.spec.label, "added": name, "rmse": float(fit.rmse),
+                "fit_percent": float(compare(self.data_, fit).fit_percent_all),
+                "params": jsonable(fit.effect_params, finite=True)}
+        before = {"model": self.current.spec.label, "rmse": float(self.current.rmse),
+                  "fit_percent": float(self.fit_percent)}
+        intervals = next(c["intervals"] for c in self.candidates if c["effect"] == name)
+        return _as_step(rung, before, name, intervals, units, fit.spec.output)
+
+    @property
+    def noise_label(self) -> str:
+        """What the noise floor is, in words (:data:`agents.twin.noise_floor.NOISE_FLOOR_LABELS`)."""
+        return NOISE_FLOOR_LABELS[self.noise_method]
 
     def to_dict(self) -> dict:
         """The ``diagnose --json`` object."""
         return {"model": self.current.spec.label, "rmse": float(self.current.rmse),
-                "fit_percent": float(self.fit_percent), "noise_rmse": self.noise_rmse, "best": self.best,
-                "candidates": self.candidates, "heldout_rmse": float(self.heldout_rmse),
+                "fit_percent": float(self.fit_percent), "noise_rmse": self.noise_rmse,
+                "noise_floor": {"rmse": self.noise_rmse, "method": self.noise_method, "label": self.noise_label},
+                "best": self.best, "candidates": self.candidates, "heldout_rmse": float(self.heldout_rmse),
                 "validation": self.validation, "indistinguishable": self.indistinguishable,
-                "suggested_experiment": self.suggested_experiment,
+                "suggested_experiment": self.suggested_experiment, "unobservable": self.unobservable,
                 "current_params": jsonable(self.current.effect_params, finite=True)}
 
 
@@ -147,7 +182,8 @@ def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_i
 def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
              current: GreyFit | None = None, n_folds: int | None = None, bic_margin: float = 10.0,
              min_gain: float = 0.02, max_iter: int = 20, *, noise_gain: float = 0.05, skip_unexcited: bool = True,
-             screen_iter: int = 8, _restarts: int = 0, _starts: dict | None = None) -> Diagnosis:
+             screen_iter: int = 8, progress: bool | None = False, _restarts: int = 0, _starts: dict | None = None,
+             _nested: bool = False) -> Diagnosis:
     """Try every catalogued effect as an addition to the model and rank them on held-out experiments.
 
     Parameters
@@ -196,6 +232,9 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         model's (fitted with all ``max_iter``) stops: it cannot pass the decision rule
         below without beating the current model. The candidates ahead of it are
         fitted again from their starts with all ``max_iter`` trial points.
+    progress : bool or None, default False
+        A progress bar on stderr over the steps (each candidate's starts, the fits, the
+        cross-validation); ``None``: only when stderr is a terminal.
 
     Returns
     -------
@@ -233,18 +272,39 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         current = _grey_box(effects, spec, max_iter).fit(data).greybox_
     names = [n for n in (candidates or EFFECT_NAMES) if n not in current.spec.effect_names]
     notes = excitation_notes(data, current.spec.output)
+    unobservable = unobservable_effects({n: notes[n] for n in names if n in notes})
     skipped = [n for n in names if n in notes] if skip_unexcited else []
     names = [n for n in names if n not in skipped]
+    bar = progress_bar(len(names) + 3, f"diagnose {current.spec.label}" + (" (restart)" if _restarts else ""),
+                       progress, unit="step", leave=not _nested)
+    try:
+        return _diagnose(data, current, names, skipped, notes, unobservable, bar, candidates=candidates,
+                         n_folds=n_folds, bic_margin=bic_margin, min_gain=min_gain, max_iter=max_iter,
+                         noise_gain=noise_gain, skip_unexcited=skip_unexcited, screen_iter=screen_iter,
+                         progress=progress, _restarts=_restarts, _starts=_starts, _nested=_nested)
+    finally:
+        bar.close()
+
+
+def _diagnose(data: GreyData, current: GreyFit, names: list, skipped: list, notes: dict, unobservable: list, bar,
+              *, candidates, n_folds, bic_margin, min_gain, max_iter, noise_gain, skip_unexcited, screen_iter,
+              progress, _restarts, _starts, _nested) -> Diagnosis:
+    """The body of :func:`diagnose` once the current model is fitted; ``bar`` counts its steps."""
     # the current model gets the same iteration budget as the candidates that can win, so that no candidate
     # wins by merely polishing parameters the current model already has
     problems = [_refit_problem(data, current, np.arange(data.n_records), True, tag="__current__")]
     for name in names:
         if _starts and name in _starts:  # a restart: the candidate's fit of the first round is its start
             problems.append(_refit_problem(data, _starts[name], np.arange(data.n_records), True, tag=name))
-            continue
-        for options in _variants(name, current.spec):
-            problems += candidate_problems(data, current, name, options, tag=name)
+        else:
+            bar.set_postfix_str(f"starts of {name}")
+            for options in _variants(name, current.spec):
+                problems += candidate_problems(data, current, name, options, tag=name)
+        bar.update(1)
+    bar.set_postfix_str(f"fitting {len(names)} candidates")
     _screened_fit(data, problems, max_iter, screen_iter)
+    bar.update(1)
+    bar.set_postfix_str("refining the grid parameters")
     polished = GreyFit.from_problem(data, problems[0])
     if polished.rmse < current.rmse:
         current = refine_grid_parameters(data, polished)
@@ -255,19 +315,23 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
             fits[name] = refine_grid_parameters(data, GreyFit.from_problem(data, min(mine, key=lambda p: p.cost)))
     restart = _without_new_effect(data, current, fits)
     if restart is not None and _restarts < 1:  # a candidate found better values of the current parameters
+        bar.close()
         return diagnose(data, candidates=candidates, current=restart, n_folds=n_folds, bic_margin=bic_margin,
                         min_gain=min_gain, max_iter=max_iter, noise_gain=noise_gain,
-                        skip_unexcited=skip_unexcited, screen_iter=screen_iter, _restarts=_restarts + 1,
-                        _starts=fits)
+                        skip_unexcited=skip_unexcited, screen_iter=screen_iter, progress=progress,
+                        _restarts=_restarts + 1, _starts=fits, _nested=_nested)
+    bar.update(1)
     order = list(fits)
     models = [current] + [fits[name] for name in order]
     n = data.n_samples
+    bar.set_postfix_str("cross-validation over experiments")
     if data.n_records >= 2:
         rss = heldout_rss(data, models, n_folds=n_folds)
         validation = f"held-out: {min(n_folds, data.n_records)}-fold cross-validation over experiments"
     else:
         rss = np.array([m.rmse**2 * n for m in models])
         validation = "training error (one experiment: nothing to hold out)"
+    bar.update(1)
     bic = n * np.log(np.maximum(rss, 1e-300) / n) + np.array([m.n_params for m in models]) * np.log(n)
     cands = []
     for i, name in enumerate(order, start=1):
@@ -276,7 +340,8 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
                  "params": jsonable(fit.effect_params.get(name, {}), finite=True) if name in fit.effect_params else {},
                  "evidence": effect_evidence(name, data, current, fit), "train_rmse": float(fit.rmse),
                  "extra_params": int(fit.n_params - current.n_params),
-                 "effect_rms": _effect_size(data, fit), "fitted": True}
+                 "effect_rms": _effect_size(data, fit), "fitted": True,
+                 "intervals": effect_intervals(data, fit, name)}
         if name in notes:
             entry["note"] = notes[name]
         cands.append(entry)
@@ -302,8 +367,37 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
                     abs(a["rmse"] - b["rmse"]) < 0.01 * a["rmse"]:
                 pairs.append([a["effect"], b["effect"]])
     suggestion = separating_experiment(*pairs[0]) if pairs else None
+    # effects the data cannot show for the same reason cannot be told apart either (e.g. every friction
+    # law without a speed reversal is a constant load); the experiment that shows them comes first
+    blind = [u["effect"] for u in unobservable]
+    blind_pairs = [[a, b] for i, a in enumerate(blind) for b in blind[i + 1 :] if notes[a] == notes[b]]
+    if blind_pairs and suggestion is None:
+        suggestion = REVEALING_EXPERIMENTS.get(blind_pairs[0][0], separating_experiment(*blind_pairs[0]))
     return Diagnosis(current, fits, cands, best, noise, compare(data, current).fit_percent_all, cur_rmse,
-                     validation, pairs, suggestion)
+                     validation, pairs + blind_pairs, suggestion, unobservable, noise_floor_method(data), data)
+
+
+def effect_intervals(data: GreyData, fit: GreyFit, name: str, level: float = 0.95) -> dict[str, dict]:
+    """Value, standard error, ``level`` confidence interval and unit of each fitted parameter of effect ``name``.
+
+    From :func:`agents.twin.uncertainty.parameter_intervals`; the unit is the catalogue's
+    (:func:`gbo_envs.physics.describe_effect`, e.g. ``"input units"``). A parameter chosen on
+    a grid (the quantization step) has ``std`` ``None``.
+
+    Returns
+    -------
+    dict
+        ``{parameter: {"value", "std", "low", "high", "unit"}}`` (JSON-ready: ``None`` for NaN).
+    """
+    intervals = parameter_intervals(data, fit, level)
+    units = {p.name: p.unit for p in describe_effect(name)}
+    out = {}
+    for param, value in fit.effect_params.get(name, {}).items():
+        if isinstance(value, str):
+            continue
+        ci = intervals.get(f"{name}.{param}", {"value": value, "std": None, "low": None, "high": None})
+        out[param] = {**jsonable(ci, finite=True), "unit": units.get(param, "")}
+    return out
 
 
 @single_thread()
@@ -370,27 +464,75 @@ def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit
     return best
 
 
+def _as_step(rung: dict, before: dict, added: str, intervals: dict, units, output: str) -> dict:
+    """``rung`` with what adding ``added`` changed: ``before``, the RMSE's fall in % and as a factor,
+    the added parameters with their intervals, and the step in words."""
+    rung = {**rung, "added": added, "before": before,
+            "rmse_fall_percent": 100.0 * (1.0 - rung["rmse"] / before["rmse"]),
+            "rmse_factor": before["rmse"] / rung["rmse"] if rung["rmse"] > 0 else float("inf"),
+            "added_params": intervals}
+    rung["text"] = rung_text(rung, units, output)
+    return rung
+
+
 def error_ladder(data: GreyData, effects=None, spec: ModelSpec | None = None, max_steps: int = 3,
+                 progress: bool | None = False, units: Mapping[str, str] | None = None,
                  **kwargs) -> tuple[list[dict], list[Diagnosis]]:
     """RMSE of the linear model, then with the best effect added, then the next, until nothing helps.
+
+    Parameters
+    ----------
+    data : GreyData
+    effects : names or ``{name: {parameter: value}}``, optional
+        Effects of the first model (default: the linear model alone).
+    spec : ModelSpec, optional
+    max_steps : int, default 3
+        Effects added at most.
+    progress : bool or None, default False
+        Progress bars on stderr (the rungs, and each diagnosis nested in it); ``None``: only on a terminal.
+    units : mapping, optional
+        ``{"y": ..., "u": ...}``, the units of the output and input, for the ``text`` of each rung.
+    **kwargs
+        Passed to :func:`diagnose`.
 
     Returns
     -------
     rungs : list of dict
-        ``{"model", "added", "rmse", "fit_percent", "heldout_rmse", "params"}`` per rung.
+        Per rung: ``"model", "added", "rmse", "fit_percent", "heldout_rmse", "params"``; from the
+        second rung on also ``"before"`` (the previous rung's ``model, rmse, fit_percent,
+        heldout_rmse``), ``"rmse_fall_percent"`` (``100 (1 - rmse / before rmse)``), ``"rmse_factor"``
+        (``before rmse / rmse``) and ``"added_params"`` (the added effect's parameters with
+        their standard errors, 95 % intervals and units, :func:`effect_intervals`); and ``"text"``,
+        the rung in words (:func:`agents.twin.ladder_text.rung_text`). RMSE and fit % are those of
+        the fit to all data, in units of ``y`` and %.
     diagnoses : list of Diagnosis
         The diagnosis made at each rung.
     """
     current = _grey_box(effects, spec).fit(data).greybox_
     rungs, diagnoses = [], []
     added = None
-    for _ in range(max_steps + 1):
-        d = diagnose(data, current=current, **kwargs)
-        diagnoses.append(d)
-        rungs.append({"model": current.spec.label, "added": added, "rmse": float(current.rmse),
-                      "fit_percent": float(d.fit_percent), "heldout_rmse": float(d.heldout_rmse),
-                      "params": jsonable(current.effect_params, finite=True)})
-        if d.best is None or len(rungs) > max_steps:
-            break
-        added, current = d.best, d.fits[d.best]
+    bar = progress_bar(max_steps + 1, "error ladder", progress, unit="rung")
+    try:
+        for _ in range(max_steps + 1):
+            bar.set_postfix_str(current.spec.label)
+            d = diagnose(data, current=current, progress=progress, _nested=True, **kwargs)
+            diagnoses.append(d)
+            rung = {"model": d.current.spec.label, "added": added, "rmse": float(d.current.rmse),
+                    "fit_percent": float(d.fit_percent), "heldout_rmse": float(d.heldout_rmse),
+                    "params": jsonable(d.current.effect_params, finite=True)}
+            if rungs:
+                before = {key: rungs[-1][key] for key in ("model", "rmse", "fit_percent", "heldout_rmse")}
+                intervals = next(c["intervals"] for c in diagnoses[-2].candidates if c["effect"] == added)
+                rung = _as_step(rung, before, added, intervals, units, d.current.spec.output)
+            else:
+                rung["text"] = rung_text(rung, units, d.current.spec.output)
+            rungs.append(rung)
+            bar.update(1)
+            if d.best is None or len(rungs) > max_steps:
+                bar.total = len(rungs)  # nothing more to add: the ladder is complete
+                bar.refresh()
+                break
+            added, current = d.best, d.fits[d.best]
+    finally:
+        bar.close()
     return rungs, diagnoses

@@ -9,7 +9,8 @@ from agents.twin.fidelity import rmse
 from agents.twin.greybox import GreyData, GreyFit
 from agents.twin.residuals import residuals
 
-__all__ = ["SEPARATING_EXPERIMENTS", "effect_evidence", "excitation_notes", "separating_experiment"]
+__all__ = ["REVEALING_EXPERIMENTS", "SEPARATING_EXPERIMENTS", "effect_evidence", "excitation_notes",
+           "separating_experiment", "unobservable_effects"]
 
 
 #: Experiments that separate two effects which explain the data equally well.
@@ -33,6 +34,26 @@ _ONE_SIDED = {
     "quantization": "a slow output ramp over many sensor levels separates quantization from {other}",
     "cogging": "a slow constant-speed run over several revolutions separates cogging from {other}",
 }
+
+
+#: The experiment that would show an effect :func:`excitation_notes` finds unobservable in the data.
+REVEALING_EXPERIMENTS: dict[str, str] = {
+    "coulomb_friction": "a step through zero speed (e.g. the reference from +r to -r) makes the friction change sign",
+    "stiction": "a slow speed reversal with a dwell at zero speed shows the breakaway",
+    "backlash": "an input reversal (a step down after a step up) shows the play",
+    "dead_zone": "a step whose input crosses zero (e.g. to a negative reference) shows the dead band",
+    "drift": "several experiments over the session, the first repeated at the end, show a drift",
+    "offset": "an experiment from a known zero (u = 0 and y = 0 at rest) pins a constant offset; otherwise every "
+              "experiment's own rest level absorbs it",
+}
+
+
+def unobservable_effects(notes: dict[str, str]) -> list[dict]:
+    """``[{"effect", "reason", "experiment"}]``: the effects of ``notes`` (:func:`excitation_notes`),
+    why the data cannot show them, and the experiment that would (:data:`REVEALING_EXPERIMENTS`)."""
+    return [{"effect": name, "reason": reason,
+             "experiment": REVEALING_EXPERIMENTS.get(name, separating_experiment(name, "the current model"))}
+            for name, reason in notes.items()]
 
 
 def separating_experiment(a: str, b: str) -> str:

@@ -41,7 +41,7 @@ from agents.twin.records import as_records
 from gbo_envs.physics.effects import EFFECTS, build_effect
 from gbo_envs.physics.lti import ContinuousPlant
 
-__all__ = ["FITTED_PARAMETERS", "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "residual",
+__all__ = ["FITTED_PARAMETERS", "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "jacobian", "residual",
            "simulate_sets"]
 
 #: Effect parameters the grey-box fit estimates, and whether they are moved by the gradient
@@ -75,6 +75,10 @@ class GreyData:
         Common sample time in s.
     index : ndarray of int, shape (n_records,)
         Experiment index of each record (0 for the first; used by ``drift``).
+    first_index : int, default 0
+        The 0-based :attr:`~gbo_envs.Experiment.index` of the experiment whose ``index`` is 0.
+        ``numbers`` (``index + first_index + 1``) are the experiment numbers a person reads:
+        counted from 1, as in the workbench CSV (docs/design.md, "Experiment numbers").
     """
 
     t: np.ndarray
@@ -84,6 +88,7 @@ class GreyData:
     mask: np.ndarray
     dt: float
     index: np.ndarray
+    first_index: int = 0
 
     @classmethod
     def from_records(cls, records, experiment_index: Sequence[int] | None = None) -> GreyData:
@@ -101,7 +106,8 @@ class GreyData:
         index = np.asarray(list(experiment_index), dtype=int)
         if index.size != len(data):
             raise ValueError(f"experiment_index: need {len(data)} values, got {index.size}")
-        index = index - index.min()
+        first = int(index.min())
+        index = index - first
         n = max(rec.n_steps for rec in data)
         arrays = {name: np.empty((len(data), n)) for name in ("t", "r", "u", "y")}
         mask = np.zeros((len(data), n), dtype=bool)
@@ -112,12 +118,17 @@ class GreyData:
                 arrays[name][k, :m] = getattr(rec, name)
                 arrays[name][k, m:] = getattr(rec, name)[-1]
             arrays["t"][k] = rec.t[0] + np.arange(n) * rec.dt
-        return cls(**arrays, mask=mask, dt=float(dts[0]), index=index)
+        return cls(**arrays, mask=mask, dt=float(dts[0]), index=index, first_index=first)
 
     @property
     def n_records(self) -> int:
         """Number of records."""
         return self.u.shape[0]
+
+    @property
+    def numbers(self) -> np.ndarray:
+        """Experiment number of each record, counted from 1 (the workbench CSV's ``experiment`` id)."""
+        return self.index + self.first_index + 1
 
     @property
     def n_samples(self) -> int:
@@ -128,7 +139,7 @@ class GreyData:
         """The records ``rows`` (experiment indices kept)."""
         rows = np.asarray(rows, dtype=int)
         return GreyData(self.t[rows], self.r[rows], self.u[rows], self.y[rows], self.mask[rows], self.dt,
-                        self.index[rows])
+                        self.index[rows], self.first_index)
 
 
 @dataclass(frozen=True)
@@ -416,6 +427,64 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     return problems
 
 
+def jacobian(data: GreyData, p: Problem, theta: np.ndarray, simulate=None, y_at=None) -> np.ndarray:
+    """Forward-difference Jacobian of the residual of ``p`` with respect to its free parameters, at ``theta``.
+
+    One simulation per free global parameter and one for each group of per-record
+    nuisances (rest levels, biases: each only moves its own record), all in one
+    vectorised pass; for a model with a grid parameter (a quantized output) it is taken
+    on the plant output before the sensor, which is smooth in the parameters.
+
+    Parameters
+    ----------
+    data : GreyData
+    p : Problem
+        Its ``free`` mask, ``scale``, ``upper`` and ``rows`` are used.
+    theta : ndarray
+        All parameters of ``p`` (globals, rest levels, biases).
+    simulate : callable, optional
+        ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``).
+    y_at : ndarray, optional
+        The simulated measurement at ``theta`` if already known (smooth models only).
+
+    Returns
+    -------
+    ndarray of shape (len(p.rows) * n_steps, n_free)
+        Units of ``y`` per unit of each free parameter.
+    """
+    if simulate is None:
+        def simulate(sets, true_output=False):
+            return simulate_sets(data, sets, true_output=true_output)
+    free = np.flatnonzero(p.free & (p.lower < p.upper))
+    g, k, n = p.n_global, p.rows.size, data.u.shape[1]
+    rough = any(not smooth for name, _ in p.spec.effects for _, smooth in FITTED_PARAMETERS[name])
+    columns = [[j] for j in free[free < g]]  # one simulation per global parameter
+    columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
+    sets, steps = [], []
+    for cols in columns:
+        h = 1e-6 * max(float(np.max(np.abs(theta[cols]))), p.scale[cols[0]])
+        if len(cols) == 1 and theta[cols[0]] + h > p.upper[cols[0]]:
+            h = -h
+        trial = theta.copy()
+        trial[cols] += h
+        sets.append((p.spec, trial, p.rows))
+        steps.append(h)
+    if rough or y_at is None:  # the smooth output at theta itself
+        sets.append((p.spec, theta, p.rows))
+    ys = simulate(sets, true_output=rough)
+    base = residual(data, p.rows, ys[-1] if len(ys) > len(columns) else y_at)
+    mat = np.zeros((base.size, theta.size))
+    for cols, h, y in zip(columns, steps, ys):
+        diff = (residual(data, p.rows, y) - base) / h
+        if len(cols) == 1:
+            mat[:, cols[0]] = diff.ravel()
+        else:
+            for j in cols:
+                r = j - (g if j < g + k else g + k)
+                mat[r * n : (r + 1) * n, j] = diff[r]
+    return mat[:, free]
+
+
 def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None) -> None:
     """One :class:`Problem` by ``least_squares`` (trf) from its start; see :func:`fit_problems`.
 
@@ -425,11 +494,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None)
         def simulate(sets, true_output=False):
             return simulate_sets(data, sets, true_output=true_output)
     free = np.flatnonzero(p.free & (p.lower < p.upper))
-    g, k, n = p.n_global, p.rows.size, data.u.shape[1]
-    rough = any(not smooth for name, _ in p.spec.effects for _, smooth in FITTED_PARAMETERS[name])
     start = p.theta.copy()
-    columns = [[j] for j in free[free < g]]  # one simulation per global parameter
-    columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
     simulated: dict[bytes, np.ndarray] = {}
 
     def full(x: np.ndarray) -> np.ndarray:
@@ -443,30 +508,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None)
         return residual(data, p.rows, y).ravel()
 
     def jac(x: np.ndarray) -> np.ndarray:
-        theta = full(x)
-        sets, steps = [], []
-        for cols in columns:
-            h = 1e-6 * max(float(np.max(np.abs(theta[cols]))), p.scale[cols[0]])
-            if len(cols) == 1 and theta[cols[0]] + h > p.upper[cols[0]]:
-                h = -h
-            trial = theta.copy()
-            trial[cols] += h
-            sets.append((p.spec, trial, p.rows))
-            steps.append(h)
-        if rough or x.tobytes() not in simulated:  # the smooth output at x itself
-            sets.append((p.spec, theta, p.rows))
-        ys = simulate(sets, true_output=rough)
-        base = residual(data, p.rows, ys[-1] if len(ys) > len(columns) else simulated[x.tobytes()])
-        mat = np.zeros((base.size, theta.size))
-        for cols, h, y in zip(columns, steps, ys):
-            diff = (residual(data, p.rows, y) - base) / h
-            if len(cols) == 1:
-                mat[:, cols[0]] = diff.ravel()
-            else:
-                for j in cols:
-                    r = j - (g if j < g + k else g + k)
-                    mat[r * n : (r + 1) * n, j] = diff[r]
-        return mat[:, free]
+        return jacobian(data, p, full(x), simulate, simulated.get(x.tobytes()))
 
     scale = np.where(p.scale[free] > 0, p.scale[free], 1.0)
     sol = least_squares(fun, np.clip(start[free], p.lower[free], p.upper[free]), jac=jac,

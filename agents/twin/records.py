@@ -70,7 +70,8 @@ def as_records(records, min_steps: int = 3) -> list[Experiment]:
     list of Experiment
         With signals on a uniform time grid (within :data:`UNIFORM_RTOL`).
         ``index`` is each record's own (an Experiment's ``index``, a mapping's
-        ``experiment_index``, a DataFrame's ``experiment`` id) when every record
+        ``experiment_index``, a DataFrame's ``experiment`` number minus 1, as the
+        CSV's numbers count from 1) when every record
         has one, else the position in ``records``.
 
     Raises
@@ -133,7 +134,8 @@ def _validated(item, min_steps: int) -> tuple[Experiment, bool]:
         arrays = validate_signals(*(item[name].to_numpy() for name in SIGNALS), min_steps=min_steps,
                                   uniform_rtol=UNIFORM_RTOL)
         has_id = "experiment" in item.columns
-        return Experiment(gains=(), **arrays, index=int(item["experiment"].iloc[0]) if has_id else 0), has_id
+        index = int(item["experiment"].iloc[0]) - 1 if has_id else 0  # the column counts from 1
+        return Experiment(gains=(), **arrays, index=index), has_id
     try:
         table = np.asarray(item, dtype=float)
     except (TypeError, ValueError):

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.twin.greybox import GreyData, GreyFit
+from agents.twin.ladder_text import advice, unobservable_lines
 from agents.twin.workbench import Diagnosis, ResidualAnalysis, compare
 from gbo_envs.atomic_write import atomic_write
 from gbo_envs.lazy_pyplot import pyplot
@@ -47,7 +48,7 @@ def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int
             res = compare(data, fit)
             ax.plot(t, fit.y_sim[k][m], lw=1.2, label=f"{fit.spec.label} ({res.fit_percent[k]:.1f} %)")
             ax_err.plot(t, data.y[k][m] - fit.y_sim[k][m], lw=0.8, label=fit.spec.label)
-        ax.set_title(f"experiment {int(data.index[k])}")
+        ax.set_title(f"experiment {int(data.numbers[k])}")
         ax_err.set_xlabel("t (s)")
         ax.legend(fontsize=7)
     axes[0, 0].set_ylabel("y")
@@ -93,10 +94,11 @@ def ladder_figure(rungs: Sequence[dict], noise_rmse: float | None = None):
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(1.8 * len(rungs) + 3, 3.8))
     labels = [r["model"] for r in rungs]
-    ax.bar(range(len(rungs)), [r["rmse"] for r in rungs], color="tab:blue", label="RMSE (fit)")
+    ax.bar(range(len(rungs)), [r["rmse"] for r in rungs], color="tab:blue", label="RMSE (fit to all data)")
     ax.plot(range(len(rungs)), [r["heldout_rmse"] for r in rungs], "o", color="tab:red", label="held-out RMSE")
     if noise_rmse is not None:
-        ax.axhline(noise_rmse, color="tab:orange", ls="--", label=f"noise floor {noise_rmse:.3g}")
+        ax.axhline(noise_rmse, color="tab:orange", ls="--",
+                   label=f"noise-floor estimate {noise_rmse:.3g} (not a lower bound)")
     ax.set_xticks(range(len(rungs)), labels, rotation=15, fontsize=8)
     ax.set_ylabel("RMSE (units of y)")
     ax.set_title("error ladder")
@@ -152,6 +154,7 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
     first, last = diagnoses[0], diagnoses[-1]
     fits = [first.current] + ([last.current] if last is not first else [])
     noise = first.noise_rmse
+    next_step = advice(last, last.current.spec.effect_names, source or "DATA.csv", stopped_at_max=last.best is not None)
     parts = [
         "<!DOCTYPE html><html><head><meta charset='utf-8'><title>twin workbench report</title><style>"
         "body{font-family:sans-serif;max-width:1400px;margin:auto;padding:1em}"
@@ -159,11 +162,13 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
         "img{max-width:100%}</style></head><body>",
         f"<h1>Twin workbench: {html.escape(source)}</h1>",
         f"<p>{data.n_records} experiments, {data.n_samples} samples, dt = {data.dt:g} s; "
-        f"noise floor estimate {'n/a' if noise is None else f'{noise:.4g}'} (units of y).</p>",
+        f"{html.escape(first.noise_label)}: {'n/a' if noise is None else f'{noise:.4g}'} (units of y).</p>",
         "<h2>Error ladder</h2>",
         "<p>RMSE of the linear model, then with the best effect added, then the next, until no effect improves "
         "the held-out error beyond its complexity cost.</p>",
         _table(rungs, ["model", "added", "rmse", "heldout_rmse", "fit_percent", "params"]),
+        "<ul>" + "".join(f"<li>{html.escape(r['text'])}</li>" for r in rungs if "text" in r) + "</ul>",
+        f"<p><b>{html.escape(next_step)}</b></p>",
         _img(ladder_figure(rungs, noise), "error ladder"),
         "<h2>Measured vs simulated</h2>",
         _img(compare_figure(data, fits), "compare"),
@@ -172,6 +177,9 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
         f"validation: {html.escape(first.validation)}.</p>",
         _table(first.candidates, ["effect", "rmse", "train_rmse", "delta_bic", "params", "evidence", "note"]),
     ]
+    if last.unobservable:
+        parts += ["<h3>Not observable in this data</h3>",
+                  "<ul>" + "".join(f"<li>{html.escape(line)}</li>" for line in unobservable_lines(last)) + "</ul>"]
     if first.indistinguishable:
         parts.append(f"<p>Indistinguishable on this data: {html.escape(str(first.indistinguishable))}; "
                      f"{html.escape(str(first.suggested_experiment))}.</p>")

@@ -86,7 +86,7 @@ def residuals(data: GreyData, fit: GreyFit, max_lag: int | None = None, n_bins: 
     t_rel = data.t - data.t[:, :1]
     bins = {
         "time": _binned(t_rel[m], e[m], n_bins),
-        "experiment": _grouped(np.broadcast_to(data.index[:, None], e.shape)[m], e[m]),
+        "experiment": _grouped(np.broadcast_to(data.numbers[:, None], e.shape)[m], e[m]),
         "input": _binned(data.u[m], e[m], n_bins, quantiles=True),
         "output": _binned(data.y[m], e[m], n_bins, quantiles=True),
         "velocity_sign": _grouped(np.sign(np.round(velocity[m], 12)), e[m]),
@@ -136,7 +136,7 @@ def _worst_segments(data: GreyData, e: np.ndarray, n_worst: int) -> list[dict]:
     out = []
     for power, k, i in found[:n_worst]:
         seg = e[k, i : i + width]
-        out.append({"experiment": int(data.index[k]), "t_start": float(data.t[k, i]),
+        out.append({"experiment": int(data.numbers[k]), "t_start": float(data.t[k, i]),
                     "t_end": float(data.t[k, i + width - 1]), "rms": float(np.sqrt(power)),
                     "mean": float(np.mean(seg))})
     return out

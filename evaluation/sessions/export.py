@@ -93,7 +93,8 @@ def export_csv(store: SessionStore, out: str | Path, session_id: int | None = No
         if not record.has_signals:
             continue
         cost = row.cost if row.source == "twin" else row.told_cost
-        records.append(record.replace(cost=math.nan if cost is None else cost, index=row.experiment))
+        # the CSV numbers experiments from 1, as the session does: the record's 0-based index is one less
+        records.append(record.replace(cost=math.nan if cost is None else cost, index=row.experiment - 1))
     if not records:
         raise LookupError(f"session {info.id}: no experiment with stored t, r, u, y to export")
     write_csv(records, out, gain_names=info.gain_names)

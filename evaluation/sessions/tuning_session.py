@@ -119,13 +119,13 @@ class TuningSession:
         #: Stored experiments whose proposals the last :meth:`run` asked for again (0 with a tuner snapshot).
         self.n_asked = 0
 
-    def run(self, progress: bool = False):
+    def run(self, progress: bool | None = False):
         """Run the session to its budget, resuming from the database.
 
         Parameters
         ----------
-        progress : bool, default False
-            Show a tqdm progress bar (stderr).
+        progress : bool or None, default False
+            Show a tqdm progress bar (stderr); ``None``: only when stderr is a terminal (``gbo tune``).
 
         Returns
         -------

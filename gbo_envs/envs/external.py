@@ -40,7 +40,9 @@ class ExperimentFailed(RuntimeError):
     """
 
     def __init__(self, reason: str, record: dict, policy: str) -> None:
-        super().__init__(f"experiment {record.get('experiment_index')} at gains {list(record.get('gains', []))} "
+        number = record.get("experiment_index")
+        number = number + 1 if isinstance(number, int) else number  # counted from 1, as everywhere a person reads it
+        super().__init__(f"experiment {number} at gains {list(record.get('gains', []))} "
                          f"failed: {reason} (on_failure={policy!r})")
         self.reason = reason
         self.record = record

@@ -27,13 +27,25 @@ FAST = {"gradient_steps": 2, "algorithm_kwargs": {"batch_size": 8, "learning_sta
 def _check_env(env) -> None:
     from stable_baselines3.common.env_checker import check_env
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # float64 action-space advice is a warning, not a failure
-        check_env(env, warn=True)
+    check_env(env, warn=True)
 
 
 def _gains(result) -> np.ndarray:
     return np.array([[row[name] for name in result.gain_names] for row in result.plant_rows])
+
+
+def test_sb3_sees_float32_actions_without_the_dtype_warning():
+    from stable_baselines3.common.env_checker import check_env
+
+    for env in (rescaled(gym.make(ENV_ID)), TuningMDPEnv(gym.make(ENV_ID), horizon=5)):
+        assert env.action_space.dtype == np.float32
+        with warnings.catch_warnings():
+            warnings.filterwarnings("error", message=".*dtype.*")
+            check_env(env, warn=True)
+        env.reset(seed=0)
+        info = env.step(np.ones(env.action_space.shape, dtype=np.float32))[4]
+        assert info["gains"].dtype == np.float64
+        np.testing.assert_allclose(info["gains"], gym.make(ENV_ID).action_space.high)
 
 
 def test_sb3_check_env_passes_on_rescaled_plant_and_on_tuning_mdp():
@@ -180,3 +192,12 @@ def test_twin_mode_on_a_rig_needs_an_explicit_nominal_model():
         pytest.skip("rig env not registered")
     with pytest.raises(ValueError, match="model_env"):
         RLTuner(mode="twin", pretrain_steps=2, **FAST).run(gym.make("gbo_envs/DCMotorRig-v0"), budget=1, seed=0)
+
+
+def test_pretraining_bar_follows_the_run_progress(capsys):
+    tuner = RLTuner(algorithm="sac", mode="twin", pretrain_steps=4, **FAST)
+    tuner.run(gym.make(ENV_ID), budget=1, seed=0)
+    assert "rl pre-training" not in capsys.readouterr().err  # the library is quiet by default
+    tuner.run(gym.make(ENV_ID), budget=1, seed=0, progress=True)
+    err = capsys.readouterr().err
+    assert "rl pre-training on gbo_envs/DCMotor-v0" in err and "4/4" in err

@@ -359,7 +359,7 @@ def test_cli_tune_sessions_export(tmp_path, capsys):
 
     assert len(as_records(frame)) == 3  # the twin workbench reads it
     back = read_csv(csv, gain_names=("Kp", "Ki"))
-    assert back == [row.to_experiment().replace(metrics={}, index=row.experiment) for row in rows]
+    assert back == [row.to_experiment().replace(metrics={}, index=row.experiment - 1) for row in rows]  # 0-based
     capsys.readouterr()
     assert gbo(["export", "--db", db, "--csv", csv]) == 0  # default: the latest updated session (1, resumed last)
     assert "of session 1 " in capsys.readouterr().out and pd.read_csv(csv)["experiment"].nunique() == 3

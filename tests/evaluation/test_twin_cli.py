@@ -2,9 +2,9 @@
 
 Whether the workbench finds the hidden effect, and with which parameters, is
 tested in ``tests/agents/twin/test_workbench.py``; here the command line: three
-1.5 s experiments (numbered 4, 5, 6) with a hidden saturation, long enough for
-the saturated model to beat the linear one. ``diagnose`` and ``report`` fit every
-catalogue effect, so they are marked slow.
+1.5 s experiments (indices 4, 5, 6: numbered 5, 6, 7 in the CSV and the output)
+with a hidden saturation, long enough for the saturated model to beat the linear
+one. ``diagnose`` and ``report`` fit every catalogue effect, so they are marked slow.
 """
 
 from __future__ import annotations
@@ -41,6 +41,26 @@ def test_diagnose_json_is_exactly_one_object(csv_path, capsys):
     assert set(first) >= {"effect", "rmse", "delta_bic", "params", "evidence"}
     assert payload["best"] in (None, first["effect"])
     assert [c["delta_bic"] for c in payload["candidates"]] == sorted(c["delta_bic"] for c in payload["candidates"])
+    assert payload["best"] == "saturation" and payload["best_step"]["added"] == "saturation"
+    assert {u["effect"] for u in payload["unobservable"]} >= {"coulomb_friction", "stiction", "backlash", "offset"}
+    assert ["coulomb_friction", "stiction"] in payload["indistinguishable"]
+    assert payload["next"].startswith("next: add saturation")
+    assert "not a lower bound" in payload["noise_floor"]["label"]
+
+
+@pytest.mark.slow
+def test_diagnose_text_says_what_it_found_and_what_to_do_next(csv_path, capsys):
+    assert main(["twin", "diagnose", str(csv_path), "--folds", "2", "--y-unit", "rad/s", "--u-unit", "V"]) == 0
+    captured = capsys.readouterr()
+    out = captured.out
+    assert captured.err == ""  # the bar only draws on a terminal
+    assert "noise floor (white-noise estimate" in out
+    best = next(line for line in out.splitlines() if line.startswith("best: "))
+    assert best.startswith("best: + saturation (limit ") and " V, 95 % CI [" in best and " rad/s (-" in best
+    assert "fit " in best and " % → " in best
+    assert "not observable in this data:" in out and "coulomb_friction is not observable here (no speed reversal" in out
+    assert out.splitlines()[-1] == f"next: add saturation, then look for a further effect: `gbo twin diagnose " \
+                                   f"{csv_path} --effects saturation`"
 
 
 def test_compare_with_effects_and_plots(csv_path, tmp_path, capsys):
@@ -48,12 +68,23 @@ def test_compare_with_effects_and_plots(csv_path, tmp_path, capsys):
     linear = json.loads(capsys.readouterr().out)
     assert main(["twin", "compare", str(csv_path), "--effects", "saturation", "--json", "--out", str(tmp_path)]) == 0
     sat = json.loads(capsys.readouterr().out)
-    assert [e["experiment"] for e in sat["experiments"]] == [4, 5, 6]
+    assert [e["experiment"] for e in sat["experiments"]] == [5, 6, 7]  # counted from 1, as in the CSV
     assert sat["rmse"] < 0.5 * linear["rmse"] and sat["fit_percent"] > linear["fit_percent"]
     assert sat["model"] == "linear(2p0z)+saturation"
     assert (tmp_path / "compare.png").stat().st_size > 1000
-    assert main(["twin", "compare", str(csv_path)]) == 0
-    assert "fit" in capsys.readouterr().out
+    assert sat["plots"] == [str(tmp_path / "compare.png")]
+
+
+def test_compare_writes_its_plot_by_default_and_says_where(csv_path, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["twin", "compare", str(csv_path), "--y-unit", "rad/s"]) == 0
+    captured = capsys.readouterr()
+    plot = tmp_path / "out" / "twin" / csv_path.stem / "compare.png"
+    assert plot.stat().st_size > 1000
+    lines = captured.out.splitlines()
+    assert lines[-1] == f"plots: {plot.relative_to(tmp_path)}" and " rad/s" in lines[0]
+    assert [int(line.split()[0]) for line in lines[2:-1]] == [5, 6, 7]  # under the header "experiment fit % RMSE"
+    assert captured.err == ""  # not a terminal: no bar
 
 
 def test_resid_reports_whiteness_and_worst_segments(csv_path, tmp_path, capsys):
@@ -69,9 +100,14 @@ def test_resid_reports_whiteness_and_worst_segments(csv_path, tmp_path, capsys):
 @pytest.mark.slow
 def test_report_is_one_self_contained_page(csv_path, tmp_path, capsys):
     assert main(["twin", "report", str(csv_path), "--out", str(tmp_path), "--max-steps", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "  + saturation (limit " in out and "not observable in this data:" in out
+    assert out.splitlines()[-2].startswith(("next: ", "stop"))
     page = (tmp_path / "index.html").read_text()
     assert page.count("data:image/png;base64,") >= 4
     assert "error ladder" in page
+    assert "+ saturation (limit " in page and "Not observable in this data" in page  # the ladder in words
+    assert "not a lower bound" in page
     assert "src=\"http" not in page
     assert list(tmp_path.iterdir()) == [tmp_path / "index.html"]
 

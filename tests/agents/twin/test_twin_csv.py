@@ -64,7 +64,7 @@ def test_writer_rejects_records_without_signals_and_wrong_gain_names(tmp_path):
 def test_extra_columns_and_order_of_experiments(tmp_path):
     rows = [HEADER + ",Kp,note"] + [r + ",0.5,x" for r in _good_rows(7)] + [r + ",0.6,y" for r in _good_rows(3)]
     recs = read_csv(_write(tmp_path, "\n".join(rows)))
-    assert [r.index for r in recs] == [7, 3]
+    assert [r.index for r in recs] == [6, 2]  # experiments 7 and 3 of the file: 0-based indices
     assert recs[0].u.tolist() == [100, 101, 102, 103]
     assert read_csv(_write(tmp_path, "\n".join(rows)), gain_names=["Kp"])[1].gains.tolist() == [0.6]
 
@@ -115,3 +115,15 @@ def test_a_file_cut_mid_row_is_an_error_naming_file_and_row(tmp_path, cut):
     assert read_csv(path)[0].y[-1] == 2463.25
     path.write_text(text.replace("\n", "\r\n"))  # Windows line ends
     assert read_csv(path)[0].n_steps == 5
+
+
+def test_csv_numbers_experiments_as_the_result_table_does(tmp_path):
+    import pandas as pd
+
+    import agents
+
+    result = agents.make("random").run(gym.make("gbo_envs/DCMotor-v0", noise=False), budget=2, seed=0)
+    path = write_csv(result.experiments, tmp_path / "run.csv")
+    numbers = pd.read_csv(path)["experiment"].unique().tolist()
+    assert numbers == result.to_pandas()["experiment"].tolist() == [1, 2]  # counted from 1 in both
+    assert [r.index for r in read_csv(path)] == [r.index for r in result.experiments] == [0, 1]

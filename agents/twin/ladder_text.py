@@ -1,0 +1,116 @@
+"""The error ladder and a diagnosis in words: what each added effect bought, and what to do next.
+
+Every step of the ladder reads as one line, e.g.::
+
+    + coulomb_friction (torque 4.9 ± 0.3 V, 95 % CI [4.6, 5.2]): RMSE 0.41 → 0.025 rad/s (-94 %, 16×),
+      fit 71.0 % → 98.0 %
+
+RMSE and fit % are both on the fitted data (the training error of the model), each
+with its before and after; the held-out error that decides the ranking is reported
+apart. The intervals come from :func:`agents.twin.diagnose.effect_intervals`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+__all__ = ["advice", "format_interval", "rung_text", "unit_text", "unobservable_lines"]
+
+
+def unit_text(catalogue_unit: str, units: Mapping[str, str] | None = None, output: str = "speed") -> str:
+    """A catalogue unit (``"input units"``, ``"output units"``, ``"speed units"``, ...) in the data's units.
+
+    Parameters
+    ----------
+    catalogue_unit : str
+        :attr:`gbo_envs.physics.EffectParameter.unit`.
+    units : mapping, optional
+        ``{"y": unit of the output, "u": unit of the input}`` (e.g. ``{"y": "rad/s", "u": "V"}``);
+        without one, the catalogue's words stay.
+    output : {"speed", "position"}
+        What ``y`` measures (speed units are ``y``'s, or ``y``'s per second for a position).
+    """
+    units = units or {}
+    y, u = units.get("y"), units.get("u")
+    speed = None if y is None else (y if output != "position" else f"{y}/s")
+    words = {"input units": u, "output units": y, "speed units": speed,
+             "input units per speed unit": None if u is None or speed is None else f"{u}/({speed})"}
+    return words.get(catalogue_unit) or catalogue_unit
+
+
+def _y_unit(units: Mapping[str, str] | None) -> str:
+    return (units or {}).get("y") or "(units of y)"
+
+
+def format_interval(name: str, ci: Mapping, unit: str) -> str:
+    """``"limit 159.9 ± 0.04 V, 95 % CI [159.9, 160]"``, or ``"step 0.77 rad/s (grid fit, no interval)"``."""
+    value, std = ci.get("value"), ci.get("std")
+    if std is None or not math.isfinite(std):
+        how = "grid fit, no interval" if std is None else "not determined by these data"
+        return f"{name} {value:.4g} {unit} ({how})".replace("  ", " ")
+    half = ci["high"] - value
+    digits = max(0, 1 - math.floor(math.log10(half))) if half > 0 else 3  # two significant digits of the half-width
+    return (f"{name} {value:.{digits}f} ± {half:.2g} {unit}, 95 % CI [{ci['low']:.{digits}f}, "
+            f"{ci['high']:.{digits}f}]")
+
+
+def rung_text(rung: Mapping, units: Mapping[str, str] | None = None, output: str = "speed") -> str:
+    """One ladder step in words and numbers (see the module docstring); the first rung states the start."""
+    y = _y_unit(units)
+    before = rung.get("before")
+    if before is None:
+        return f"{rung['model']}: RMSE {rung['rmse']:.3g} {y}, fit {rung['fit_percent']:.1f} %"
+    params = "; ".join(format_interval(name, ci, unit_text(ci.get("unit", ""), units, output))
+                       for name, ci in (rung.get("added_params") or {}).items())
+    change = 100.0 * (rung["rmse"] / before["rmse"] - 1.0)
+    return (f"+ {rung['added']}" + (f" ({params})" if params else "") + f": RMSE {before['rmse']:.3g} → "
+            f"{rung['rmse']:.3g} {y} ({change:+.0f} %, {rung['rmse_factor']:.3g}×), "
+            f"fit {before['fit_percent']:.1f} % → {rung['fit_percent']:.1f} %")
+
+
+def unobservable_lines(diagnosis) -> list[str]:
+    """One line per effect the data cannot show: why, and the experiment that would show it."""
+    return [f"{u['effect']} is not observable here ({u['reason']}); to test it: {u['experiment']}"
+            for u in diagnosis.unobservable]
+
+
+def advice(diagnosis, effects: Sequence[str], data: str = "DATA.csv", stopped_at_max: bool = False,
+           units: Mapping[str, str] | None = None) -> str:
+    """The last line of a diagnosis or a ladder: what the user should do next.
+
+    Parameters
+    ----------
+    diagnosis : Diagnosis
+        The last diagnosis made (of the model with ``effects``).
+    effects : sequence of str
+        Effects of that model.
+    data : str
+        The data's name in the commands suggested.
+    stopped_at_max : bool
+        The ladder stopped at its ``max_steps`` although ``diagnosis.best`` still helps.
+    """
+    y = _y_unit(units)
+    if diagnosis.best is not None:
+        more = ",".join([*effects, diagnosis.best])
+        if stopped_at_max:
+            return (f"next: {diagnosis.best} still improves the model; raise --max-steps, or run "
+                    f"`gbo twin diagnose {data} --effects {more}` to look for a further effect")
+        return (f"next: add {diagnosis.best}, then look for a further effect: "
+                f"`gbo twin diagnose {data} --effects {more}`")
+    pairs = [p for p in diagnosis.indistinguishable if all(e not in {u["effect"] for u in diagnosis.unobservable}
+                                                           for e in p)]
+    if pairs:
+        return f"next: {pairs[0][0]} and {pairs[0][1]} explain the data equally well; {diagnosis.suggested_experiment}"
+    noise = diagnosis.noise_rmse
+    if noise is not None and diagnosis.current.rmse <= 1.5 * noise:
+        return (f"stop: the model is at the noise floor (RMSE {diagnosis.current.rmse:.3g} {y}, noise-floor "
+                f"estimate {noise:.3g} {y}); no further effect can be told from measurement noise")
+    tail = "" if not diagnosis.unobservable else (
+        f"; {len(diagnosis.unobservable)} effect(s) cannot be seen in these data (listed above), run the "
+        f"experiments named there to test them")
+    return (f"stop adding catalogue effects: none improves the held-out error beyond its complexity cost "
+            f"(RMSE {diagnosis.current.rmse:.3g} {y}" + ("" if noise is None else f", noise floor estimate "
+            f"{noise:.3g} {y}") + "); look at the residuals (`gbo twin resid " + data +
+            (f" --effects {','.join(effects)}" if effects else "") + "`) or the model orders (--poles, --zeros)"
+            + tail)
