@@ -1,14 +1,18 @@
-"""Markdown report of a study: spec, our numbers beside the paper's, figures, runtime and notes.
+"""Report of a study: spec, our numbers beside the paper's, figures, runtime and notes.
 
 :func:`write_report` reads the finished batches under ``OUT/results``, writes the
 PNG figures next to ``OUT/report.md`` and links them relatively, so the folder
-can be committed (``docs/reports/<study>/``) and read on GitHub.
+can be committed (``docs/reports/<study>/``) and read on GitHub. Beside it,
+``OUT/report.html`` is the same report as one self-contained page (figures
+inline, tables that scroll on a phone; :func:`write_html`).
 """
 
 from __future__ import annotations
 
+import html
 import json
 import math
+import re
 import time
 from pathlib import Path
 
@@ -18,7 +22,7 @@ import pandas as pd
 from evaluation import analysis, figures
 from evaluation.study import Study
 
-__all__ = ["write_report", "write_figures", "markdown_table"]
+__all__ = ["write_report", "write_figures", "write_html", "markdown_table"]
 
 
 def markdown_table(headers: list[str], rows: list[list]) -> str:
@@ -129,6 +133,7 @@ def write_report(study: Study, out: Path | str, frame: pd.DataFrame | None = Non
         lines += ["No finished batches yet: run `gbo bench` first.", ""]
         path = out / "report.md"
         path.write_text("\n".join(lines), encoding="utf-8")
+        write_html(path, title=study.title)
         return path
 
     truth = analysis.study_ground_truth(study, out)
@@ -168,6 +173,46 @@ def write_report(study: Study, out: Path | str, frame: pd.DataFrame | None = Non
         lines += ["## Spec", "", f"```{language}", study.text.rstrip(), "```", ""]
     path = out / "report.md"
     path.write_text("\n".join(lines), encoding="utf-8")
+    write_html(path, title=study.title)
+    return path
+
+
+def write_html(markdown_path: Path | str, title: str = "") -> Path:
+    """Write the Markdown report as one self-contained HTML page beside it (``report.html``).
+
+    Images linked relatively are inlined as base64 PNG; every table scrolls
+    sideways inside its own box on a narrow screen.
+
+    Parameters
+    ----------
+    markdown_path : Path or str
+        The ``report.md`` of a study.
+    title : str, optional
+        Title of the page (default: the file's folder name).
+
+    Returns
+    -------
+    Path
+        The ``.html`` file.
+    """
+    from markdown_it import MarkdownIt
+
+    from agents.html_page import image_tag, page, scrolling
+
+    markdown_path = Path(markdown_path)
+    body = MarkdownIt("commonmark").enable("table").render(markdown_path.read_text(encoding="utf-8"))
+
+    def inline(match: re.Match) -> str:
+        src, alt = html.unescape(match.group(1)), html.unescape(match.group(2))
+        image = markdown_path.parent / src
+        if "://" in src or not image.is_file():
+            raise ValueError(f"{markdown_path}: image {src!r} is not a file beside the report")
+        return image_tag(image.read_bytes(), alt)
+
+    body = re.sub(r'<p><img src="([^"]*)" alt="([^"]*)" /></p>', inline, body)
+    body = re.sub(r"<table>.*?</table>", lambda m: scrolling(m.group(0)), body, flags=re.S)
+    path = markdown_path.with_suffix(".html")
+    path.write_text(page(title or markdown_path.parent.name, body), encoding="utf-8")
     return path
 
 

@@ -41,6 +41,9 @@ def add_parser(subparsers) -> None:
         p.add_argument("--integrators", type=int, default=0, help="poles at s = 0 (default 0; 1 for a position loop)")
         p.add_argument("--output", choices=("speed", "position"), default="speed",
                        help="what y measures (friction acts on y or on dy/dt; default speed)")
+        p.add_argument("--y-unit", default=None, help="unit of y and r on the plots (default: rad/s for "
+                                                       "--output speed, m for position)")
+        p.add_argument("--u-unit", default="input units", help="unit of u on the plots (default: input units)")
 
     p = sub.add_parser("compare", help="fit %% and RMSE per experiment, overlay plots")
     common(p)
@@ -73,6 +76,13 @@ def _load(args):
     spec = ModelSpec(args.poles, args.zeros, args.integrators, args.output)
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
     return records, data, spec, effects
+
+
+def _y_unit(args) -> str:
+    """Unit of ``y`` on the plots: ``--y-unit``, else rad/s for a speed and m for a position."""
+    if args.y_unit is not None:
+        return args.y_unit
+    return "rad/s" if args.output == "speed" else "m"
 
 
 def _fit(data, spec, effects):
@@ -110,7 +120,7 @@ def _compare(args) -> int:
 
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-        compare_figure(data, [fit]).savefig(out / "compare.png", dpi=100)
+        compare_figure(data, [fit], y_unit=_y_unit(args)).savefig(out / "compare.png", dpi=100)
     if args.json:
         payload = res.to_dict()
         payload["params"] = fit.effect_params
@@ -138,7 +148,8 @@ def _resid(args) -> int:
 
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-        residual_figure(ra, fit.spec.label).savefig(out / "residuals.png", dpi=100)
+        residual_figure(ra, fit.spec.label, y_unit=_y_unit(args), u_unit=args.u_unit).savefig(
+            out / "residuals.png", dpi=100)
     if args.json:
         payload = ra.to_dict()
         payload["model"] = fit.spec.label
@@ -198,7 +209,8 @@ def _report(args) -> int:
     rungs, diagnoses = error_ladder(data, effects=effects, spec=spec, max_steps=args.max_steps)
     fits = [diagnoses[0].current] + ([diagnoses[-1].current] if len(diagnoses) > 1 else [])
     analyses = [residuals(data, f) for f in fits]
-    path = write_report(args.out, data, rungs, diagnoses, analyses, source=str(args.data))
+    path = write_report(args.out, data, rungs, diagnoses, analyses, source=str(args.data), y_unit=_y_unit(args),
+                        u_unit=args.u_unit)
     for r in rungs:
         print(f"{r['model']:>40}: RMSE {r['rmse']:.5g} (held-out {r['heldout_rmse']:.5g})")
     print(f"report: {path}")
