@@ -114,7 +114,7 @@ def histogram_figure(table: pd.DataFrame, title: str | None = None):
                    color=color, alpha=0.85, label=label)
         ax.set_xlabel(axis_label(f"measured {_RATIO} (last bin: >= {table['low'].iloc[-1]:.3g})", "-"))
         ax.set_ylabel(axis_label("experiments", "%"))
-        ax.grid(True, axis="x", visible=False)
+        ax.grid(False, axis="x")
         legend_outside(ax)
         if title:
             ax.set_title(title)

@@ -78,6 +78,9 @@ def style():
 def axis_label(quantity: str, unit: str | None) -> str:
     """``"quantity (unit)"``; a dimensionless quantity reads ``"quantity (-)"``.
 
+    A unit that holds parentheses itself goes in brackets:
+    ``"gain Kp [(input units)/(rad/s)]"``.
+
     Parameters
     ----------
     quantity : str
@@ -87,11 +90,19 @@ def axis_label(quantity: str, unit: str | None) -> str:
     """
     if not unit:
         return f"{quantity} (units unknown)"
-    return f"{quantity} ({unit})"
+    return f"{quantity} [{unit}]" if "(" in unit else f"{quantity} ({unit})"
 
 
-def legend_outside(ax, **kwargs):
-    """Legend to the right of ``ax``, outside the data (constrained layout makes room for it).
+def legend_outside(ax, below: bool = False, **kwargs):
+    """Legend to the right of ``ax`` (or below it), outside the data (constrained layout makes room for it).
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    below : bool, default False
+        Under the x axis label, in up to 2 columns, instead of on the right.
+    **kwargs
+        Passed to ``ax.legend``.
 
     Returns
     -------
@@ -102,6 +113,8 @@ def legend_outside(ax, **kwargs):
     if not handles:
         return None
     options = {"loc": "upper left", "bbox_to_anchor": (1.01, 1.0), "borderaxespad": 0.0}
+    if below:
+        options = {"loc": "upper center", "bbox_to_anchor": (0.5, -0.13), "ncols": min(2, len(handles))}
     options.update(kwargs)
     return ax.legend(handles, labels, **options)
 
@@ -178,7 +191,7 @@ def cost_surface(truth, ax=None, points=None, path=None, levels: int = 30):
             _, ax = plt.subplots(figsize=(7, 5))
         x, y = truth.axes
         contour = ax.contourf(x, y, truth.costs.T, levels=levels, cmap="viridis", zorder=0)
-        ax.figure.colorbar(contour, ax=ax, label=COST_LABEL, location="left", pad=0.12)
+        ax.figure.colorbar(contour, ax=ax, label=COST_LABEL)
         ax.grid(False)
         for label, gains in (points or {}).items():
             gains = np.atleast_2d(gains)
@@ -186,17 +199,18 @@ def cost_surface(truth, ax=None, points=None, path=None, levels: int = 30):
         if path is not None:
             path = np.atleast_2d(np.asarray(path, dtype=float))
             ax.plot(path[:, 0], path[:, 1], "-", color="w", lw=0.8, alpha=0.8, zorder=3)
-            ax.plot(path[:, 0], path[:, 1], "o", color="tab:orange", mec="k", ms=5, zorder=4,
+            ax.plot(path[:, 0], path[:, 1], "o", color="tab:orange", mec="k", ms=5, zorder=4, clip_on=False,
                     label=f"tuner's path ({len(path)} experiments)")
             for n, (g0, g1) in enumerate(path, start=1):
                 ax.annotate(str(n), (g0, g1), fontsize=6, color="w", xytext=(3, 3), textcoords="offset points",
                             zorder=5)
-            ax.plot(*path[-1], "s", mfc="none", mec="tab:red", ms=9, mew=1.5, zorder=4, label="last experiment")
+            ax.plot(*path[-1], "s", mfc="none", mec="tab:red", ms=9, mew=1.5, zorder=4, clip_on=False,
+                    label="last experiment")
         ax.plot(*truth.gains, "*", color="tab:red", mec="w", ms=15, zorder=6, label=f"optimum J* = {truth.cost:.3f}")
         units = tuple(truth.gain_units) or (None, None)
         ax.set_xlabel(axis_label(f"gain {truth.gain_names[0]}", units[0]))
         ax.set_ylabel(axis_label(f"gain {truth.gain_names[1]}", units[1]))
-        legend_outside(ax)
+        legend_outside(ax, below=True)
     return ax
 
 
