@@ -25,6 +25,8 @@ PAGE_STYLE = (
     "p,li{overflow-wrap:anywhere}"
     "figure{margin:0.8em 0}img{display:block;max-width:100%;height:auto}"
     "figcaption{font-size:0.9em;color:#555}"
+    ".grid{display:grid;grid-template-columns:repeat(auto-fill,minmax(min(100%,430px),1fr));gap:4px 12px}"
+    ".grid figure{margin:0}"
     ".scroll{overflow-x:auto;-webkit-overflow-scrolling:touch;margin:0.5em 0}"
     "table{border-collapse:collapse;font-size:13px;width:max-content;max-width:none}"
     "td,th{border:1px solid #ccc;padding:3px 8px;text-align:left;vertical-align:top;max-width:26em}"

@@ -21,10 +21,20 @@ from agents.twin.workbench import Diagnosis, ResidualAnalysis, compare
 from gbo_envs.lazy_pyplot import pyplot
 from gbo_envs.plotting import MEASURED, MODEL, REFERENCE, axis_label, legend_outside, style
 
-__all__ = ["compare_figure", "ladder_figure", "residual_figure", "write_report"]
+__all__ = ["RESIDUAL_PANELS", "compare_figure", "ladder_figure", "residual_figure", "shown_experiments", "write_report"]
 
 
-def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int = 4, y_unit: str = ""):
+#: Panels of :func:`residual_figure`, in order.
+RESIDUAL_PANELS = ("acf", "ccf", "time", "experiment", "input", "output")
+
+
+def shown_experiments(data: GreyData, max_experiments: int = 4) -> np.ndarray:
+    """Positions of at most ``max_experiments`` records spread over the data set."""
+    return np.unique(np.linspace(0, data.n_records - 1, min(max_experiments, data.n_records)).round().astype(int))
+
+
+def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int = 4, y_unit: str = "",
+                   experiments: Sequence[int] | None = None):
     """Measured ``y`` above each model's simulated output per experiment, with the errors below.
 
     Axes: time since the step t (s); output y and error y - y_sim in ``y_unit``.
@@ -40,9 +50,13 @@ def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int
         Experiments shown (spread over the data set), at most 2 per row.
     y_unit : str
         Unit of the output ("" when unknown).
+    experiments : sequence of int, optional
+        Positions of the records to show instead (0 for the first record).
     """
     plt = pyplot()
-    shown = np.unique(np.linspace(0, data.n_records - 1, min(max_experiments, data.n_records)).round().astype(int))
+    shown = shown_experiments(data, max_experiments) if experiments is None else np.asarray(experiments, dtype=int)
+    if shown.size == 0 or shown.min() < 0 or shown.max() >= data.n_records:
+        raise ValueError(f"experiments: record positions in [0, {data.n_records - 1}], got {shown.tolist()}")
     results = [compare(data, fit) for fit in fits]
     columns = min(2, shown.size)
     rows = int(np.ceil(shown.size / columns))
@@ -68,51 +82,76 @@ def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int
             axes[2 * (n // columns), n % columns].set_visible(False)
             axes[2 * (n // columns) + 1, n % columns].set_visible(False)
         handles, labels = axes[0, 0].get_legend_handles_labels()
-        fig.legend(handles[::-1], labels[::-1], loc="outside upper center", ncols=min(3, len(labels)))
+        fig.legend(handles[::-1], labels[::-1], loc="outside upper center", ncols=min(2, len(labels)))
     return fig
 
 
-def residual_figure(analysis: ResidualAnalysis, title: str = "", y_unit: str = "", u_unit: str = ""):
+def residual_figure(analysis: ResidualAnalysis, title: str = "", y_unit: str = "", u_unit: str = "",
+                    panels: Sequence[str] = RESIDUAL_PANELS):
     """Residual autocorrelation and input cross-correlation with 99 % bands, and the binned residual.
 
     Axes: lag (samples) against the normalised correlation (-); the binned
     residual (rms and mean, in ``y_unit``) against time in the experiment
     (s), experiment number, input level (``u_unit``) and output level (``y_unit``).
+
+    Parameters
+    ----------
+    analysis : ResidualAnalysis
+    title : str
+    y_unit, u_unit : str
+        Units of the output and the input ("" when unknown).
+    panels : sequence of str, default all of :data:`RESIDUAL_PANELS`
+        Which panels to draw, at most 3 per row.
     """
+    unknown = [p for p in panels if p not in RESIDUAL_PANELS]
+    if unknown or not panels:
+        raise ValueError(f"panels: a non-empty selection of {RESIDUAL_PANELS}, got {list(panels)}")
     plt = pyplot()
+    columns = min(3, len(panels))
+    rows = int(np.ceil(len(panels) / columns))
     with style():
-        fig, axes = plt.subplots(2, 3, figsize=(13, 7))
-        ax = axes[0, 0]
-        ax.bar(analysis.lags, analysis.acf, width=0.8, color="tab:blue", label="autocorrelation")
-        ax.axhspan(-analysis.band, analysis.band, color="tab:orange", alpha=0.3, label="99 % band")
-        ax.set_title(f"residual autocorrelation ({'white' if analysis.white else 'not white'})")
-        ax.set_xlabel(axis_label("lag", "samples"))
-        ax.set_ylabel(axis_label("correlation", "-"))
-        ax.legend(loc="upper right")
-        ax = axes[0, 1]
-        ax.bar(analysis.ccf_lags, analysis.ccf, width=0.8, color="tab:green", label="cross-correlation")
-        ax.axhspan(-analysis.band, analysis.band, color="tab:orange", alpha=0.3, label="99 % band")
-        ax.set_title(f"residual-input cross-correlation ({'independent' if analysis.independent else 'correlated'})")
-        ax.set_xlabel(axis_label("lag", "samples"))
-        ax.set_ylabel(axis_label("correlation", "-"))
-        ax.legend(loc="upper right")
-        panels = [("time", axis_label("time in experiment", "s"), axes[0, 2]),
-                  ("experiment", axis_label("experiment", "number"), axes[1, 0]),
-                  ("input", axis_label("input level u", u_unit), axes[1, 1]),
-                  ("output", axis_label("output level y", y_unit), axes[1, 2])]
-        for key, label, ax in panels:
-            b = analysis.bins[key]
-            ax.plot(b["centers"], b["rms"], "o-", label="rms residual")
-            ax.plot(b["centers"], b["mean"], "s--", label="mean residual")
-            ax.set_xlabel(label)
-            ax.set_ylabel(axis_label("residual", y_unit))
-            ax.axhline(0.0, **REFERENCE)
-        sign = analysis.bins["velocity_sign"]
-        axes[1, 2].set_title("sign of velocity: " + ", ".join(
-            f"{int(c):+d}: rms {r:.3g}" for c, r in zip(sign["centers"], sign["rms"])), fontsize=8)
-        axes[0, 2].legend(loc="upper right")
-        fig.suptitle(title)
+        fig, axes = plt.subplots(rows, columns, figsize=(4.4 * columns, 3.9 * rows), squeeze=False)
+        for ax in axes.ravel()[len(panels):]:
+            ax.set_visible(False)
+        for panel, ax in zip(panels, axes.ravel()):
+            _residual_panel(ax, panel, analysis, y_unit, u_unit)
+        if title:
+            fig.suptitle(title)
     return fig
+
+
+def _residual_panel(ax, panel: str, analysis: ResidualAnalysis, y_unit: str, u_unit: str) -> None:
+    """Draw one panel of :func:`residual_figure` on ``ax``."""
+    if panel in ("acf", "ccf"):
+        lags, values, color = ((analysis.lags, analysis.acf, "tab:blue") if panel == "acf" else
+                               (analysis.ccf_lags, analysis.ccf, "tab:green"))
+        ax.bar(lags, values, width=0.8, color=color, label="autocorrelation" if panel == "acf" else
+               "cross-correlation with u")
+        ax.axhspan(-analysis.band, analysis.band, color="tab:orange", alpha=0.3, label="99 % band")
+        ax.set_title(f"residual autocorrelation ({'white' if analysis.white else 'not white'})" if panel == "acf"
+                     else f"residual-input correlation ({'independent' if analysis.independent else 'correlated'})")
+        ax.set_xlabel(axis_label("lag", "samples"))
+        ax.set_ylabel(axis_label("correlation", "-"))
+        legend_outside(ax, below=True)
+        return
+    label = {"time": axis_label("time in experiment", "s"), "experiment": axis_label("experiment", "number"),
+             "input": axis_label("input level u", u_unit), "output": axis_label("output level y", y_unit)}[panel]
+    b = analysis.bins[panel]
+    ax.plot(b["centers"], b["rms"], "o-", label="rms residual")
+    ax.plot(b["centers"], b["mean"], "s--", label="mean residual")
+    ax.set_xlabel(label)
+    ax.set_ylabel(axis_label("residual", y_unit))
+    ax.axhline(0.0, **REFERENCE)
+    legend_outside(ax, below=True)
+    if panel == "experiment":
+        ax.xaxis.set_major_locator(pyplot().MaxNLocator(integer=True))
+    if panel == "output":
+        sign = analysis.bins["velocity_sign"]
+        ax.set_title("sign of velocity: " + ", ".join(
+            f"{int(c):+d}: rms {r:.3g}" for c, r in zip(sign["centers"], sign["rms"])), fontsize=8)
+    else:
+        ax.set_title({"time": "residual over the experiment", "experiment": "residual per experiment",
+                      "input": "residual against the input level"}[panel])
 
 
 def ladder_figure(rungs: Sequence[dict], noise_rmse: float | None = None, y_unit: str = ""):
@@ -122,7 +161,7 @@ def ladder_figure(rungs: Sequence[dict], noise_rmse: float | None = None, y_unit
     """
     plt = pyplot()
     with style():
-        fig, ax = plt.subplots(figsize=(1.6 * len(rungs) + 4.5, 4))
+        fig, ax = plt.subplots(figsize=(1.5 * len(rungs) + 3.0, 4.2))
         labels = [r["model"] for r in rungs]
         ax.bar(range(len(rungs)), [r["rmse"] for r in rungs], color="tab:blue", label="RMSE (fit)")
         ax.plot(range(len(rungs)), [r["heldout_rmse"] for r in rungs], "o", color="tab:red", label="held-out RMSE")
@@ -131,12 +170,17 @@ def ladder_figure(rungs: Sequence[dict], noise_rmse: float | None = None, y_unit
         ax.set_xticks(range(len(rungs)), labels, rotation=15, ha="right", fontsize=8)
         ax.set_ylabel(axis_label("RMSE", y_unit))
         ax.set_title("error ladder")
-        legend_outside(ax)
+        legend_outside(ax, below=True)
     return fig
 
 
 def _img(fig, alt: str, caption: str = "") -> str:
     return image_tag(fig, alt, caption)
+
+
+def _grid(items) -> str:
+    """Figures side by side on a wide screen, one under the other on a phone."""
+    return f"<div class='grid'>{''.join(items)}</div>"
 
 
 def _cell(value) -> str:
@@ -191,8 +235,10 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
         _img(ladder_figure(rungs, noise, y_unit=y_unit), "error ladder",
              "RMSE of each model on the data it was fitted to (bars) and on held-out experiments (dots)."),
         "<h2>Measured vs simulated</h2>",
-        _img(compare_figure(data, fits, y_unit=y_unit), "measured against simulated output",
-             "Measured output (solid, dark) above each model (dashed); below, the simulation error."),
+        "<p>Measured output (solid, dark) above each model (dashed); below, the simulation error.</p>",
+        _grid(_img(compare_figure(data, fits, y_unit=y_unit, experiments=[k]),
+                   f"measured against simulated output, experiment {int(data.index[k])}")
+              for k in shown_experiments(data)),
         "<h2>Ranking of the effects (first diagnosis)</h2>",
         f"<p>Model: {html.escape(first.current.spec.label)}; best: <b>{html.escape(str(first.best))}</b>; "
         f"validation: {html.escape(first.validation)}.</p>",
@@ -203,8 +249,8 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
                      f"{html.escape(str(first.suggested_experiment))}.</p>")
     for analysis, fit in zip(analyses, fits):
         parts += [f"<h2>Residuals of {html.escape(fit.spec.label)}</h2>",
-                  _img(residual_figure(analysis, fit.spec.label, y_unit=y_unit, u_unit=u_unit),
-                       f"residuals of {fit.spec.label}"),
+                  _grid(_img(residual_figure(analysis, y_unit=y_unit, u_unit=u_unit, panels=[panel]),
+                             f"residuals of {fit.spec.label}: {panel}") for panel in RESIDUAL_PANELS),
                   "<p>Worst segments:</p>",
                   _table(analysis.worst, ["experiment", "t_start", "t_end", "rms", "mean"])]
     path = out / "index.html"

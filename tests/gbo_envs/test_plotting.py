@@ -34,7 +34,8 @@ def test_axis_label_names_the_unit():
 
 def test_render_has_a_title_and_units(monkeypatch):
     figures = []
-    monkeypatch.setattr(plotting, "figure_to_rgb", lambda fig: figures.append(fig) or np.zeros((2, 2, 3), dtype=np.uint8))
+    monkeypatch.setattr(plotting, "figure_to_rgb",
+                        lambda fig: figures.append(fig) or np.zeros((2, 2, 3), dtype=np.uint8))
     env = gym.make("gbo_envs/DCMotor-v0", render_mode="rgb_array")
     env.reset(seed=0)
     env.step(np.array([0.5, 1.2]))

@@ -55,3 +55,25 @@ def test_page_is_self_contained_and_fits_a_phone():
     assert "img{display:block;max-width:100%;height:auto}" in html and ".scroll{overflow-x:auto" in html
     assert f'src="data:image/png;base64,{base64.b64encode(png).decode()}"' in html
     assert "<figcaption>its caption</figcaption>" in html
+
+
+def test_residual_panels_have_units_and_bad_panels_are_named(data_and_fit):
+    from agents.twin.report import RESIDUAL_PANELS, residual_figure
+    from agents.twin.workbench import residuals
+
+    data, fit = data_and_fit
+    analysis = residuals(data, fit)
+    fig = residual_figure(analysis, y_unit="rad/s", u_unit="V")
+    assert [ax.get_xlabel() for ax in fig.axes] == [
+        "lag (samples)", "lag (samples)", "time in experiment (s)", "experiment (number)", "input level u (V)",
+        "output level y (rad/s)"]
+    assert [ax.get_ylabel() for ax in fig.axes][2:] == ["residual (rad/s)"] * 4
+    pyplot().close(fig)
+    one = residual_figure(analysis, panels=["input"], u_unit="V")
+    assert len(one.axes) == 1 and one.axes[0].get_xlabel() == "input level u (V)"
+    pyplot().close(one)
+    with pytest.raises(ValueError, match="panels"):
+        residual_figure(analysis, panels=["spectrum"])
+    with pytest.raises(ValueError, match="experiments"):
+        compare_figure(data, [fit], experiments=[5])
+    assert RESIDUAL_PANELS[0] == "acf"
