@@ -17,6 +17,7 @@ Needs Chromium (``make setup`` installs Debian's ``chromium`` where missing).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import tempfile
 import warnings
@@ -65,9 +66,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     warnings.simplefilter("ignore")
     work = args.work or Path(tempfile.mkdtemp(prefix="gbo-screenshots-"))
-    csv = twin_csv(work / "rig.csv")
-    if gbo(["twin", "report", str(csv), "--out", str(work / "twin"), "--max-steps", "1"]) != 0:
-        return 1
+    work.mkdir(parents=True, exist_ok=True)
+    twin_csv(work / "rig.csv")
+    with contextlib.chdir(work):  # the report names its data as given: rig.csv
+        if gbo(["twin", "report", "rig.csv", "--out", "twin", "--max-steps", "1"]) != 0:
+            return 1
     if gbo(["bench", "smoke", "--out", str(work / "smoke"), "--workers", "1", "--quiet"]) != 0:
         return 1
     summary = {"twin_report": photograph(work / "twin" / "index.html", "twin_report", args.out),

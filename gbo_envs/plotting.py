@@ -100,7 +100,7 @@ def legend_outside(ax, below: bool = False, **kwargs):
     ----------
     ax : matplotlib Axes
     below : bool, default False
-        Under the x axis label, in up to 2 columns, instead of on the right.
+        Under the x tick labels and axis label, in up to 2 columns, instead of on the right.
     **kwargs
         Passed to ``ax.legend``.
 
@@ -114,9 +114,30 @@ def legend_outside(ax, below: bool = False, **kwargs):
         return None
     options = {"loc": "upper left", "bbox_to_anchor": (1.01, 1.0), "borderaxespad": 0.0}
     if below:
-        options = {"loc": "upper center", "bbox_to_anchor": (0.5, -0.13), "ncols": min(2, len(handles))}
+        options = {"loc": "upper center", "bbox_to_anchor": (0.5, -0.1), "borderaxespad": 0.0,
+                   "ncols": min(2, len(handles))}
     options.update(kwargs)
-    return ax.legend(handles, labels, **options)
+    legend = ax.legend(handles, labels, **options)
+    if below and "bbox_to_anchor" not in kwargs:
+        _below_the_labels(ax, legend)
+    return legend
+
+
+def _below_the_labels(ax, legend, gap_px: float = 4.0, rounds: int = 3) -> None:
+    """Move ``legend`` just under the tick labels and x label of ``ax`` (they vary with rotation and size).
+
+    The layout shrinks the axes to make room for the legend, which moves the
+    labels in axes coordinates, so the anchor is found again a few times.
+    """
+    legend.set_in_layout(False)
+    for _ in range(rounds):
+        ax.figure.draw_without_rendering()
+        renderer = ax.figure.canvas.get_renderer()
+        box = ax.get_window_extent(renderer)
+        texts = [text for text in (ax.xaxis.label, *ax.get_xticklabels()) if text.get_visible() and text.get_text()]
+        bottom = min((text.get_window_extent(renderer).y0 for text in texts), default=box.y0)
+        legend.set_bbox_to_anchor((0.5, (bottom - gap_px - box.y0) / box.height), transform=ax.transAxes)
+        legend.set_in_layout(True)
 
 
 def response_figure(loop, response, labels=None, title: str | None = None, output_unit: str | None = None,
