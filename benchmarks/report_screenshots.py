@@ -17,8 +17,8 @@ Needs Chromium (``make setup`` installs Debian's ``chromium`` where missing).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
+import os
 import tempfile
 import warnings
 from pathlib import Path
@@ -68,9 +68,14 @@ def main(argv: list[str] | None = None) -> int:
     work = args.work or Path(tempfile.mkdtemp(prefix="gbo-screenshots-"))
     work.mkdir(parents=True, exist_ok=True)
     twin_csv(work / "rig.csv")
-    with contextlib.chdir(work):  # the report names its data as given: rig.csv
-        if gbo(["twin", "report", "rig.csv", "--out", "twin", "--max-steps", "1"]) != 0:
-            return 1
+    here = Path.cwd()
+    os.chdir(work)  # the report names its data as given: rig.csv
+    try:
+        status = gbo(["twin", "report", "rig.csv", "--out", "twin", "--max-steps", "1"])
+    finally:
+        os.chdir(here)
+    if status != 0:
+        return 1
     if gbo(["bench", "smoke", "--out", str(work / "smoke"), "--workers", "1", "--quiet"]) != 0:
         return 1
     summary = {"twin_report": photograph(work / "twin" / "index.html", "twin_report", args.out),

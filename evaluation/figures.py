@@ -63,7 +63,7 @@ def ratio_curve_figure(curves: dict[str, np.ndarray], thresholds: dict[str, floa
     """
     plt = pyplot()
     with style():
-        fig, ax = plt.subplots(figsize=(8.5, 4.5))
+        fig, ax = plt.subplots(figsize=(7.5, 5.2))
         bands = len(curves) <= 3 if bands is None else bands
         levels = sorted(levels, reverse=True)
         for color, (label, curve) in zip(_colors(len(curves)), curves.items()):
@@ -87,7 +87,7 @@ def ratio_curve_figure(curves: dict[str, np.ndarray], thresholds: dict[str, floa
         ax.yaxis.set_minor_formatter(plt.matplotlib.ticker.FormatStrFormatter("%.2f"))
         ax.tick_params(axis="y", which="minor", labelsize=7)
         ax.grid(True, which="both", alpha=0.3)
-        legend_outside(ax)
+        legend_outside(ax, below=True)
         if title:
             ax.set_title(title)
     return fig
@@ -105,7 +105,7 @@ def histogram_figure(table: pd.DataFrame, title: str | None = None):
     """
     plt = pyplot()
     with style():
-        fig, ax = plt.subplots(figsize=(8.5, 4))
+        fig, ax = plt.subplots(figsize=(7.5, 4.5))
         labels = [c for c in table.columns if c not in ("low", "high")]
         widths = (table["high"] - table["low"]).to_numpy()
         for i, (color, label) in enumerate(zip(_colors(len(labels)), labels)):
@@ -115,7 +115,7 @@ def histogram_figure(table: pd.DataFrame, title: str | None = None):
         ax.set_xlabel(axis_label(f"measured {_RATIO} (last bin: >= {table['low'].iloc[-1]:.3g})", "-"))
         ax.set_ylabel(axis_label("experiments", "%"))
         ax.grid(False, axis="x")
-        legend_outside(ax)
+        legend_outside(ax, below=True)
         if title:
             ax.set_title(title)
     return fig
