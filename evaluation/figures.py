@@ -208,7 +208,7 @@ def sweep_figure(table: pd.DataFrame, param: str, references: dict[str, dict[str
             for label, ref in (references or {}).items():
                 if column in ref:
                     top.axhline(ref[column], color=color, ls="--", lw=1, label=f"{label} {column}")
-        top.set_ylabel(axis_label("plant experiments (mean)", "count"))
+        top.set_ylabel(axis_label("mean plant experiments to threshold", "count"))
         legend_outside(top)
         bottom.plot(x, table["mean_measured_ratio"], "o-", color="tab:blue", label="mean measured ratio")
         for label, ref in (references or {}).items():
