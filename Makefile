@@ -5,9 +5,20 @@ PY := $(VENV)/bin/python
 PIP := $(VENV)/bin/pip
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: setup demo test test-fast bench lint clean
+.PHONY: setup chromium demo test test-fast bench lint clean
 
-setup: $(STAMP)
+setup: $(STAMP) chromium
+
+# Debian's chromium for the browser test of the HTML reports (tests/evaluation/test_report_browser.py):
+# installed only where missing and when we are root with apt-get; never fails setup (the test then skips)
+chromium:
+	@command -v chromium >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    { apt-get update && apt-get install -y chromium; } \
+	      || echo "note: could not install chromium; the browser test of the reports will skip"; \
+	  else \
+	    echo "note: chromium not found (as root: apt-get install -y chromium); the browser test of the reports will skip"; \
+	  fi; }
 
 # torch first, pinned to the CPU build, so that stable-baselines3 never pulls a CUDA build
 $(STAMP): pyproject.toml

@@ -215,34 +215,67 @@ class TuningResult:
         return f"{head}; best {gains}, cost {self.best_cost:.4g})"
 
     def plot(self, ax=None, optimum: float | None = None):
-        """Best measured cost against the number of plant experiments.
+        """Measured and best measured cost against the plant experiments, twin refits marked.
+
+        Axes: plant experiments (count, from 1); cost J (-).
 
         Parameters
         ----------
         ax : matplotlib Axes, optional
         optimum : float, optional
             Ground-truth ``J(theta*)`` drawn as a horizontal line.
+
+        Returns
+        -------
+        matplotlib Axes
         """
         from gbo_envs.lazy_pyplot import pyplot
+        from gbo_envs.plotting import COST_LABEL, REFERENCE, axis_label, legend_outside, style
 
         plt = pyplot()
-        if ax is None:
-            _, ax = plt.subplots(figsize=(6, 4))
-        rows = self.plant_rows
-        experiments = [row["experiment"] for row in rows]
-        ax.plot(experiments, [row["cost"] for row in rows], "o", ms=3, alpha=0.5, label="measured cost")
-        ax.step(experiments, [row["best_cost"] for row in rows], where="post", label="best measured cost")
-        if optimum is not None:
-            ax.axhline(optimum, color="k", ls="--", lw=1, label="ground-truth optimum")
-        # twin refits (guided BO): after experiment n the twin shown in the label drives the twin iterations
-        for k, change in enumerate(self.info.get("twin_changes", [])):
-            effects = "+".join(change.get("effects", {})) or "linear"
-            ax.axvline(change["experiment"] + 0.5, color="tab:green", ls=":", lw=1,
-                       label="twin refitted" if k == 0 else None)
-            ax.annotate(effects, (change["experiment"] + 0.5, 1.0), xycoords=("data", "axes fraction"),
-                        rotation=90, va="top", ha="right", fontsize=7, color="tab:green")
-        ax.set_xlabel("plant experiments")
-        ax.set_ylabel("cost J (-)")
-        ax.set_title(f"{self.tuner} on {self.env_id}")
-        ax.legend(fontsize=8)
+        with style():
+            if ax is None:
+                _, ax = plt.subplots(figsize=(7.5, 4))
+            rows = self.plant_rows
+            experiments = [row["experiment"] for row in rows]
+            ax.plot(experiments, [row["cost"] for row in rows], "o", ms=3, alpha=0.5, label="measured cost")
+            ax.step(experiments, [row["best_cost"] for row in rows], where="post", label="best measured cost")
+            if optimum is not None:
+                ax.axhline(optimum, label="ground-truth optimum J*", **REFERENCE)
+            # twin refits (guided BO): after experiment n the twin shown in the label drives the twin iterations
+            for k, change in enumerate(self.info.get("twin_changes", [])):
+                effects = "+".join(change.get("effects", {})) or "linear"
+                ax.axvline(change["experiment"] + 0.5, color="tab:green", ls=":", lw=1,
+                           label="twin refitted" if k == 0 else None)
+                ax.annotate(effects, (change["experiment"] + 0.5, 1.0), xycoords=("data", "axes fraction"),
+                            rotation=90, va="top", ha="right", fontsize=7, color="tab:green")
+            ax.set_xlabel(axis_label("plant experiments", "count"))
+            ax.set_ylabel(COST_LABEL)
+            ax.set_title(f"{self.tuner} on {self.env_id}")
+            legend_outside(ax)
+        return ax
+
+    def plot_gains(self, truth, ax=None):
+        """The gains this run queried, in order, on the ground-truth cost surface with ``J*`` marked.
+
+        Axes: the two gains in their units; colour bar: cost J (-).
+
+        Parameters
+        ----------
+        truth : gbo_envs.GroundTruth
+            Two-gain ground truth of the same env.
+        ax : matplotlib Axes, optional
+
+        Returns
+        -------
+        matplotlib Axes
+        """
+        from gbo_envs.plotting import cost_surface
+
+        path = np.array([[row[name] for name in self.gain_names] for row in self.plant_rows]).reshape(-1, len(
+            self.gain_names))
+        twin = np.array([[row[name] for name in self.gain_names] for row in self.rows if row["source"] == "twin"])
+        points = {f"twin evaluations ({len(twin)})": twin} if len(twin) else None
+        ax = cost_surface(truth, ax=ax, points=points, path=path)
+        ax.set_title(f"{self.tuner} on {self.env_id}, seed {self.seed}")
         return ax

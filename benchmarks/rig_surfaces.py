@@ -32,6 +32,7 @@ from scipy import ndimage
 import gbo_envs
 from gbo_envs import ground_truth
 from gbo_envs.lazy_pyplot import pyplot
+from gbo_envs.plotting import axis_label, legend_outside, style
 
 ROOT = Path(__file__).resolve().parents[1]
 IMAGES = ROOT / "docs" / "images"
@@ -56,20 +57,22 @@ def single_draw_error(env_id: str, gains: np.ndarray, optimum: float, draws: int
 
 
 def heat_map(truth, name: str, path: Path) -> None:
+    """Optimality ratio J/J* (-) over the two gains (in their units), J* and the 1.1 J* contour marked."""
     plt = pyplot()
     ratio = truth.costs.T / truth.cost
-    fig, ax = plt.subplots(figsize=(6.4, 5))
-    mesh = ax.pcolormesh(truth.axes[0], truth.axes[1], ratio, shading="nearest", cmap="viridis",
-                         vmin=1.0, vmax=min(3.0, float(ratio.max())))
-    fig.colorbar(mesh, ax=ax, label="optimality ratio J / J* (dimensionless)")
-    ax.contour(truth.axes[0], truth.axes[1], ratio, levels=[1.1], colors="w", linewidths=0.8)
-    ax.plot(*truth.gains, "r*", ms=14,
-            label=f"J* = {truth.cost:.4f} at ({truth.gains[0]:.4g}, {truth.gains[1]:.4g})")
-    ax.set_xlabel(f"{truth.gain_names[0]} ({truth.gain_units[0]})")
-    ax.set_ylabel(f"{truth.gain_names[1]} ({truth.gain_units[1]})")
-    ax.set_title(f"{name} (white line: J = 1.1 J*)")
-    ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
+    with style():
+        fig, ax = plt.subplots(figsize=(7, 5))
+        mesh = ax.pcolormesh(truth.axes[0], truth.axes[1], ratio, shading="nearest", cmap="viridis",
+                             vmin=1.0, vmax=min(3.0, float(ratio.max())))
+        fig.colorbar(mesh, ax=ax, label=axis_label("optimality ratio J/J*", "-"))
+        ax.grid(False)
+        ax.contour(truth.axes[0], truth.axes[1], ratio, levels=[1.1], colors="w", linewidths=0.8)
+        ax.plot(*truth.gains, "*", color="tab:red", mec="w", ms=15,
+                label=f"J* = {truth.cost:.4f} at ({truth.gains[0]:.4g}, {truth.gains[1]:.4g})")
+        ax.set_xlabel(axis_label(f"gain {truth.gain_names[0]}", truth.gain_units[0]))
+        ax.set_ylabel(axis_label(f"gain {truth.gain_names[1]}", truth.gain_units[1]))
+        ax.set_title(f"{name} (white line: J = 1.1 J*)")
+        legend_outside(ax, below=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

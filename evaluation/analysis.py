@@ -104,17 +104,18 @@ def study_ground_truth(study, out: Path | str | None = None):
     cache = Path(out) / "ground_truth.npz" if out is not None else None
     if cache is not None and cache.is_file():
         data = np.load(cache, allow_pickle=False)
-        if str(data["key"]) == key:
+        if str(data["key"]) == key and "gain_units" in data:
             n = int(data["n_axes"])
             return gbo_envs.GroundTruth(gains=data["gains"], cost=float(data["cost"]),
                                         gain_names=tuple(str(s) for s in data["gain_names"]),
-                                        axes=tuple(data[f"axis{i}"] for i in range(n)), costs=data["costs"])
+                                        axes=tuple(data[f"axis{i}"] for i in range(n)), costs=data["costs"],
+                                        gain_units=tuple(str(s) for s in data["gain_units"]))
     truth = gbo_envs.ground_truth(study.env_id, resolution=study.resolution, **study.env_kwargs)
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
         axes = {f"axis{i}": axis for i, axis in enumerate(truth.axes)}
         np.savez(cache, key=key, gains=truth.gains, cost=truth.cost, gain_names=np.array(truth.gain_names),
-                 n_axes=len(truth.axes), costs=truth.costs, **axes)
+                 gain_units=np.array(truth.gain_units), n_axes=len(truth.axes), costs=truth.costs, **axes)
     return truth
 
 

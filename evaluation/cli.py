@@ -45,9 +45,7 @@ def _demo(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     """The ``gbo`` argument parser with every available sub-command."""
     parser = OneLineParser(prog="gbo", description="Data-efficient controller tuning with guided BO.",
-                           epilog="Example:
-  gbo demo
-  gbo tune --budget 20 && gbo export --csv "
+                           epilog="Example:\n  gbo demo\n  gbo tune --budget 20 && gbo export --csv "
                                   "out/run.csv && gbo twin diagnose out/run.csv",
                            formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--debug", action="store_true",

@@ -16,8 +16,7 @@ import numpy as np
 
 import gbo_envs
 from evaluation.figures import save
-from gbo_envs.lazy_pyplot import pyplot
-from gbo_envs.plotting import response_figure
+from gbo_envs.plotting import convergence_figure, response_figure
 
 __all__ = ["run_demo"]
 
@@ -46,7 +45,6 @@ def run_demo(out: Path, env_id: str = "gbo_envs/DCMotor-v0", seed: int = 0, budg
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    plt = pyplot()
     summary: dict = {}
 
     start = time.perf_counter()
@@ -70,14 +68,13 @@ def run_demo(out: Path, env_id: str = "gbo_envs/DCMotor-v0", seed: int = 0, budg
         gains.append(nominal)
         labels.append(f"paper's nominal PGM {_fmt(names, nominal)}")
     response = env.loop.simulate(np.array(gains), rng=np.random.default_rng(0))
-    fig = response_figure(env.loop, response, labels=labels, title=f"{env_id}: step responses")
+    fig = response_figure(env.loop, response, labels=labels, title=f"{env_id}: step responses",
+                          output_unit=env.output_unit, input_unit=env.input_unit)
     save(fig, out / "optimal_step_response.png", dpi=120)
 
-    fig, ax = plt.subplots(figsize=(6.5, 5))
-    truth.plot(ax=ax)
+    ax = truth.plot()
     ax.set_title(f"{env_id}: noise-free cost surface")
-    fig.tight_layout()
-    save(fig, out / "cost_surface.png", dpi=120)
+    save(ax.figure, out / "cost_surface.png", dpi=120)
     print(f"Wrote {out / 'optimal_step_response.png'} and {out / 'cost_surface.png'}")
 
     if tuners:
@@ -91,25 +88,19 @@ def _run_tuners(out: Path, env_id: str, truth, seed: int, budget: int, progress:
     available = [name for name in ("bo", "guided-bo") if name in agents.registered_names()]
     if not available:
         return {}
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(6.5, 4))
+    results = []
     rows = {}
     print(f"\nTuning {env_id} with {', '.join(available)} (seed {seed}, {budget} plant experiments each):")
     for name in available:
         result = agents.make(name).run(gym.make(env_id), budget=budget, seed=seed, progress=progress)
+        results.append(result)
         ratio = result.min_true_cost_curve() / truth.cost
-        ax.plot(np.arange(1, ratio.size + 1), ratio, label=name)
         best = result.best_gains
         rows[name] = {"gains": dict(zip(truth.gain_names, best.tolist())), "final_ratio": float(ratio[-1]),
                       "twin_evaluations": result.n_twin}
         print(f"  {name:10s} best {_fmt(truth.gain_names, best)}  optimality ratio {ratio[-1]:.3f}"
               f"  twin evaluations {result.n_twin}")
-    ax.axhline(1.0, color="k", lw=1)
-    ax.set_xlabel("plant experiments")
-    ax.set_ylabel("minimum observed optimality ratio")
-    ax.set_title(f"{env_id}, seed {seed}")
-    ax.legend()
-    fig.tight_layout()
+    fig = convergence_figure(results, optimum=truth.cost, title=f"{env_id}, seed {seed}")
     save(fig, out / "tuner_convergence.png", dpi=120)
     print(f"Wrote {out / 'tuner_convergence.png'}")
     return rows

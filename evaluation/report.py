@@ -1,14 +1,18 @@
-"""Markdown report of a study: spec, our numbers beside the paper's, figures, runtime and notes.
+"""Report of a study: spec, our numbers beside the paper's, figures, runtime and notes.
 
 :func:`write_report` reads the finished batches under ``OUT/results``, writes the
 PNG figures next to ``OUT/report.md`` and links them relatively, so the folder
-can be committed (``docs/reports/<study>/``) and read on GitHub.
+can be committed (``docs/reports/<study>/``) and read on GitHub. Beside it,
+``OUT/report.html`` is the same report as one self-contained page (figures
+inline, tables that scroll on a phone; :func:`write_html`).
 """
 
 from __future__ import annotations
 
+import html
 import json
 import math
+import re
 import time
 from pathlib import Path
 
@@ -19,7 +23,7 @@ from evaluation import analysis, figures
 from evaluation.study import Study
 from gbo_envs.atomic_write import atomic_write
 
-__all__ = ["write_report", "write_figures", "markdown_table"]
+__all__ = ["write_report", "write_figures", "write_html", "markdown_table"]
 
 
 def markdown_table(headers: list[str], rows: list[list]) -> str:
@@ -131,6 +135,7 @@ def write_report(study: Study, out: Path | str, frame: pd.DataFrame | None = Non
         path = out / "report.md"
         with atomic_write(path) as handle:
             handle.write("\n".join(lines))
+        write_html(path, title=study.title)
         return path
 
     truth = analysis.study_ground_truth(study, out)
@@ -171,6 +176,47 @@ def write_report(study: Study, out: Path | str, frame: pd.DataFrame | None = Non
     path = out / "report.md"
     with atomic_write(path) as handle:
         handle.write("\n".join(lines))
+    write_html(path, title=study.title)
+    return path
+
+
+def write_html(markdown_path: Path | str, title: str = "") -> Path:
+    """Write the Markdown report as one self-contained HTML page beside it (``report.html``).
+
+    Images linked relatively are inlined as base64 PNG; every table scrolls
+    sideways inside its own box on a narrow screen.
+
+    Parameters
+    ----------
+    markdown_path : Path or str
+        The ``report.md`` of a study.
+    title : str, optional
+        Title of the page (default: the file's folder name).
+
+    Returns
+    -------
+    Path
+        The ``.html`` file.
+    """
+    from markdown_it import MarkdownIt
+
+    from agents.html_page import image_tag, page, scrolling
+
+    markdown_path = Path(markdown_path)
+    body = MarkdownIt("commonmark").enable("table").render(markdown_path.read_text(encoding="utf-8"))
+
+    def inline(match: re.Match) -> str:
+        src, alt = html.unescape(match.group(1)), html.unescape(match.group(2))
+        image = markdown_path.parent / src
+        if "://" in src or not image.is_file():
+            raise ValueError(f"{markdown_path}: image {src!r} is not a file beside the report")
+        return image_tag(image.read_bytes(), alt)
+
+    body = re.sub(r'<p><img src="([^"]*)" alt="([^"]*)" /></p>', inline, body)
+    body = re.sub(r"<table>.*?</table>", lambda m: scrolling(m.group(0)), body, flags=re.S)
+    path = markdown_path.with_suffix(".html")
+    with atomic_write(path) as handle:
+        handle.write(page(title or markdown_path.parent.name, body))
     return path
 
 

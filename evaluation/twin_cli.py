@@ -107,7 +107,13 @@ def _units(args) -> dict:
 
 
 def _y_unit(args) -> str:
-    return args.y_unit or "(units of y)"
+    """Unit of ``y`` in printouts and on plots: ``--y-unit``, else "units of y" (a CSV does not say)."""
+    return args.y_unit or "units of y"
+
+
+def _u_unit(args) -> str:
+    """Unit of ``u`` in printouts and on plots: ``--u-unit``, else "input units"."""
+    return args.u_unit or "input units"
 
 
 def _load(args):
@@ -170,7 +176,7 @@ def _compare(args) -> int:
         res = compare(data, fit)  # experiments numbered from 1, as in the CSV
         bar.set_postfix_str("plotting")
         out = Path(args.out) if args.out else default_out(args.data)
-        plot = save(compare_figure(data, [fit]), out / "compare.png", dpi=100)  # atomic; folders created
+        plot = save(compare_figure(data, [fit], y_unit=_y_unit(args)), out / "compare.png", dpi=100)  # atomic
         bar.update(1)
     finally:
         bar.close()
@@ -206,7 +212,8 @@ def _resid(args) -> int:
         if args.out:
             from agents.twin.report import residual_figure
 
-            save(residual_figure(ra, fit.spec.label), Path(args.out) / "residuals.png", dpi=100)
+            save(residual_figure(ra, fit.spec.label, y_unit=_y_unit(args), u_unit=_u_unit(args)),
+                 Path(args.out) / "residuals.png", dpi=100)
         bar.update(1)
     finally:
         bar.close()
@@ -285,7 +292,8 @@ def _report(args) -> int:
                                     progress=_progress(args), units=_units(args))
     fits = [diagnoses[0].current] + ([diagnoses[-1].current] if len(diagnoses) > 1 else [])
     analyses = [residuals(data, f) for f in fits]
-    path = write_report(args.out, data, rungs, diagnoses, analyses, source=str(args.data))
+    path = write_report(args.out, data, rungs, diagnoses, analyses, source=str(args.data), y_unit=_y_unit(args),
+                        u_unit=_u_unit(args))
     last = diagnoses[-1]
     y = _y_unit(args)
     print("error ladder (RMSE and fit % of the fit to all data; held-out RMSE ranks the effects):")

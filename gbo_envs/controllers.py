@@ -30,6 +30,20 @@ class Controller:
         """Return ``(b0, b1, a1)`` of shape (batch,) for gains of shape (batch, n_gains)."""
         raise NotImplementedError
 
+    def units_for(self, input_unit: str, output_unit: str) -> tuple[str, ...]:
+        """Units of the gains in a loop whose plant input is in ``input_unit`` and output in ``output_unit``.
+
+        The base class knows no law, so it returns :attr:`gain_units`.
+
+        Parameters
+        ----------
+        input_unit : str
+            Unit of the controller's output, the plant input ``u`` (e.g. ``"A"``).
+        output_unit : str
+            Unit of the measured output ``y`` and of the control error (e.g. ``"rad/s"``).
+        """
+        return tuple(self.gain_units)
+
     def transfer_function(self, gains: np.ndarray) -> tuple[list[float], list[float]]:
         """Continuous ``C(s)`` as ``(num, den)`` for one gain vector (for analysis)."""
         raise NotImplementedError
@@ -44,12 +58,17 @@ class Controller:
 class PIController(Controller):
     """PI speed controller of the paper, eq. (Cv): ``C(s) = Kp (1 + Ki / s)``.
 
-    ``Kp`` is dimensionless (controller units per rad/s of error) and ``Ki`` in
-    1/s. Tustin: ``u[k] = u[k-1] + (Kp + Kp Ki dt/2) e[k] + (-Kp + Kp Ki dt/2) e[k-1]``.
+    ``Kp`` is in input units per output unit (``(input units)/(rad/s)`` on the
+    DC motor, see :meth:`units_for`) and ``Ki`` in 1/s.
+    Tustin: ``u[k] = u[k-1] + (Kp + Kp Ki dt/2) e[k] + (-Kp + Kp Ki dt/2) e[k-1]``.
     """
 
     gain_names: tuple[str, ...] = ("Kp", "Ki")
-    gain_units: tuple[str, ...] = ("-", "1/s")
+    gain_units: tuple[str, ...] = ("(input units)/(output units)", "1/s")
+
+    def units_for(self, input_unit: str, output_unit: str) -> tuple[str, ...]:
+        """``Kp`` in ``input_unit/output_unit``, ``Ki`` in 1/s."""
+        return _per(input_unit, output_unit), "1/s"
 
     def coefficients(self, gains, dt):
         kp, ki = gains[:, 0], gains[:, 1]
@@ -77,6 +96,10 @@ class PDT1Controller(Controller):
     gain_names: tuple[str, ...] = ("Kp", "Kd")
     gain_units: tuple[str, ...] = ("A/m", "A s/m")
 
+    def units_for(self, input_unit: str, output_unit: str) -> tuple[str, ...]:
+        """``Kp`` in ``input_unit/output_unit``, ``Kd`` in ``input_unit s/output_unit`` (A/m, A s/m on the LinMot)."""
+        return _per(input_unit, output_unit), _per(f"{_grouped(input_unit)} s", output_unit)
+
     def coefficients(self, gains, dt):
         kp, kd = gains[:, 0], gains[:, 1]
         tf = self.filter_time
@@ -88,6 +111,17 @@ class PDT1Controller(Controller):
         kp, kd = float(gains[0]), float(gains[1])
         tf = self.filter_time
         return [kp * tf + kd, kp], [tf, 1.0]
+
+
+def _grouped(unit: str) -> str:
+    """``unit`` in parentheses when it is a quotient or a phrase (``rad/s``, ``input units``), else as given."""
+    return f"({unit})" if "/" in unit or " " in unit else unit
+
+
+def _per(numerator: str, denominator: str) -> str:
+    """``numerator/denominator`` with parentheses where a reader needs them: ``(input units)/(rad/s)``, ``A/m``."""
+    top = f"({numerator})" if "/" in numerator or numerator.endswith("units") else numerator
+    return f"{top}/{_grouped(denominator)}"
 
 
 CONTROLLERS = {"PI": PIController, "PDT1": PDT1Controller}

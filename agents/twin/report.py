@@ -3,30 +3,45 @@
 * :func:`compare_figure`: measured against simulated output per experiment, and the error;
 * :func:`residual_figure`: whiteness, input cross-correlation (99 % bands) and where the model fails;
 * :func:`ladder_figure`: the error ladder, RMSE as effects are added;
-* :func:`write_report`: one HTML page with the plots, the ranking and the ladder.
+* :func:`write_report`: one self-contained HTML page (figures inline as base64 PNG, readable at phone
+  width) with the plots, the ranking and the ladder.
 """
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from agents.html_page import image_tag, page, scrolling
 from agents.twin.greybox import GreyData, GreyFit
 from agents.twin.ladder_text import advice, unobservable_lines
 from agents.twin.workbench import Diagnosis, ResidualAnalysis, compare
 from gbo_envs.atomic_write import atomic_write
 from gbo_envs.lazy_pyplot import pyplot
+from gbo_envs.plotting import MEASURED, MODEL, REFERENCE, axis_label, legend_outside, style
 
-__all__ = ["compare_figure", "figure_to_base64", "ladder_figure", "residual_figure", "write_report"]
+__all__ = ["RESIDUAL_PANELS", "compare_figure", "ladder_figure", "residual_figure", "shown_experiments", "write_report"]
 
 
-def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int = 4):
-    """Overlay of measured ``y`` and each model's simulated output, with the errors below.
+#: Panels of :func:`residual_figure`, in order.
+RESIDUAL_PANELS = ("acf", "ccf", "time", "experiment", "input", "output")
+
+
+def shown_experiments(data: GreyData, max_experiments: int = 4) -> np.ndarray:
+    """Positions of at most ``max_experiments`` records spread over the data set."""
+    return np.unique(np.linspace(0, data.n_records - 1, min(max_experiments, data.n_records)).round().astype(int))
+
+
+def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int = 4, y_unit: str = "",
+                   experiments: Sequence[int] | None = None):
+    """Measured ``y`` above each model's simulated output per experiment, with the errors below.
+
+    Axes: time since the step t (s); output y and error y - y_sim in ``y_unit``.
+    The measured trace is solid and dark on top (:data:`gbo_envs.plotting.MEASURED`),
+    each model dashed in colour below it.
 
     Parameters
     ----------
@@ -34,110 +49,165 @@ def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int
     fits : sequence of GreyFit
         Models to overlay (e.g. the linear model and the model with the diagnosed effect).
     max_experiments : int, default 4
-        Experiments shown (spread over the data set).
+        Experiments shown (spread over the data set), at most 2 per row.
+    y_unit : str
+        Unit of the output ("" when unknown).
+    experiments : sequence of int, optional
+        Positions of the records to show instead (0 for the first record).
     """
     plt = pyplot()
-    shown = np.unique(np.linspace(0, data.n_records - 1, min(max_experiments, data.n_records)).round().astype(int))
-    fig, axes = plt.subplots(2, shown.size, figsize=(4.2 * shown.size, 5.5), squeeze=False, sharex="col")
-    for col, k in enumerate(shown):
-        m = data.mask[k]
-        t = data.t[k][m]
-        ax, ax_err = axes[0, col], axes[1, col]
-        ax.plot(t, data.y[k][m], color="0.3", lw=0.8, label="measured")
-        for fit in fits:
-            res = compare(data, fit)
-            ax.plot(t, fit.y_sim[k][m], lw=1.2, label=f"{fit.spec.label} ({res.fit_percent[k]:.1f} %)")
-            ax_err.plot(t, data.y[k][m] - fit.y_sim[k][m], lw=0.8, label=fit.spec.label)
-        ax.set_title(f"experiment {int(data.numbers[k])}")
-        ax_err.set_xlabel("t (s)")
-        ax.legend(fontsize=7)
-    axes[0, 0].set_ylabel("y")
-    axes[1, 0].set_ylabel("y - y_sim")
-    fig.tight_layout()
+    shown = shown_experiments(data, max_experiments) if experiments is None else np.asarray(experiments, dtype=int)
+    if shown.size == 0 or shown.min() < 0 or shown.max() >= data.n_records:
+        raise ValueError(f"experiments: record positions in [0, {data.n_records - 1}], got {shown.tolist()}")
+    results = [compare(data, fit) for fit in fits]
+    columns = min(2, shown.size)
+    rows = int(np.ceil(shown.size / columns))
+    with style():
+        fig, axes = plt.subplots(2 * rows, columns, figsize=(5.4 * columns, 4.2 * rows + 0.6), squeeze=False,
+                                 height_ratios=[2, 1] * rows)
+        for n, k in enumerate(shown):
+            ax, ax_err = axes[2 * (n // columns), n % columns], axes[2 * (n // columns) + 1, n % columns]
+            ax_err.sharex(ax)
+            m = data.mask[k]
+            t = data.t[k][m]
+            for i, fit in enumerate(fits):
+                ax.plot(t, fit.y_sim[k][m], color=f"C{i}", label=f"model: {fit.spec.label}", **MODEL)
+                ax_err.plot(t, data.y[k][m] - fit.y_sim[k][m], color=f"C{i}", lw=0.9)
+            ax.plot(t, data.y[k][m], label="measured", **MEASURED)
+            fit_text = " / ".join(f"{res.fit_percent[k]:.1f} %" for res in results)
+            ax.set_title(f"experiment {int(data.numbers[k])}: fit {fit_text}")
+            ax.set_ylabel(axis_label("output y", y_unit))
+            ax_err.set_ylabel(axis_label("y - y_sim", y_unit))
+            ax_err.set_xlabel(axis_label("time since step t", "s"))
+            ax_err.axhline(0.0, **REFERENCE)
+        for n in range(shown.size, rows * columns):
+            axes[2 * (n // columns), n % columns].set_visible(False)
+            axes[2 * (n // columns) + 1, n % columns].set_visible(False)
+        handles, labels = axes[0, 0].get_legend_handles_labels()
+        fig.legend(handles[::-1], labels[::-1], loc="outside upper center", ncols=min(2, len(labels)))
     return fig
 
 
-def residual_figure(analysis: ResidualAnalysis, title: str = ""):
-    """Residual autocorrelation and input cross-correlation with 99 % bands, and the binned residual."""
+def residual_figure(analysis: ResidualAnalysis, title: str = "", y_unit: str = "", u_unit: str = "",
+                    panels: Sequence[str] = RESIDUAL_PANELS):
+    """Residual autocorrelation and input cross-correlation with 99 % bands, and the binned residual.
+
+    Axes: lag (samples) against the normalised correlation (-); the binned
+    residual (rms and mean, in ``y_unit``) against time in the experiment
+    (s), experiment number, input level (``u_unit``) and output level (``y_unit``).
+
+    Parameters
+    ----------
+    analysis : ResidualAnalysis
+    title : str
+    y_unit, u_unit : str
+        Units of the output and the input ("" when unknown).
+    panels : sequence of str, default all of :data:`RESIDUAL_PANELS`
+        Which panels to draw, at most 3 per row.
+    """
+    unknown = [p for p in panels if p not in RESIDUAL_PANELS]
+    if unknown or not panels:
+        raise ValueError(f"panels: a non-empty selection of {RESIDUAL_PANELS}, got {list(panels)}")
     plt = pyplot()
-    fig, axes = plt.subplots(2, 3, figsize=(13, 6.5))
-    ax = axes[0, 0]
-    ax.bar(analysis.lags, analysis.acf, width=0.8, color="tab:blue")
-    ax.axhspan(-analysis.band, analysis.band, color="tab:orange", alpha=0.3, label="99 % band")
-    ax.set_title(f"residual autocorrelation ({'white' if analysis.white else 'not white'})")
-    ax.set_xlabel("lag (samples)")
-    ax.legend(fontsize=7)
-    ax = axes[0, 1]
-    ax.bar(analysis.ccf_lags, analysis.ccf, width=0.8, color="tab:green")
-    ax.axhspan(-analysis.band, analysis.band, color="tab:orange", alpha=0.3)
-    ax.set_title(f"residual-input cross-correlation ({'independent' if analysis.independent else 'correlated'})")
-    ax.set_xlabel("lag (samples)")
-    panels = [("time", "time in experiment (s)", axes[0, 2]), ("experiment", "experiment index", axes[1, 0]),
-              ("input", "input level u", axes[1, 1]), ("output", "output level y", axes[1, 2])]
-    for key, label, ax in panels:
-        b = analysis.bins[key]
-        ax.plot(b["centers"], b["rms"], "o-", label="rms")
-        ax.plot(b["centers"], b["mean"], "s--", label="mean")
-        ax.set_xlabel(label)
-        ax.axhline(0.0, color="0.6", lw=0.5)
-    sign = analysis.bins["velocity_sign"]
-    axes[1, 2].set_title("sign of velocity: " + ", ".join(
-        f"{int(c):+d}: rms {r:.3g}" for c, r in zip(sign["centers"], sign["rms"])), fontsize=8)
-    axes[0, 2].legend(fontsize=7)
-    fig.suptitle(title)
-    fig.tight_layout()
+    columns = min(3, len(panels))
+    rows = int(np.ceil(len(panels) / columns))
+    with style():
+        fig, axes = plt.subplots(rows, columns, figsize=(4.4 * columns, 3.9 * rows), squeeze=False)
+        for ax in axes.ravel()[len(panels):]:
+            ax.set_visible(False)
+        for panel, ax in zip(panels, axes.ravel()):
+            _residual_panel(ax, panel, analysis, y_unit, u_unit)
+        if title:
+            fig.suptitle(title)
     return fig
 
 
-def ladder_figure(rungs: Sequence[dict], noise_rmse: float | None = None):
-    """Bar chart of the error ladder: RMSE of each model as effects are added."""
+def _residual_panel(ax, panel: str, analysis: ResidualAnalysis, y_unit: str, u_unit: str) -> None:
+    """Draw one panel of :func:`residual_figure` on ``ax``."""
+    if panel in ("acf", "ccf"):
+        lags, values, color = ((analysis.lags, analysis.acf, "tab:blue") if panel == "acf" else
+                               (analysis.ccf_lags, analysis.ccf, "tab:green"))
+        ax.bar(lags, values, width=0.8, color=color, label="autocorrelation" if panel == "acf" else
+               "cross-correlation with u")
+        ax.axhspan(-analysis.band, analysis.band, color="tab:orange", alpha=0.3, label="99 % band")
+        ax.set_title(f"residual autocorrelation ({'white' if analysis.white else 'not white'})" if panel == "acf"
+                     else f"residual-input correlation ({'independent' if analysis.independent else 'correlated'})")
+        ax.set_xlabel(axis_label("lag", "samples"))
+        ax.set_ylabel(axis_label("correlation", "-"))
+        legend_outside(ax, below=True)
+        return
+    label = {"time": axis_label("time in experiment", "s"), "experiment": axis_label("experiment", "number"),
+             "input": axis_label("input level u", u_unit), "output": axis_label("output level y", y_unit)}[panel]
+    b = analysis.bins[panel]
+    ax.plot(b["centers"], b["rms"], "o-", label="rms residual")
+    ax.plot(b["centers"], b["mean"], "s--", label="mean residual")
+    ax.set_xlabel(label)
+    ax.set_ylabel(axis_label("residual", y_unit))
+    ax.axhline(0.0, **REFERENCE)
+    legend_outside(ax, below=True)
+    if panel == "experiment":
+        ax.xaxis.set_major_locator(pyplot().MaxNLocator(integer=True))
+    if panel == "output":
+        sign = analysis.bins["velocity_sign"]
+        ax.set_title("sign of velocity: " + ", ".join(
+            f"{int(c):+d}: rms {r:.3g}" for c, r in zip(sign["centers"], sign["rms"])), fontsize=8)
+    else:
+        ax.set_title({"time": "residual over the experiment", "experiment": "residual per experiment",
+                      "input": "residual against the input level"}[panel])
+
+
+def ladder_figure(rungs: Sequence[dict], noise_rmse: float | None = None, y_unit: str = ""):
+    """Bar chart of the error ladder: RMSE of each model as effects are added.
+
+    Axes: the models (categories); RMSE in ``y_unit``.
+    """
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(1.8 * len(rungs) + 3, 3.8))
-    labels = [r["model"] for r in rungs]
-    ax.bar(range(len(rungs)), [r["rmse"] for r in rungs], color="tab:blue", label="RMSE (fit to all data)")
-    ax.plot(range(len(rungs)), [r["heldout_rmse"] for r in rungs], "o", color="tab:red", label="held-out RMSE")
-    if noise_rmse is not None:
-        ax.axhline(noise_rmse, color="tab:orange", ls="--",
-                   label=f"noise-floor estimate {noise_rmse:.3g} (not a lower bound)")
-    ax.set_xticks(range(len(rungs)), labels, rotation=15, fontsize=8)
-    ax.set_ylabel("RMSE (units of y)")
-    ax.set_title("error ladder")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
+    with style():
+        fig, ax = plt.subplots(figsize=(1.5 * len(rungs) + 3.0, 4.2))
+        labels = [r["model"] for r in rungs]
+        ax.bar(range(len(rungs)), [r["rmse"] for r in rungs], color="tab:blue", label="RMSE (fit)")
+        ax.plot(range(len(rungs)), [r["heldout_rmse"] for r in rungs], "o", color="tab:red", label="held-out RMSE")
+        if noise_rmse is not None:
+            ax.axhline(noise_rmse, color="tab:orange", ls="--",
+                       label=f"noise-floor estimate {noise_rmse:.3g} (not a lower bound)")
+        ax.set_xticks(range(len(rungs)), labels, rotation=15, ha="right", fontsize=8)
+        ax.set_ylabel(axis_label("RMSE", y_unit))
+        ax.set_title("error ladder")
+        legend_outside(ax, below=True)
     return fig
 
 
-def figure_to_base64(fig) -> str:
-    """PNG of a matplotlib figure as a base64 string (the figure is closed)."""
-    plt = pyplot()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
+def _img(fig, alt: str, caption: str = "") -> str:
+    return image_tag(fig, alt, caption)
 
 
-def _img(fig, alt: str) -> str:
-    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{figure_to_base64(fig)}"/>'
+def _grid(items) -> str:
+    """Figures side by side on a wide screen, one under the other on a phone."""
+    return f"<div class='grid'>{''.join(items)}</div>"
 
 
-def _table(rows: Sequence[dict], columns: Sequence[str]) -> str:
+def _cell(value) -> str:
+    """Text of a table cell: floats to 4 significant digits, mappings as ``key=value``, None as a dash."""
+    if value is None:
+        return "\u2014"
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, dict):
+        return ", ".join(f"{k}={_cell(x)}" if not isinstance(x, dict) else f"{k}: {_cell(x)}"
+                         for k, x in value.items())
+    return str(value)
+
+
+def _table(rows: Sequence[dict], columns: Sequence[str], table_id: str = "") -> str:
     head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
-    body = []
-    for row in rows:
-        cells = []
-        for c in columns:
-            v = row.get(c, "")
-            if isinstance(v, float):
-                v = f"{v:.4g}"
-            elif isinstance(v, dict):
-                v = ", ".join(f"{k}={x:.4g}" if isinstance(x, float) else f"{k}={x}" for k, x in v.items())
-            cells.append(f"<td>{html.escape(str(v))}</td>")
-        body.append("<tr>" + "".join(cells) + "</tr>")
-    return f"<table><tr>{head}</tr>{''.join(body)}</table>"
+    body = ["<tr>" + "".join(f"<td>{html.escape(_cell(row.get(c, '')))}</td>" for c in columns) + "</tr>"
+            for row in rows]
+    id_attr = f" id='{table_id}'" if table_id else ""
+    return scrolling(f"<table{id_attr}><tr>{head}</tr>{''.join(body)}</table>")
 
 
 def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], diagnoses: Sequence[Diagnosis],
-                 analyses: Sequence[ResidualAnalysis], source: str = "") -> Path:
+                 analyses: Sequence[ResidualAnalysis], source: str = "", y_unit: str = "", u_unit: str = "") -> Path:
     """Write ``index.html`` (self-contained) into ``out_dir`` and return its path.
 
     Parameters
@@ -148,6 +218,8 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
     analyses : residual analyses of the first and the last model of the ladder
     source : str
         Name of the data (e.g. the CSV path), shown in the title.
+    y_unit, u_unit : str
+        Units of the measured output and the input, for the axes ("" when unknown).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -156,22 +228,23 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
     noise = first.noise_rmse
     next_step = advice(last, last.current.spec.effect_names, source or "DATA.csv", stopped_at_max=last.best is not None)
     parts = [
-        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>twin workbench report</title><style>"
-        "body{font-family:sans-serif;max-width:1400px;margin:auto;padding:1em}"
-        "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;font-size:13px}"
-        "img{max-width:100%}</style></head><body>",
         f"<h1>Twin workbench: {html.escape(source)}</h1>",
         f"<p>{data.n_records} experiments, {data.n_samples} samples, dt = {data.dt:g} s; "
-        f"{html.escape(first.noise_label)}: {'n/a' if noise is None else f'{noise:.4g}'} (units of y).</p>",
+        f"{html.escape(first.noise_label)}: {'n/a' if noise is None else f'{noise:.4g}'} "
+        f"({html.escape(y_unit or 'units of y')}).</p>",
         "<h2>Error ladder</h2>",
         "<p>RMSE of the linear model, then with the best effect added, then the next, until no effect improves "
         "the held-out error beyond its complexity cost.</p>",
-        _table(rungs, ["model", "added", "rmse", "heldout_rmse", "fit_percent", "params"]),
+        _table(rungs, ["model", "added", "rmse", "heldout_rmse", "fit_percent", "params"], table_id="ladder"),
         "<ul>" + "".join(f"<li>{html.escape(r['text'])}</li>" for r in rungs if "text" in r) + "</ul>",
         f"<p><b>{html.escape(next_step)}</b></p>",
-        _img(ladder_figure(rungs, noise), "error ladder"),
+        _img(ladder_figure(rungs, noise, y_unit=y_unit), "error ladder",
+             "RMSE of each model on the data it was fitted to (bars) and on held-out experiments (dots)."),
         "<h2>Measured vs simulated</h2>",
-        _img(compare_figure(data, fits), "compare"),
+        "<p>Measured output (solid, dark) above each model (dashed); below, the simulation error.</p>",
+        _grid(_img(compare_figure(data, fits, y_unit=y_unit, experiments=[k]),
+                   f"measured against simulated output, experiment {int(data.numbers[k])}")
+              for k in shown_experiments(data)),
         "<h2>Ranking of the effects (first diagnosis)</h2>",
         f"<p>Model: {html.escape(first.current.spec.label)}; best: <b>{html.escape(str(first.best))}</b>; "
         f"validation: {html.escape(first.validation)}.</p>",
@@ -185,11 +258,11 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
                      f"{html.escape(str(first.suggested_experiment))}.</p>")
     for analysis, fit in zip(analyses, fits):
         parts += [f"<h2>Residuals of {html.escape(fit.spec.label)}</h2>",
-                  _img(residual_figure(analysis, fit.spec.label), f"residuals {fit.spec.label}"),
+                  _grid(_img(residual_figure(analysis, y_unit=y_unit, u_unit=u_unit, panels=[panel]),
+                             f"residuals of {fit.spec.label}: {panel}") for panel in RESIDUAL_PANELS),
                   "<p>Worst segments:</p>",
                   _table(analysis.worst, ["experiment", "t_start", "t_end", "rms", "mean"])]
-    parts.append("</body></html>")
     path = out / "index.html"
     with atomic_write(path) as handle:
-        handle.write("\n".join(parts))
+        handle.write(page(f"twin workbench: {source}", "\n".join(parts)))
     return path

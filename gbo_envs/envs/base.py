@@ -79,6 +79,10 @@ class ControllerTuningEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 1}
     #: :attr:`~gbo_envs.experiment.Experiment.source` of the records this env produces.
     experiment_source = "plant"
+    #: Unit of the measured output ``y`` and the reference ``r`` ("" when unknown).
+    output_unit = ""
+    #: Unit of the plant input ``u``, the controller's output ("" when unknown).
+    input_unit = ""
 
     def __init__(
         self,
@@ -102,7 +106,10 @@ class ControllerTuningEnv(gym.Env):
         self.expectation_draws = validated_count("expectation_draws", expectation_draws, low=1)
         self.expectation_seed = validated_count("expectation_seed", expectation_seed, low=0)
         self.gain_names = tuple(loop.controller.gain_names)
-        self.gain_units = tuple(loop.controller.gain_units)
+        if self.input_unit and self.output_unit:
+            self.gain_units = tuple(loop.controller.units_for(self.input_unit, self.output_unit))
+        else:
+            self.gain_units = tuple(loop.controller.gain_units)
         low = np.asarray(gain_low, dtype=np.float64)
         high = np.asarray(gain_high, dtype=np.float64)
         if low.shape != (len(self.gain_names),) or high.shape != low.shape or np.any(high <= low):
@@ -183,6 +190,7 @@ class ControllerTuningEnv(gym.Env):
             cost += self.cost_noise_std * self.np_random.standard_normal()
         self.best_cost = min(self.best_cost, cost)
         self._last_response = response
+        self._last_gains = gains
         info = {
             "t": response.t.copy(),
             "r": response.r.copy(),
@@ -209,7 +217,14 @@ class ControllerTuningEnv(gym.Env):
             return None
         from gbo_envs.plotting import figure_to_rgb, response_figure
 
-        fig = response_figure(self.loop, self._last_response)
+        if self._last_response is None:
+            title = f"{type(self).__name__}: no experiment yet"
+        else:
+            gains = ", ".join(f"{name} = {value:.3g} {unit}" for name, value, unit in
+                              zip(self.gain_names, self._last_gains, self.gain_units))
+            title = f"{type(self).__name__}, experiment {self.experiment_index}: {gains}"
+        fig = response_figure(self.loop, self._last_response, title=title, output_unit=self.output_unit,
+                              input_unit=self.input_unit)
         return figure_to_rgb(fig)
 
     # -- experiment helpers ----------------------------------------------------------------------

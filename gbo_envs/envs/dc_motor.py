@@ -122,6 +122,9 @@ class DCMotorEnv(ControllerTuningEnv):
     * v0: initial version.
     """
 
+    output_unit = "rad/s"
+    input_unit = "input units"
+
     def __init__(
         self,
         noise: bool = True,

@@ -176,6 +176,9 @@ class LinearMotorEnv(ControllerTuningEnv):
     * v0: initial version.
     """
 
+    output_unit = "m"
+    input_unit = "A"
+
     def __init__(
         self,
         noise: bool = True,

@@ -214,7 +214,8 @@ def test_print_is_a_short_summary(guided):
     assert text == repr(guided) and len(text) < 200
     best = guided.best_gains
     assert text == (f"TuningResult(guided-bo on gbo_envs/DCMotor-v0, seed 0: 7 real experiments "
-                    f"(+{guided.n_twin} twin evaluations); best Kp = {best[0]:.4g}, Ki = {best[1]:.4g} 1/s, "
+                    f"(+{guided.n_twin} twin evaluations); best Kp = {best[0]:.4g} (input units)/(rad/s), "
+                    f"Ki = {best[1]:.4g} 1/s, "
                     f"cost {guided.best_cost:.4g})")
     empty = agents.TuningResult(tuner="bo", env_id="x", gain_names=("Kp",))
     assert str(empty) == "TuningResult(bo on x, seed None: 0 real experiments)"
