@@ -21,6 +21,8 @@ harmless, they never replace the file; removed before the next run), ``export_s`
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import os
 import signal
@@ -43,10 +45,13 @@ def _gbo(*argv: str) -> subprocess.Popen:
 
 
 def _run(*argv: str) -> None:
-    proc = _gbo(*argv)
-    _, err = proc.communicate()
-    if proc.returncode != 0:
-        raise RuntimeError(f"gbo {' '.join(argv)} failed (exit {proc.returncode}): {err}")
+    """``gbo ARGV`` in this process (the set-up; only the killed exports get their own interpreter)."""
+    from evaluation.cli import main as gbo
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        code = gbo(list(argv))
+    if code != 0:
+        raise RuntimeError(f"gbo {' '.join(argv)} failed (exit {code})")
 
 
 def _wait_for_write(proc: subprocess.Popen, csv: Path) -> float:

@@ -55,6 +55,16 @@ class CostAwareRandom(Tuner):
         self.log_twin(gains, cost, phase="tell")
 
 
+class Unpicklable(CostAwareRandom):
+    """The cost-aware search holding a local function, as the RL tuner does: no snapshot, resumed by replay."""
+
+    name = "test-unpicklable"
+
+    def _setup(self) -> None:
+        super()._setup()
+        self.scale = lambda x: x
+
+
 class GlobalRandom(Tuner):
     """Not deterministic for a fixed seed: it draws from numpy's global generator."""
 
@@ -75,6 +85,7 @@ def _test_tuners(tuner_registry):
     """The two test tuners above, registered for each test of this module only."""
     agents.register("test-cost-aware", CostAwareRandom)
     agents.register("test-global-random", GlobalRandom)
+    agents.register("test-unpicklable", Unpicklable)
 
 
 class _Crash(BaseException):
@@ -210,6 +221,32 @@ def test_resume_after_an_interruption_equals_an_uninterrupted_run(tmp_path, monk
         assert store.integrity_check() == "ok"
     assert sorted((r.experiment, r.phase) for r in twins) == sorted(
         (k, phase) for k in range(1, 9) for phase in ("ask", "tell"))
+
+
+def test_a_tuner_that_does_not_pickle_is_resumed_by_replay(tmp_path):
+    uninterrupted = TuningSession(tmp_path / "ref.sqlite", ENV, "test-unpicklable", budget=6, seed=2).run()
+    db = tmp_path / "cut.sqlite"
+    env = RaiseAt(gym.make(ENV), calls=[4], error=KeyboardInterrupt())
+    with pytest.raises(KeyboardInterrupt):
+        TuningSession(db, env, "test-unpicklable", budget=6, seed=2, env_id=ENV).run()
+    with SessionStore(db) as store:
+        assert store.snapshot(1) is None
+    session = TuningSession(db, ENV, "test-unpicklable", budget=6, seed=2)
+    assert _gains_costs(session.run()) == _gains_costs(uninterrupted)
+    assert (session.n_replayed, session.n_asked) == (3, 3)
+
+
+def test_a_snapshot_that_does_not_load_is_replaced_by_a_replay(tmp_path, caplog):
+    uninterrupted = TuningSession(tmp_path / "ref.sqlite", ENV, "test-cost-aware", budget=5, seed=4).run()
+    db = tmp_path / "runs.sqlite"
+    TuningSession(db, ENV, "test-cost-aware", budget=3, seed=4).run()
+    conn = sqlite3.connect(db)
+    conn.execute("UPDATE snapshots SET tuner = ?", (b"written by other code",))
+    conn.commit()
+    conn.close()
+    session = TuningSession(db, ENV, "test-cost-aware", budget=5, seed=4)
+    assert _gains_costs(session.run()) == _gains_costs(uninterrupted)
+    assert session.n_asked == 3 and "replaying the session instead" in caplog.text
 
 
 def _drop_snapshots(db) -> None:
