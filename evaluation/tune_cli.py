@@ -133,23 +133,22 @@ def _tune(args: argparse.Namespace) -> int:
     return 0
 
 
-def _existing_store(db: str, command: str):
-    """The session store in ``db`` opened read-only, or None (with one line on stderr) if it cannot be read."""
+def _existing_store(db: str):
+    """The session store in ``db`` opened read-only.
+
+    A missing file, or a file that is not a gbo session database, raises
+    ``FileNotFoundError`` or ``ValueError`` naming it: the CLI's error boundary
+    turns either into one line and exit status 2.
+    """
     from evaluation.sessions import SessionStore
 
-    try:
-        return SessionStore(db, read_only=True)
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"gbo {command}: {exc}", file=sys.stderr)
-        return None
+    return SessionStore(db, read_only=True)
 
 
 def _sessions(args: argparse.Namespace) -> int:
     from evaluation.sessions import sessions_table
 
-    store = _existing_store(args.db, "sessions")
-    if store is None:
-        return 1
+    store = _existing_store(args.db)
     with store:
         sessions = store.sessions()
     if args.json:
@@ -165,15 +164,13 @@ def _sessions(args: argparse.Namespace) -> int:
 def _export(args: argparse.Namespace) -> int:
     from evaluation.sessions import export_csv
 
-    store = _existing_store(args.db, "export")
-    if store is None:
-        return 1
+    store = _existing_store(args.db)
     with store:
         try:
             info, count = export_csv(store, args.csv, session_id=args.session, include_twin=args.include_twin,
                                      include_failed=args.include_failed)
-        except (KeyError, LookupError) as exc:
+        except LookupError as exc:  # no such session: bad input, as the boundary's exit status says
             print(f"gbo export: {exc.args[0] if exc.args else exc}", file=sys.stderr)
-            return 1
+            return 2
     print(f"wrote {count} experiments of session {info.id} ({info.tuner} on {info.env_id}) to {args.csv}")
     return 0

@@ -56,7 +56,7 @@ def test_a_foreign_file_is_refused_with_one_line_and_left_untouched(tmp_path, ca
     before = _folder_state(tmp_path)
     for argv in (["sessions"], ["export", "--csv", str(tmp_path / "out" / "x.csv")],
                  ["tune", "--tuner", "random", "--budget", "1", "--no-progress"]):
-        assert gbo([*argv, "--db", str(db)]) == 1
+        assert gbo([*argv, "--db", str(db)]) == 2  # bad input: the CLI's one exit status
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and str(db) in err and message in err, err
     with pytest.raises(NotASessionDatabase, match=re.escape(message)):

@@ -400,7 +400,7 @@ def test_cli_tune_sessions_export(tmp_path, capsys):
     capsys.readouterr()
     assert gbo(["export", "--db", db, "--csv", csv]) == 0  # default: the latest updated session (1, resumed last)
     assert "of session 1 " in capsys.readouterr().out and pd.read_csv(csv)["experiment"].nunique() == 3
-    assert gbo(["export", "--db", db, "--session", "9", "--csv", csv]) == 1
+    assert gbo(["export", "--db", db, "--session", "9", "--csv", csv]) == 2  # no such session: bad input
 
 
 @pytest.mark.slow
