@@ -228,14 +228,14 @@ def test_expected_improvement_meets_the_model_only_through_predict():
 
 
 def test_fast_log_marginal_likelihood_equals_sklearn():
-    from agents.surrogate import _neg_log_marginal_likelihood
+    from agents.surrogate import _neg_log_marginal_likelihood, squared_differences
 
     rng = np.random.default_rng(0)
     X = rng.uniform(size=(20, 2))
     y = np.sin(5 * X[:, 0]) + X[:, 1] + 0.05 * rng.standard_normal(20)
     gp = GPSurrogate(min_fit_points=1).fit(X, y, seed=0)
     y_std = (y - gp.y_mean_) / gp.y_scale_
-    pairwise = (X[:, None, :] - X[None, :, :]) ** 2
+    pairwise = squared_differences(X)
     reference = GaussianProcessRegressor(gp.kernel_, alpha=1e-8, optimizer=None).fit(X, y_std)
     for theta in (gp.kernel_.theta, gp.kernel_.theta + 0.3, np.log([2.0, 0.1, 0.4, 0.01])):
         ref, ref_grad = reference.log_marginal_likelihood(theta, eval_gradient=True)
