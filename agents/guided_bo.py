@@ -19,6 +19,7 @@ import numpy as np
 
 from agents.bo import BayesianOptimization
 from agents.parameters import HasMethods, Interval, Options, validate_params
+from agents.thread_limits import single_thread
 from gbo_envs import METRIC_NAMES
 
 __all__ = ["GuidedBO", "ACTIVATION_RULES", "GUIDANCE_RULES", "MIN_TWIN_ITERATIONS", "TWIN_CHOICES",
@@ -328,12 +329,13 @@ class GuidedBO(BayesianOptimization):
             return super()._ask()
         if self.guidance == "prior":
             return self._ask_with_twin_prior()
-        gains, ei, std = self.propose()
-        self.last_ei_, self.last_std_ = ei, std
-        if self._activate(std):
-            gains = self._explore_on_twin(gains, ei)
-        self._since_activation += 1
-        self.last_mean_ = float(self.posterior(gains[None, :])[0][0])
+        with single_thread():  # small matrices, as in BayesianOptimization._ask
+            gains, ei, std = self.propose()
+            self.last_ei_, self.last_std_ = ei, std
+            if self._activate(std):
+                gains = self._explore_on_twin(gains, ei)
+            self._since_activation += 1
+            self.last_mean_ = float(self.posterior(gains[None, :])[0][0])
         return gains
 
     def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:
