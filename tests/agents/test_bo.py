@@ -423,6 +423,41 @@ def test_a_metric_prior_is_followed_where_the_discrepancy_is_flat():
     assert error_plain > 30 * error_guided  # eight points alone cannot know the sine and cosine
 
 
+def test_twin_metrics_of_a_noisy_twin_simulate_the_noise_only_near_its_expected_optimum():
+    from agents.twin.prior import NOISY_COST_FACTOR, TwinMetrics
+
+    class Twin:  # cost = sum of the metrics; the noise adds 0.5 to the first metric
+        weights, normalizers, unstable_cost = np.full(4, 0.25), np.full(4, 0.25), 10.0
+
+        def __init__(self, noisy: bool) -> None:
+            self.noisy, self.gains = noisy, []
+            self.free = Twin(False) if noisy else self
+
+        def noise_free(self):
+            return self.free
+
+        def evaluate(self, gains):
+            self.gains.extend(map(tuple, gains))
+            metrics = np.zeros((len(gains), 4))
+            metrics[:, 1] = 1.0 + 10.0 * np.sum((gains - 0.3) ** 2, axis=1)
+            metrics[:, 0] = 0.5 * self.noisy
+            return metrics, metrics.sum(axis=1)
+
+    twin = Twin(noisy=True)
+    space = agents.GainSpace(low=[0.0, 0.0], high=[1.0, 1.0], names=("Kp", "Ki"))
+    X = np.random.default_rng(0).uniform(size=(400, 2))
+    values = TwinMetrics(twin, space)(X)
+    noise_free_cost = 1.0 + 10.0 * np.sum((X - 0.3) ** 2, axis=1)
+    admitted = noise_free_cost <= NOISY_COST_FACTOR * (noise_free_cost.min() + 0.5)
+    assert 0 < admitted.sum() < 200 and len(twin.free.gains) == 400  # every gain once without noise
+    assert sorted(twin.gains) == sorted(map(tuple, X[admitted]))  # with noise only where it may matter
+    np.testing.assert_array_equal(values[:, 0], np.where(admitted, 0.5, 0.0))
+    np.testing.assert_array_equal(values[:, 1], noise_free_cost)
+    plain = Twin(noisy=False)  # a twin without noise: one simulation per gain, as before
+    np.testing.assert_array_equal(TwinMetrics(plain, space)(X)[:, 0], 0.0)
+    assert len(plain.gains) == 400
+
+
 def test_twin_metrics_simulate_each_gain_once_and_price_divergence_at_the_unstable_cost():
     from agents.twin.prior import TwinMetrics
 
