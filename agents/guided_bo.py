@@ -78,8 +78,9 @@ class GuidedBO(BayesianOptimization):
     plant cost more than ``3 sigma_eps`` off the twin's prediction refits the twin once
     the records have doubled since its fit (the RMSE test below misses a twin whose
     response is close but whose thin optimal valley sits a grid cell away). The twin is
-    simulated once per grid point and fitted twin (10^4 simulations, cached). Otherwise the metric GPs have
-    their constant prior mean and guided BO is the default BO. A diverging plant
+    simulated once per grid point and fitted twin (10^4 simulations, cached; a noisy twin's
+    noise draws only near its expected optimum, see :class:`~agents.twin.prior.TwinMetrics`).
+    Otherwise the metric GPs have their constant prior mean and guided BO is the default BO. A diverging plant
     experiment enters with the metrics of ``J = unstable_cost``. ``eta1``, ``eta3``,
     ``n_ei``, ``max_twin_iterations``, ``activation`` and ``period`` are not used.
     Which choice buys what is measured in benchmarks/guided_bo_ablation.py.
