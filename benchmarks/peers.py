@@ -104,12 +104,12 @@ def run_one(env_label: str, row: str, seed: int, best: float) -> dict:
             "seconds": round(time.perf_counter() - start, 2)}
 
 
-def ablation_runs(runs: list[dict], path: Path = ABLATION_RUNS) -> list[dict]:
+def ablation_runs(runs: list[dict]) -> list[dict]:
     """``guided_bo_ablation.py``'s guided-bo runs on :data:`ENVS` at seeds ``runs`` lacks, as runs of this study."""
     have = {(r["env"], r["row"], r["seed"]) for r in runs}
     return [{"env": r["plant"], "row": "guided-bo", "seed": r["seed"], "ratios": r["ratios"], "seconds": r["seconds"],
-             "source": path.name}
-            for r in load_runs(path) if r["variant"] == "guided-bo" and r["plant"] in ENVS
+             "source": ABLATION_RUNS.name}
+            for r in load_runs(ABLATION_RUNS) if r["variant"] == "guided-bo" and r["plant"] in ENVS
             and (r["plant"], "guided-bo", r["seed"]) not in have]
 
 
