@@ -69,11 +69,11 @@ class TwinMetrics:
     only raises the cost (later settling, larger ITAE and overshoot; on the DCMotorRig-v0
     plant with 0.09 and 0.2 rad/s of sensor noise the expected cost is at least 0.998 times
     the noise-free one over a 25 x 25 grid, and the gains within the bound are 12 % and 24 %
-    of the grid), so a gain whose
-    noise-free cost is above :data:`NOISY_COST_FACTOR` times the lowest expected cost found
-    so far cannot be near the twin's expected optimum: it keeps its noise-free metrics. The
-    new gains of a call are simulated without noise, then, in order of their noise-free
-    cost and in batches of :data:`NOISY_BATCH`, with noise while that bound admits them.
+    of the grid), so a gain whose noise-free cost is above :data:`NOISY_COST_FACTOR` times
+    the lowest expected cost found so far cannot be near the twin's expected optimum: it
+    keeps its noise-free metrics. The new gains of a call are simulated without noise, then,
+    in order of their noise-free cost and in batches of :data:`NOISY_BATCH`, with noise
+    while that bound admits them.
     A gain keeps the values of its first call, so the same gains give the same prior.
     """
 
