@@ -19,6 +19,7 @@ import numpy as np
 
 from agents.bo import BayesianOptimization
 from agents.parameters import HasMethods, Interval, Options, validate_params
+from agents.thread_limits import single_thread
 from gbo_envs import METRIC_NAMES
 
 __all__ = ["GuidedBO", "ACTIVATION_RULES", "GUIDANCE_RULES", "MIN_TWIN_ITERATIONS", "TWIN_CHOICES",
@@ -77,8 +78,9 @@ class GuidedBO(BayesianOptimization):
     plant cost more than ``3 sigma_eps`` off the twin's prediction refits the twin once
     the records have doubled since its fit (the RMSE test below misses a twin whose
     response is close but whose thin optimal valley sits a grid cell away). The twin is
-    simulated once per grid point and fitted twin (10^4 simulations, cached). Otherwise the metric GPs have
-    their constant prior mean and guided BO is the default BO. A diverging plant
+    simulated once per grid point and fitted twin (10^4 simulations, cached; a noisy twin's
+    noise draws only near its expected optimum, see :class:`~agents.twin.prior.TwinMetrics`).
+    Otherwise the metric GPs have their constant prior mean and guided BO is the default BO. A diverging plant
     experiment enters with the metrics of ``J = unstable_cost``. ``eta1``, ``eta3``,
     ``n_ei``, ``max_twin_iterations``, ``activation`` and ``period`` are not used.
     Which choice buys what is measured in benchmarks/guided_bo_ablation.py.
@@ -328,12 +330,13 @@ class GuidedBO(BayesianOptimization):
             return super()._ask()
         if self.guidance == "prior":
             return self._ask_with_twin_prior()
-        gains, ei, std = self.propose()
-        self.last_ei_, self.last_std_ = ei, std
-        if self._activate(std):
-            gains = self._explore_on_twin(gains, ei)
-        self._since_activation += 1
-        self.last_mean_ = float(self.posterior(gains[None, :])[0][0])
+        with single_thread():  # small matrices, as in BayesianOptimization._ask
+            gains, ei, std = self.propose()
+            self.last_ei_, self.last_std_ = ei, std
+            if self._activate(std):
+                gains = self._explore_on_twin(gains, ei)
+            self._since_activation += 1
+            self.last_mean_ = float(self.posterior(gains[None, :])[0][0])
         return gains
 
     def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:

@@ -12,7 +12,7 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, cholesky
+from scipy.linalg import cho_solve, cholesky, get_lapack_funcs
 from scipy.optimize import minimize
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 
@@ -201,7 +201,7 @@ class GPSurrogate:
         starts = [kernel.theta] + [draws.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(restarts)]
         # theta = log([s^2, l_1..l_d, sigma_n^2]) (sklearn's order); the objective is scikit-learn's
         # log_marginal_likelihood, evaluated by _neg_log_marginal_likelihood (about 5x faster here)
-        objective = functools.partial(_neg_log_marginal_likelihood, pairwise=(X[:, None, :] - X[None, :, :]) ** 2,
+        objective = functools.partial(_neg_log_marginal_likelihood, pairwise=squared_differences(X),
                                       y=y_std, alpha=alpha, white=self.noise_std is None)
         with single_thread():
             optima = [minimize(objective, start, jac=True, method="L-BFGS-B", bounds=bounds,
@@ -345,43 +345,58 @@ def _kernel_dim(kernel) -> int:
     return np.atleast_1d(_matern(kernel).length_scale).size
 
 
+def squared_differences(X: np.ndarray) -> np.ndarray:
+    """``(x_a,j - x_b,j)^2`` of the rows of ``X`` (n, d), shape (d, n, n): the input of the likelihood."""
+    X = np.asarray(X, dtype=float)
+    return np.ascontiguousarray(((X[:, None, :] - X[None, :, :]) ** 2).transpose(2, 0, 1))
+
+
 def _neg_log_marginal_likelihood(theta: np.ndarray, pairwise: np.ndarray, y: np.ndarray, alpha: float,
                                  white: bool) -> tuple[float, np.ndarray]:
     """``-log p(y | X, theta)`` and its gradient for ``s^2 Matern52 (+ sigma_n^2 I) + alpha I``.
 
     ``log p = -1/2 y^T K^-1 y - 1/2 log|K| - n/2 log(2 pi)``; ``d log p / d theta_i
     = 1/2 tr((a a^T - K^-1) dK/d theta_i)`` with ``a = K^-1 y`` (Rasmussen & Williams, eq. 5.9).
-    ``theta = log([s^2, l_1, ..., l_d, sigma_n^2])`` (the last entry only if ``white``). For ``y`` of
+    ``theta = log([s^2, l_1, ..., l_d, sigma_n^2])`` (the last entry only if ``white``);
+    ``pairwise`` is :func:`squared_differences` of the inputs, shape (d, n, n). For ``y`` of
     shape (n, k) (k outputs, one kernel): the sum of the k log likelihoods, ``inner = A A^T - k K^-1``.
+    The Cholesky factor and the solve call LAPACK's ``potrf``/``potrs`` directly (what
+    ``scipy.linalg.cho_factor``/``cho_solve`` call, without their per-call checks).
     """
-    n, _, dim = pairwise.shape
+    dim, n, _ = pairwise.shape
     amplitude = np.exp(theta[0])
-    scaled = pairwise / np.exp(2.0 * theta[1:1 + dim])  # d_j^2 / l_j^2
-    r = np.sqrt(5.0 * scaled.sum(axis=2))  # sqrt(5) r
+    scaled = pairwise / np.exp(2.0 * theta[1:1 + dim])[:, None, None]  # d_j^2 / l_j^2
+    total = scaled[0].copy()
+    for j in range(1, dim):  # the sum over the inputs, in order (as scaled.sum(axis=0))
+        total += scaled[j]
+    r = np.sqrt(5.0 * total)  # sqrt(5) r
     decay = np.exp(-r)
     matern = (1.0 + r + r**2 / 3.0) * decay
     noise = np.exp(theta[-1]) if white else 0.0
     K = amplitude * matern
-    K[np.diag_indices(n)] += noise + alpha
-    try:
-        factor = cho_factor(K, lower=True, check_finite=False)
-    except np.linalg.LinAlgError:
+    diagonal = np.einsum("ii->i", K)  # a writable view of the diagonal
+    diagonal += noise + alpha
+    lower, info = _POTRF(K, lower=1, clean=0, overwrite_a=1)
+    if info != 0:
         return 1e25, np.zeros_like(theta)
-    K_inv = cho_solve(factor, np.eye(n), check_finite=False)
+    K_inv = _POTRS(lower, np.eye(n), lower=1, overwrite_b=1)[0]
     a = K_inv @ y
     if y.ndim == 1:
-        lml = -0.5 * y @ a - np.log(np.diag(factor[0])).sum() - 0.5 * n * np.log(2.0 * np.pi)
+        lml = -0.5 * y @ a - np.log(np.diag(lower)).sum() - 0.5 * n * np.log(2.0 * np.pi)
         inner = np.outer(a, a) - K_inv
     else:  # k outputs sharing the kernel: the sum of their log likelihoods
         outputs = y.shape[1]
-        lml = -0.5 * np.sum(y * a) - outputs * (np.log(np.diag(factor[0])).sum() + 0.5 * n * np.log(2.0 * np.pi))
+        lml = -0.5 * np.sum(y * a) - outputs * (np.log(np.diag(lower)).sum() + 0.5 * n * np.log(2.0 * np.pi))
         inner = a @ a.T - outputs * K_inv
     grad = np.empty_like(theta)
     grad[0] = 0.5 * np.sum(inner * (amplitude * matern))  # dK/d log s^2 = s^2 M
     # dM/d log l_j = 5/3 (1 + sqrt5 r) exp(-sqrt5 r) d_j^2 / l_j^2
-    common = amplitude * (5.0 / 3.0) * (1.0 + r) * decay
+    weighted = inner * (amplitude * (5.0 / 3.0) * (1.0 + r) * decay)
     for j in range(dim):
-        grad[1 + j] = 0.5 * np.sum(inner * common * scaled[:, :, j])
+        grad[1 + j] = 0.5 * np.sum(weighted * scaled[j])
     if white:
         grad[-1] = 0.5 * noise * np.trace(inner)
     return float(-lml), -grad
+
+
+_POTRF, _POTRS = get_lapack_funcs(("potrf", "potrs"), (np.zeros((1, 1)),))

@@ -13,7 +13,14 @@ is one core: BLAS and torch run single-threaded).
 Rows (:data:`ROWS`): ``bo`` (the reference), ``guided-bo``, ``optuna-gp`` (Optuna's
 GPSampler), ``botorch`` (qLogNEI), ``botorch-logei``, ``skopt`` (gp_minimize's setup) and
 ``bayes-opt``. A row whose library is not installed is skipped with a note
-(``pip install "gbo-envs[peers]"``).
+(``pip install "gbo-envs[peers]"``). The rows are compared on the seeds all of them ran; a
+row that ran fewer seeds is summarised on the seeds it shares with ``bo``, against ``bo``
+on those seeds (its own seed count in the table).
+
+The ``guided-bo`` runs of ``guided_bo_ablation.py`` (same envs, seeds, budget and initial
+design; its ``bo`` runs are those of this study, bit for bit) count as this study's:
+``--summary`` pulls them from ``benchmarks/results/guided_bo_ablation_runs.jsonl`` where
+this study has not run that seed itself.
 
 Each finished run is appended to ``benchmarks/results/peers_runs.jsonl`` and skipped when
 the command is run again (an interrupted study resumes). Writes
@@ -38,6 +45,8 @@ from run_log import append_runs, load_runs
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNS = RESULTS / "peers_runs.jsonl"
+#: The ablation study's run log, whose guided-bo runs on these envs are this study's too.
+ABLATION_RUNS = RESULTS / "guided_bo_ablation_runs.jsonl"
 
 #: row label -> (registry name, constructor keywords): every row starts from BO's N0 = 1 design.
 ROWS: dict[str, tuple[str, dict]] = {
@@ -95,51 +104,71 @@ def run_one(env_label: str, row: str, seed: int, best: float) -> dict:
             "seconds": round(time.perf_counter() - start, 2)}
 
 
+def ablation_runs(runs: list[dict]) -> list[dict]:
+    """``guided_bo_ablation.py``'s guided-bo runs on :data:`ENVS` at seeds ``runs`` lacks, as runs of this study."""
+    have = {(r["env"], r["row"], r["seed"]) for r in runs}
+    return [{"env": r["plant"], "row": "guided-bo", "seed": r["seed"], "ratios": r["ratios"], "seconds": r["seconds"],
+             "source": ABLATION_RUNS.name}
+            for r in load_runs(ABLATION_RUNS) if r["variant"] == "guided-bo" and r["plant"] in ENVS
+            and (r["plant"], "guided-bo", r["seed"]) not in have]
+
+
 def summarise(runs: list[dict]) -> pd.DataFrame:
     """One line per env, ratio and row, on the seeds every row of that env has run.
 
-    Columns: env, ratio, row, seeds, mean, ci_low, ci_high (real experiments to the ratio,
-    95 % Student-t), misses, vs_bo (mean / bo's mean; NaN without a bo row), seconds (mean per run).
-    """
-    from data_efficiency import experiments_to_reach
-    from effect_aware_guided_bo import interval
+    A row that lacks some of those seeds is summarised on the seeds it shares with bo, and
+    its ``vs_bo`` is against bo on the same seeds.
 
+    Columns: env, ratio, row, seeds, mean, ci_low, ci_high (real experiments to the ratio,
+    95 % Student-t), misses, vs_bo (mean / bo's mean on the row's seeds; NaN without a bo
+    row), seconds (mean per run).
+    """
     lines = []
     for env_label, ratios in ENVS.items():
         mine = {row: {r["seed"]: r for r in runs if r["env"] == env_label and r["row"] == row} for row in ROWS}
         rows = [row for row in ROWS if mine[row]]
         if not rows:
             continue
-        seeds = sorted(set.intersection(*(set(mine[row]) for row in rows)))
-        if len(seeds) < 2:
-            continue
+        # the rows that ran every seed bo ran (every row without a bo row), on the seeds they share;
+        # a row that ran fewer: on the seeds it shares with bo
+        reference = set(mine[REFERENCE])
+        full = [row for row in rows if set(mine[row]) >= reference]
+        shared = set.intersection(*(set(mine[row]) for row in full)) if full else set()
+        seeds_of = {row: sorted(shared if row in full else set(mine[row]) & reference) for row in rows}
         for threshold in ratios:
-            means = {}
             for row in rows:
-                curves = [mine[row][s]["ratios"] for s in seeds]
-                counts = np.array([experiments_to_reach(curve, threshold) for curve in curves])
-                mean, low, high = interval(counts)
-                means[row] = mean
+                seeds = seeds_of[row]
+                if len(seeds) < 2:
+                    continue
+                mean, low, high, misses = _reach(mine[row], seeds, threshold)
+                bo_mean = _reach(mine[REFERENCE], seeds, threshold)[0] if reference else float("nan")
                 lines.append({"env": env_label, "ratio": threshold, "row": row, "seeds": len(seeds), "mean": mean,
-                              "ci_low": low, "ci_high": high,
-                              "misses": int(sum(c > len(curve) for c, curve in zip(counts, curves))),
+                              "ci_low": low, "ci_high": high, "misses": misses, "vs_bo": mean / bo_mean,
                               "seconds": float(np.mean([mine[row][s]["seconds"] for s in seeds]))})
-            for line in lines[-len(rows):]:
-                line["vs_bo"] = line["mean"] / means[REFERENCE] if REFERENCE in means else float("nan")
     columns = ["env", "ratio", "row", "seeds", "mean", "ci_low", "ci_high", "misses", "vs_bo", "seconds"]
     return pd.DataFrame(lines, columns=columns)
+
+
+def _reach(runs_of: dict[int, dict], seeds: list[int], threshold: float) -> tuple[float, float, float, int]:
+    """Mean [95 % CI] real experiments to ``threshold`` over ``seeds``, and the misses."""
+    from data_efficiency import experiments_to_reach
+    from effect_aware_guided_bo import interval
+
+    curves = [runs_of[s]["ratios"] for s in seeds]
+    counts = np.array([experiments_to_reach(curve, threshold) for curve in curves])
+    return (*interval(counts), int(sum(c > len(curve) for c, curve in zip(counts, curves))))
 
 
 def markdown(table: pd.DataFrame) -> str:
     """The summary as one Markdown table per env and ratio."""
     parts = []
     for (env_label, threshold), group in table.groupby(["env", "ratio"], sort=False):
-        parts.append(f"### {env_label}, ratio {threshold} ({int(group['seeds'].iloc[0])} seeds)\n")
-        parts.append("| tuner | experiments to ratio, mean [95 % CI] (misses) | / bo | s/run |")
-        parts.append("|---|---|---|---|")
+        parts.append(f"### {env_label}, ratio {threshold} ({int(group['seeds'].max())} seeds)\n")
+        parts.append("| tuner | experiments to ratio, mean [95 % CI] (misses) | / bo (same seeds) | seeds | s/run |")
+        parts.append("|---|---|---|---|---|")
         for line in group.itertuples():
             parts.append(f"| {line.row} | {line.mean:.1f} [{line.ci_low:.1f}, {line.ci_high:.1f}] ({line.misses}) | "
-                         f"{line.vs_bo:.2f} | {line.seconds:.1f} |")
+                         f"{line.vs_bo:.2f} | {line.seeds} | {line.seconds:.1f} |")
         parts.append("")
     return "\n".join(parts)
 
@@ -162,13 +191,14 @@ def main() -> None:
         todo = [(e, r, s, optima[e]) for e in args.envs for s in range(args.seeds) for r in rows
                 if (e, r, s) not in done]
         runs += append_runs(RUNS, run_one, todo, args.workers)
-    table = summarise(runs)
+    table = summarise(runs + ablation_runs(runs))
     table.round(4).to_csv(RESULTS / "peers.csv", index=False)
     text = markdown(table)
     (RESULTS / "peers.md").write_text(
         "Real experiments to each optimality ratio, mean [95 % CI] (misses; a miss counts as budget + 1), the "
-        "ratio of the mean to bo's, and seconds per run; same seeds and the same N0 = 1 Latin hypercube start "
-        "for every tuner (benchmarks/peers.py).\n\n" + text)
+        "ratio of the mean to bo's on the same seeds, and seconds per run; the same N0 = 1 Latin hypercube start "
+        "for every tuner, the seeds every tuner ran (a row with fewer: the seeds it shares with bo; guided-bo's "
+        "runs are guided_bo_ablation.py's) (benchmarks/peers.py).\n\n" + text)
     print(text)
 
 

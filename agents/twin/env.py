@@ -106,6 +106,21 @@ class TwinEnv(ControllerTuningEnv):
         metrics, cost, _ = self._expected(self.loop, np.atleast_2d(np.asarray(gains, dtype=float)))
         return metrics, cost
 
+    def noise_free(self) -> TwinEnv:
+        """This twin without its measurement noise (itself if it has none): one simulation per gain.
+
+        Returns
+        -------
+        TwinEnv
+            The same plant, effects, controller, cost and bounds with ``measurement_noise_std=0``.
+        """
+        if self.loop.output_noise_std == 0.0:
+            return self
+        if getattr(self, "_noise_free", None) is None:
+            self._noise_free = TwinEnv(self.plant_env, self.twin, cost_noise_std=self.cost_noise_std,
+                                       measurement_noise_std=0.0, draws=self.expectation_draws)
+        return self._noise_free
+
     @property
     def plant(self) -> ContinuousPlant:
         """The twin's plant."""

@@ -228,14 +228,14 @@ def test_expected_improvement_meets_the_model_only_through_predict():
 
 
 def test_fast_log_marginal_likelihood_equals_sklearn():
-    from agents.surrogate import _neg_log_marginal_likelihood
+    from agents.surrogate import _neg_log_marginal_likelihood, squared_differences
 
     rng = np.random.default_rng(0)
     X = rng.uniform(size=(20, 2))
     y = np.sin(5 * X[:, 0]) + X[:, 1] + 0.05 * rng.standard_normal(20)
     gp = GPSurrogate(min_fit_points=1).fit(X, y, seed=0)
     y_std = (y - gp.y_mean_) / gp.y_scale_
-    pairwise = (X[:, None, :] - X[None, :, :]) ** 2
+    pairwise = squared_differences(X)
     reference = GaussianProcessRegressor(gp.kernel_, alpha=1e-8, optimizer=None).fit(X, y_std)
     for theta in (gp.kernel_.theta, gp.kernel_.theta + 0.3, np.log([2.0, 0.1, 0.4, 0.01])):
         ref, ref_grad = reference.log_marginal_likelihood(theta, eval_gradient=True)
@@ -421,6 +421,41 @@ def test_a_metric_prior_is_followed_where_the_discrepancy_is_flat():
     error_plain = np.abs(plain.predict(far)[0] - exact).max()
     assert error_guided < 1e-3 * np.abs(exact).max()  # the prior's shape, the data's offset
     assert error_plain > 30 * error_guided  # eight points alone cannot know the sine and cosine
+
+
+def test_twin_metrics_of_a_noisy_twin_simulate_the_noise_only_near_its_expected_optimum():
+    from agents.twin.prior import NOISY_COST_FACTOR, TwinMetrics
+
+    class Twin:  # cost = sum of the metrics; the noise adds 0.5 to the first metric
+        weights, normalizers, unstable_cost = np.full(4, 0.25), np.full(4, 0.25), 10.0
+
+        def __init__(self, noisy: bool) -> None:
+            self.noisy, self.gains = noisy, []
+            self.free = Twin(False) if noisy else self
+
+        def noise_free(self):
+            return self.free
+
+        def evaluate(self, gains):
+            self.gains.extend(map(tuple, gains))
+            metrics = np.zeros((len(gains), 4))
+            metrics[:, 1] = 1.0 + 10.0 * np.sum((gains - 0.3) ** 2, axis=1)
+            metrics[:, 0] = 0.5 * self.noisy
+            return metrics, metrics.sum(axis=1)
+
+    twin = Twin(noisy=True)
+    space = agents.GainSpace(low=[0.0, 0.0], high=[1.0, 1.0], names=("Kp", "Ki"))
+    X = np.random.default_rng(0).uniform(size=(400, 2))
+    values = TwinMetrics(twin, space)(X)
+    noise_free_cost = 1.0 + 10.0 * np.sum((X - 0.3) ** 2, axis=1)
+    admitted = noise_free_cost <= NOISY_COST_FACTOR * (noise_free_cost.min() + 0.5)
+    assert 0 < admitted.sum() < 200 and len(twin.free.gains) == 400  # every gain once without noise
+    assert sorted(twin.gains) == sorted(map(tuple, X[admitted]))  # with noise only where it may matter
+    np.testing.assert_array_equal(values[:, 0], np.where(admitted, 0.5, 0.0))
+    np.testing.assert_array_equal(values[:, 1], noise_free_cost)
+    plain = Twin(noisy=False)  # a twin without noise: one simulation per gain, as before
+    np.testing.assert_array_equal(TwinMetrics(plain, space)(X)[:, 0], 0.0)
+    assert len(plain.gains) == 400
 
 
 def test_twin_metrics_simulate_each_gain_once_and_price_divergence_at_the_unstable_cost():

@@ -98,6 +98,11 @@ def test_twin_env_averages_its_measurement_noise_deterministically():
     assert not np.allclose(first, quiet)
     with pytest.raises(ValueError, match="measurement_noise_std"):
         make_twin_env(env, plant, measurement_noise_std=-1.0)
+    # the same twin without its noise: one simulation per gain, the quiet twin's values
+    assert noisy.noise_free() is noisy.noise_free() and noisy.noise_free().loop.output_noise_std == 0.0
+    np.testing.assert_array_equal(noisy.noise_free().evaluate(gains)[1], quiet)
+    quiet_env = make_twin_env(env, plant)
+    assert quiet_env.noise_free() is quiet_env
 
 
 # -- trust -----------------------------------------------------------------------------------------------

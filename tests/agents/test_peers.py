@@ -79,6 +79,7 @@ def _peers_module(monkeypatch, tmp_path):
     spec.loader.exec_module(module)
     monkeypatch.setattr(module, "RESULTS", tmp_path)
     monkeypatch.setattr(module, "RUNS", tmp_path / "peers_runs.jsonl")
+    monkeypatch.setattr(module, "ABLATION_RUNS", tmp_path / "guided_bo_ablation_runs.jsonl")
     return module
 
 
@@ -101,10 +102,29 @@ def test_peers_summary_of_a_fake_runs_file(monkeypatch, tmp_path, capsys):
     assert table.loc[(1.05, "bo"), "ci_high"] == pytest.approx(3.0 + 12.7062047, rel=1e-6)
     markdown = (tmp_path / "peers.md").read_text()
     assert "### DCMotor-v0, ratio 1.05 (2 seeds)" in markdown
-    assert "| skopt | 4.0 [-8.7, 16.7] (1) | 1.33 | 1.0 |" in markdown
+    assert "| skopt | 4.0 [-8.7, 16.7] (1) | 1.33 | 2 | 1.0 |" in markdown
     csv = (tmp_path / "peers.csv").read_text().splitlines()
     assert csv[0] == "env,ratio,row,seeds,mean,ci_low,ci_high,misses,vs_bo,seconds" and len(csv) == 5
-    assert "| bo | 3.0 [-9.7, 15.7] (0) | 1.00 | 3.0 |" in capsys.readouterr().out
+    assert "| bo | 3.0 [-9.7, 15.7] (0) | 1.00 | 2 | 3.0 |" in capsys.readouterr().out
+
+
+def test_peers_summary_takes_guided_bo_from_the_ablation_log_on_the_seeds_it_shares_with_bo(monkeypatch, tmp_path):
+    bench = _peers_module(monkeypatch, tmp_path)
+    bo = {0: [1.2, 1.04, 1.0, 1.0], 1: [1.5, 1.2, 1.08, 1.01], 2: [1.0, 1.0, 1.0, 1.0]}
+    runs = [{"env": "DCMotor-v0", "row": "bo", "seed": seed, "ratios": ratios, "seconds": 1.0}
+            for seed, ratios in bo.items()]
+    runs.append({"env": "DCMotor-v0", "row": "guided-bo", "seed": 1, "ratios": [1.04] * 4, "seconds": 1.0})
+    ablation = [{"plant": plant, "variant": variant, "seed": seed, "ratios": [1.2, 1.0, 1.0, 1.0], "seconds": 9.0}
+                for plant, variant, seed in [("DCMotor-v0", "guided-bo", 0), ("DCMotor-v0", "guided-bo", 1),
+                                             ("DCMotor-v0", "bo", 3), ("DC+backlash", "guided-bo", 0)]]
+    bench.ABLATION_RUNS.write_text("".join(json.dumps(run) + "\n" for run in ablation))
+    pulled = bench.ablation_runs(runs)
+    # only the guided-bo run of a peers env at a seed this study lacks
+    assert [(r["env"], r["row"], r["seed"]) for r in pulled] == [("DCMotor-v0", "guided-bo", 0)]
+    table = bench.summarise(runs + pulled).set_index(["ratio", "row"])
+    assert table.loc[(1.05, "bo"), ["seeds", "mean"]].tolist() == [3, 7.0 / 3.0]  # on all its seeds
+    # guided-bo on seeds 0 (ablation: 1.05 at experiment 2) and 1 (this study: at 1), against bo on 0 and 1 (2, 4)
+    assert table.loc[(1.05, "guided-bo"), ["seeds", "mean", "vs_bo"]].tolist() == [2, 1.5, 0.5]
 
 
 def test_peers_skips_a_row_whose_library_is_missing(monkeypatch, tmp_path, capsys):

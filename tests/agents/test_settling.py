@@ -11,7 +11,7 @@ from sklearn.gaussian_process import GaussianProcessRegressor
 import agents
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.settling import SettlingTimeModel, _normal_cdf, error_envelope
-from agents.surrogate import GPSurrogate, _neg_log_marginal_likelihood
+from agents.surrogate import GPSurrogate, _neg_log_marginal_likelihood, squared_differences
 from gbo_envs.metrics import step_metrics
 
 T = np.linspace(0.0, 5.0, 2501)
@@ -69,7 +69,7 @@ def test_shared_kernel_gp_of_several_outputs_equals_sklearn():
     white = gp.kernel_.k2.noise_level
     np.testing.assert_allclose(std, gp.y_scale_ * np.sqrt(np.maximum(ref_std**2 - white, 1e-18)), rtol=1e-5)
     # the likelihood is the sum over the outputs (scikit-learn's multi-output likelihood)
-    pairwise = (X[:, None, :] - X[None, :, :]) ** 2
+    pairwise = squared_differences(X)
     value, grad = _neg_log_marginal_likelihood(gp.kernel_.theta + 0.2, pairwise, Y_std, 1e-8, True)
     ref, ref_grad = reference.log_marginal_likelihood(gp.kernel_.theta + 0.2, eval_gradient=True)
     assert -value == pytest.approx(ref, rel=1e-9)

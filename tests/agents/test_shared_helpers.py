@@ -71,6 +71,23 @@ def test_single_thread_decorates_each_call_anew():
     assert inside() == inside() == [1] * len(_threads("blas"))
 
 
+def test_single_thread_inside_a_block_of_the_same_pools_sets_no_limit(monkeypatch):
+    from threadpoolctl import ThreadpoolController
+
+    calls = []
+    limit = ThreadpoolController.limit
+    monkeypatch.setattr(ThreadpoolController, "limit", lambda self, **kw: calls.append(kw) or limit(self, **kw))
+    before = _threads("blas")
+    with single_thread(user_api=None):
+        with single_thread(), single_thread("openmp"):
+            assert _threads("blas") == [1] * len(before)
+        assert _threads("blas") == [1] * len(before)  # the inner blocks restored nothing
+    assert _threads("blas") == before
+    with single_thread("openmp"), single_thread():  # BLAS is not held by the OpenMP block
+        assert _threads("blas") == [1] * len(before)
+    assert [kw["user_api"] for kw in calls] == [None, "openmp", "blas"]
+
+
 def test_single_thread_rejects_an_unknown_api():
     with pytest.raises(ValueError, match="user_api"):
         single_thread("mkl")
