@@ -22,9 +22,11 @@ import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.csvio import records_from_env, write_csv
 
 STRIDE = 5  # every 5th of the rig's 2 ms samples
+#: where the data goes: beside this script
+DATA = Path(__file__).with_name("dc_rig.csv")
 
 
-def main(path: Path = Path(__file__).with_name("dc_rig.csv")) -> Path:
+def main(path: Path = DATA) -> Path:
     env = gym.make("gbo_envs/DCMotorRig-v0")
     low, high = env.action_space.low, env.action_space.high
     gains = np.random.default_rng(1).uniform(low, high, size=(4, low.size))
