@@ -38,7 +38,7 @@ def _demo(args: argparse.Namespace) -> int:
     from evaluation.demo import run_demo
 
     run_demo(Path(args.out), env_id=args.env, seed=args.seed, budget=args.budget, tuners=not args.no_tuners,
-             progress=False if args.quiet else None)
+             progress=False if args.quiet else None, seeds=args.seeds)
     return 0
 
 
@@ -59,8 +59,11 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", default="out/demo", help="output folder for the PNGs (default: out/demo)")
     demo.add_argument("--env", type=env_id, default=EnvId("gbo_envs/DCMotor-v0"),
                       help="env id (default: gbo_envs/DCMotor-v0)")
-    demo.add_argument("--seed", type=int_at_least(0), default=0, help="seed of the tuning runs (default: 0)")
+    demo.add_argument("--seed", type=int_at_least(0), default=0, help="seed of the first tuning run (default: 0)")
     demo.add_argument("--budget", type=positive_int, default=20, help="plant experiments per tuner (default: 20)")
+    demo.add_argument("--seeds", type=positive_int, default=3,
+                      help="tuning runs per tuner, from --seed on; the convergence plot shows their mean and 95 %% "
+                           "confidence band (default: 3)")
     demo.add_argument("--no-tuners", action="store_true", help="only the ground truth and its figures")
     demo.add_argument("--quiet", action="store_true", help="no progress bars (default: on stderr when a terminal)")
     demo.set_defaults(handler=_demo)

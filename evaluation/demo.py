@@ -25,7 +25,7 @@ PAPER_NOMINAL = {"Kp": 0.85, "Ki": 1.07}
 
 
 def run_demo(out: Path, env_id: str = "gbo_envs/DCMotor-v0", seed: int = 0, budget: int = 20,
-             tuners: bool = True, progress: bool | None = False) -> dict:
+             tuners: bool = True, progress: bool | None = False, seeds: int = 3) -> dict:
     """Run the demo and write its figures into ``out``; returns the figures printed.
 
     Parameters
@@ -35,14 +35,19 @@ def run_demo(out: Path, env_id: str = "gbo_envs/DCMotor-v0", seed: int = 0, budg
     env_id : str
         Plant to tune.
     seed : int
-        Seed of the tuning runs.
+        Seed of the first tuning run of each tuner.
     budget : int
         Plant experiments per tuner.
     tuners : bool
         Also run the tuners (BO, guided BO) when they are available.
     progress : bool or None, default False
         A progress bar per tuning run on stderr; ``None``: only when stderr is a terminal.
+    seeds : int, default 3
+        Tuning runs per tuner (seeds ``seed, seed + 1, ...``): the convergence figure
+        shows their mean with a 95 % confidence band.
     """
+    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
+        raise ValueError(f"seeds: must be an integer >= 1, got {seeds!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     summary: dict = {}
@@ -78,11 +83,11 @@ def run_demo(out: Path, env_id: str = "gbo_envs/DCMotor-v0", seed: int = 0, budg
     print(f"Wrote {out / 'optimal_step_response.png'} and {out / 'cost_surface.png'}")
 
     if tuners:
-        summary["tuners"] = _run_tuners(out, env_id, truth, seed, budget, progress)
+        summary["tuners"] = _run_tuners(out, env_id, truth, range(seed, seed + seeds), budget, progress)
     return summary
 
 
-def _run_tuners(out: Path, env_id: str, truth, seed: int, budget: int, progress: bool | None) -> dict:
+def _run_tuners(out: Path, env_id: str, truth, seeds: range, budget: int, progress: bool | None) -> dict:
     import agents
 
     available = [name for name in ("bo", "guided-bo") if name in agents.registered_names()]
@@ -90,17 +95,20 @@ def _run_tuners(out: Path, env_id: str, truth, seed: int, budget: int, progress:
         return {}
     results = []
     rows = {}
-    print(f"\nTuning {env_id} with {', '.join(available)} (seed {seed}, {budget} plant experiments each):")
+    print(f"\nTuning {env_id} with {', '.join(available)} (seeds {seeds.start}-{seeds.stop - 1}, {budget} plant "
+          "experiments each):")
     for name in available:
-        result = agents.make(name).run(gym.make(env_id), budget=budget, seed=seed, progress=progress)
-        results.append(result)
-        ratio = result.min_true_cost_curve() / truth.cost
-        best = result.best_gains
-        rows[name] = {"gains": dict(zip(truth.gain_names, best.tolist())), "final_ratio": float(ratio[-1]),
-                      "twin_evaluations": result.n_twin}
-        print(f"  {name:10s} best {_fmt(truth.gain_names, best)}  optimality ratio {ratio[-1]:.3f}"
-              f"  twin evaluations {result.n_twin}")
-    fig = convergence_figure(results, optimum=truth.cost, title=f"{env_id}, seed {seed}")
+        for seed in seeds:
+            result = agents.make(name).run(gym.make(env_id), budget=budget, seed=seed, progress=progress)
+            results.append(result)
+            ratio = result.min_true_cost_curve() / truth.cost
+            best = result.best_gains
+            rows[f"{name}, seed {seed}"] = {"gains": dict(zip(truth.gain_names, best.tolist())),
+                                            "final_ratio": float(ratio[-1]), "twin_evaluations": result.n_twin}
+            print(f"  {name:10s} seed {seed}: best {_fmt(truth.gain_names, best)}  optimality ratio {ratio[-1]:.3f}"
+                  f"  twin evaluations {result.n_twin}")
+    fig = convergence_figure(results, optimum=truth.cost,
+                             title=f"{env_id}: {len(seeds)} seeds, mean and 95 % confidence band")
     save(fig, out / "tuner_convergence.png", dpi=120)
     print(f"Wrote {out / 'tuner_convergence.png'}")
     return rows
