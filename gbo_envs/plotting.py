@@ -331,8 +331,7 @@ def convergence_figure(runs, optimum: float | None = None, level: float = 0.95, 
             if curve.shape[0] > 1:
                 half = stats.t.ppf(0.5 + level / 2, curve.shape[0] - 1) * curve.std(axis=0, ddof=1) / np.sqrt(
                     curve.shape[0])
-                low = mean - half if optimum is None else np.maximum(mean - half, 1.0)  # no ratio is below 1
-                ax.fill_between(x, low, mean + half, color=line.get_color(), alpha=0.2, lw=0,
+                ax.fill_between(x, mean - half, mean + half, color=line.get_color(), alpha=0.2, lw=0,
                                 label=f"{tuner}: {level:.0%} confidence band of the mean")
         if optimum is not None:
             ax.axhline(1.0, label="optimum (ratio 1)", **REFERENCE)
