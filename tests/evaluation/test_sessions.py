@@ -431,7 +431,7 @@ def test_cli_tune_prints_when_the_twin_changes(tmp_path, capsys):
     assert gbo(["tune", "--env", ENV, "--tuner", "guided-bo", "--budget", "2", "--db", db,
                 "--tuner-kwargs", '{"grid_points": 30}', "--no-progress"]) == 0
     out = capsys.readouterr().out
-    assert "guided-bo: twin: linear, RMSE" in out and "(after 1 experiments)" in out
+    assert "guided-bo: twin: linear, RMSE" in out and "(after 1 experiment)" in out
 
 
 def test_force_takes_a_session_over_and_fences_its_previous_owner(tmp_path, monkeypatch):
