@@ -66,11 +66,12 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
-    try:
-        frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+    try:  # numbers parsed by pandas' C parser; a column with anything else stays text (checked by _numbers)
+        frame = pd.read_csv(path, keep_default_na=False, skipinitialspace=True)
     except pd.errors.EmptyDataError as exc:
         raise ValueError(f"{path}: the file is empty; expected a header {','.join(REQUIRED_COLUMNS)}") from exc
-    frame.columns = [str(c).strip() for c in frame.columns]
+    raw_names = {str(c).strip(): c for c in frame.columns}
+    frame.columns = list(raw_names)
     missing = [c for c in REQUIRED_COLUMNS if c not in frame.columns]
     if gain_names is not None:
         missing += [c for c in gain_names if c not in frame.columns]
@@ -83,19 +84,26 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
         gain_names = []
         while f"gain{len(gain_names)}" in frame.columns:
             gain_names.append(f"gain{len(gain_names)}")
-    text = {column: frame[column].astype(str).str.strip() for column in frame.columns}
-    values = {column: _numbers(path, column, text[column]) for column in (*REQUIRED_COLUMNS, *gain_names)}
-    costs = _numbers(path, "cost", text["cost"], allow_missing=True) if "cost" in frame.columns else None
+
+    def numbers(column: str, allow_missing: bool = False) -> np.ndarray:
+        return _numbers(path, column, frame[column], raw_names[column], allow_missing)
+
+    values = {column: numbers(column) for column in (*REQUIRED_COLUMNS, *gain_names)}
+    costs = numbers("cost", allow_missing=True) if "cost" in frame.columns else None
     exp = values["experiment"]
     not_int = np.flatnonzero(exp != np.round(exp))
     if not_int.size:
         i = int(not_int[0])
         raise ValueError(f"{path}, row {i + 2}, column 'experiment': experiment id must be an integer, "
-                         f"got {frame['experiment'].iloc[i]!r}")
+                         f"got {float(exp[i])!r}")
     ids = exp.astype(int)
+    if "source" in frame.columns:
+        source_codes, source_names = pd.factorize(frame["source"].astype(str).str.strip())
+    order = np.argsort(ids, kind="stable")  # the rows of each experiment, in file order
+    idents, first, counts = np.unique(ids[order], return_index=True, return_counts=True)
     records = []
-    for ident in dict.fromkeys(ids.tolist()):
-        rows = np.flatnonzero(ids == ident)
+    for j in np.argsort(order[first]):  # experiments in order of first appearance
+        ident, rows = int(idents[j]), order[first[j] : first[j] + counts[j]]
         try:
             signals = validate_signals(*(values[name][rows] for name in SIGNALS), min_steps=_MIN_SAMPLES,
                                        uniform_rtol=UNIFORM_RTOL_CSV)
@@ -105,8 +113,8 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
                              f"{exc.rule}") from None
         gains = [_constant(path, ident, rows, name, values[name][rows]) for name in gain_names]
         cost = math.nan if costs is None else _constant(path, ident, rows, "cost", costs[rows])
-        source = _constant(path, ident, rows, "source", text["source"].to_numpy()[rows]) if "source" in text \
-            else "plant"
+        source = "plant" if "source" not in frame.columns else \
+            _constant(path, ident, rows, "source", source_codes[rows], names=source_names)
         if source not in SOURCES:
             raise ValueError(f"{path}, row {rows[0] + 2}, column 'source': must be one of {SOURCES}, got {source!r}")
         records.append(Experiment(gains=gains, **signals, cost=cost, source=source, index=ident))
@@ -159,10 +167,21 @@ def write_csv(records, path: str | Path, gain_names: Sequence[str] | None = None
     return path
 
 
-def _numbers(path: Path, column: str, text, allow_missing: bool = False) -> np.ndarray:
-    """The column as floats; a missing, non-numeric or infinite value raises naming its row."""
+def _numbers(path: Path, column: str, series, raw_name, allow_missing: bool = False) -> np.ndarray:
+    """The column as floats; a missing, non-numeric or infinite value raises naming its row.
+
+    ``series`` is the column as pandas parsed it; a column not parsed as numbers, or with a
+    non-finite number, is checked on its text (column ``raw_name`` of the file read again as text).
+    """
     import pandas as pd
 
+    if series.dtype.kind in "iuf":
+        numbers = series.to_numpy(dtype=float)
+        if np.isfinite(numbers).all():
+            return numbers
+        series = pd.read_csv(path, usecols=[raw_name], dtype=str, keep_default_na=False,
+                             skipinitialspace=True)[raw_name]
+    text = series.astype(str).str.strip()
     numbers = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
     blank = text.str.lower().isin(_MISSING).to_numpy()
     bad = np.flatnonzero(~np.isfinite(numbers) & ~(blank & allow_missing))
@@ -176,15 +195,22 @@ def _numbers(path: Path, column: str, text, allow_missing: bool = False) -> np.n
     return np.where(blank, np.nan, numbers) if allow_missing else numbers
 
 
-def _constant(path: Path, ident: int, rows: np.ndarray, column: str, values: np.ndarray):
-    """The one value of ``column`` within experiment ``ident`` (rows ``rows`` of the data)."""
-    values = values.tolist()
+def _constant(path: Path, ident: int, rows: np.ndarray, column: str, values: np.ndarray, names=None):
+    """The one value of ``column`` within experiment ``ident`` (rows ``rows`` of the data).
+
+    ``values`` are numbers, or codes into ``names`` (the column's distinct texts).
+    """
+    def show(value):
+        return float(value) if names is None else str(names[value])
+
     first = values[0]
-    for row, value in zip(rows, values):
-        if value != first and not (isinstance(first, float) and math.isnan(first) and math.isnan(value)):
-            raise ValueError(f"{path}, row {row + 2}, column {column!r}: must be constant within experiment "
-                             f"{ident}, got {value!r} after {first!r}")
-    return first
+    changed = np.flatnonzero(values != first) if names is not None else \
+        np.flatnonzero((values != first) & ~(np.isnan(values) & np.isnan(first)))
+    if changed.size:
+        i = int(changed[0])
+        raise ValueError(f"{path}, row {rows[i] + 2}, column {column!r}: must be constant within experiment "
+                         f"{ident}, got {show(values[i])!r} after {show(first)!r}")
+    return show(first)
 
 
 def records_from_env(env, gains: np.ndarray, seed: int | None = None) -> list[Experiment]:

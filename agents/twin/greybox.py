@@ -36,13 +36,14 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from agents.twin.fidelity import rmse
+from agents.twin.jacobian import RecordJacobian
 from agents.twin.open_loop import simulate_open_loop
 from agents.twin.records import as_records
 from gbo_envs.physics.effects import EFFECTS, build_effect
 from gbo_envs.physics.lti import ContinuousPlant
 
-__all__ = ["FITTED_PARAMETERS", "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "residual",
-           "simulate_sets"]
+__all__ = ["DENSE_JACOBIAN_BYTES", "FITTED_PARAMETERS", "SIMULATION_BATCH_SAMPLES", "GreyData", "GreyFit",
+           "ModelSpec", "Problem", "fit_problems", "residual", "simulate_sets"]
 
 #: Effect parameters the grey-box fit estimates, and whether they are moved by the gradient
 #: iteration (``True``) or chosen on a grid (``False``). Other parameters keep their defaults.
@@ -59,6 +60,14 @@ FITTED_PARAMETERS: dict[str, tuple[tuple[str, bool], ...]] = {
     "offset": (("value", True),),
     "cogging": (("amplitude", True), ("period", True), ("phase", True)),
 }
+
+
+#: Largest Jacobian (bytes as a dense float64 matrix) whose trust-region steps are solved exactly (SVD);
+#: a larger one is kept as its blocks (:class:`agents.twin.jacobian.RecordJacobian`) and solved by LSMR,
+#: so that memory and time grow linearly with the number of records.
+DENSE_JACOBIAN_BYTES = 32 * 2**20
+#: Most samples (records times steps) simulated in one vectorised pass (about 32 MB per signal).
+SIMULATION_BATCH_SAMPLES = 2**22
 
 
 @dataclass(frozen=True, eq=False)
@@ -257,6 +266,24 @@ def simulate_sets(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np
 
 
 def _simulate_both(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]]) -> list[tuple]:
+    """``(measurement, plant output before the sensors)`` of each set, in vectorised passes.
+
+    Consecutive sets are simulated together up to :data:`SIMULATION_BATCH_SAMPLES` samples
+    (a larger set alone), so that the memory of one pass is bounded. The rows of a pass do not
+    interact, so the grouping does not change the values.
+    """
+    n_steps = data.u.shape[1]
+    out, batch, size = [], [], 0
+    for one in sets:
+        if batch and size + one[2].size * n_steps > SIMULATION_BATCH_SAMPLES:
+            out += _simulate_batch(data, batch)
+            batch, size = [], 0
+        batch.append(one)
+        size += one[2].size * n_steps
+    return out + _simulate_batch(data, batch) if batch else out
+
+
+def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]]) -> list[tuple]:
     """``(measurement, plant output before the sensors)`` of each set, in one vectorised pass."""
     plants, chains, u, y0, bias, index, owner = [], [], [], [], [], [], []
     for s, (spec, theta, rows) in enumerate(sets):
@@ -274,21 +301,21 @@ def _simulate_both(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, n
         bias.append(theta[g + k :])
         index.append(data.index[rows])
         owner += [s] * k
-    out = [(np.full((rows.size, data.u.shape[1]), np.nan),) * 2 for _, _, rows in sets]
-    if not owner:
-        return out
-    try:
-        with np.errstate(all="ignore"):
-            res = simulate_open_loop(plants, np.concatenate(u), data.dt, chains, y0=np.concatenate(y0),
-                                     bias=np.concatenate(bias), experiment_index=np.concatenate(index))
-    except (np.linalg.LinAlgError, ValueError):  # a plant that cannot be sampled (overflowing coefficients)
-        if len(sets) == 1:
-            return out
-        return [_simulate_both(data, [one])[0] for one in sets]
-    owner = np.array(owner)
-    for s in set(owner.tolist()):
-        out[s] = (res.y[owner == s], res.y_true[owner == s])
-    return out
+    out: list = [None] * len(sets)
+    if owner:
+        try:
+            with np.errstate(all="ignore"):
+                res = simulate_open_loop(plants, np.concatenate(u), data.dt, chains, y0=np.concatenate(y0),
+                                         bias=np.concatenate(bias), experiment_index=np.concatenate(index))
+        except (np.linalg.LinAlgError, ValueError):  # a plant that cannot be sampled (overflowing coefficients)
+            if len(sets) > 1:
+                return [_simulate_batch(data, [one])[0] for one in sets]
+        else:
+            owner = np.array(owner)
+            for s in set(owner.tolist()):
+                out[s] = (res.y[owner == s], res.y_true[owner == s])
+    return [(np.full((rows.size, data.u.shape[1]), np.nan),) * 2 if pair is None else pair
+            for pair, (_, _, rows) in zip(out, sets)]
 
 
 class _Lockstep:
@@ -429,8 +456,11 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None)
     rough = any(not smooth for name, _ in p.spec.effects for _, smooth in FITTED_PARAMETERS[name])
     start = p.theta.copy()
     columns = [[j] for j in free[free < g]]  # one simulation per global parameter
+    n_shared = len(columns)
+    dense = 8 * k * n * free.size <= DENSE_JACOBIAN_BYTES
+    sets_per_pass = max(1, SIMULATION_BATCH_SAMPLES // (k * n))
     columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
-    simulated: dict[bytes, np.ndarray] = {}
+    best: dict = {"key": None, "y": None, "cost": np.inf}  # the lowest-cost point so far: least_squares' iterate
 
     def full(x: np.ndarray) -> np.ndarray:
         theta = start.copy()
@@ -439,10 +469,13 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None)
 
     def fun(x: np.ndarray) -> np.ndarray:
         y = simulate([(p.spec, full(x), p.rows)])[0]
-        simulated[x.tobytes()] = y
-        return residual(data, p.rows, y).ravel()
+        res = residual(data, p.rows, y).ravel()
+        cost = float(res @ res)
+        if cost < best["cost"]:
+            best.update(key=x.tobytes(), y=y, cost=cost)
+        return res
 
-    def jac(x: np.ndarray) -> np.ndarray:
+    def jac(x: np.ndarray) -> RecordJacobian | np.ndarray:
         theta = full(x)
         sets, steps = [], []
         for cols in columns:
@@ -453,31 +486,40 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None)
             trial[cols] += h
             sets.append((p.spec, trial, p.rows))
             steps.append(h)
-        if rough or x.tobytes() not in simulated:  # the smooth output at x itself
-            sets.append((p.spec, theta, p.rows))
-        ys = simulate(sets, true_output=rough)
-        base = residual(data, p.rows, ys[-1] if len(ys) > len(columns) else simulated[x.tobytes()])
-        mat = np.zeros((base.size, theta.size))
-        for cols, h, y in zip(columns, steps, ys):
-            diff = (residual(data, p.rows, y) - base) / h
-            if len(cols) == 1:
-                mat[:, cols[0]] = diff.ravel()
-            else:
-                for j in cols:
-                    r = j - (g if j < g + k else g + k)
-                    mat[r * n : (r + 1) * n, j] = diff[r]
-        return mat[:, free]
+        if rough or x.tobytes() != best["key"]:  # the smooth output at x itself, simulated first
+            sets.insert(0, (p.spec, theta, p.rows))
+            base = None
+        else:
+            base = residual(data, p.rows, best["y"])
+        shared = np.empty((n_shared, k, n))
+        per_record, positions = [], [np.flatnonzero(free < g)]
+        i = 0
+        for first_set in range(0, len(sets), sets_per_pass):  # each pass's outputs freed once used
+            for y in simulate(sets[first_set : first_set + sets_per_pass], true_output=rough):
+                if base is None:
+                    base = residual(data, p.rows, y)
+                    continue
+                cols, diff = columns[i], (residual(data, p.rows, y) - base) / steps[i]
+                if i < n_shared:
+                    shared[i] = diff
+                else:
+                    first = g if cols[0] < g + k else g + k
+                    per_record.append(diff)
+                    positions.append(np.column_stack([np.searchsorted(free, cols), np.asarray(cols) - first]))
+                i += 1
+        jacobian = RecordJacobian(shared, per_record, positions)
+        return jacobian.toarray() if dense else jacobian
 
     scale = np.where(p.scale[free] > 0, p.scale[free], 1.0)
     sol = least_squares(fun, np.clip(start[free], p.lower[free], p.upper[free]), jac=jac,
-                        bounds=(p.lower[free], p.upper[free]), x_scale=scale, method="trf", ftol=tol, xtol=1e-12,
-                        gtol=1e-12, max_nfev=max_iter + 1)
+                        bounds=(p.lower[free], p.upper[free]), x_scale=scale, method="trf",
+                        tr_solver="exact" if dense else "lsmr",
+                        ftol=tol, xtol=1e-12, gtol=1e-12, max_nfev=max_iter + 1)
     cost = float(np.sum(sol.fun**2))
     p.n_iter += int(sol.nfev) - 1
     if cost < p.cost:
         p.theta = full(sol.x)
-        p.y_sim = simulated[sol.x.tobytes()] if sol.x.tobytes() in simulated else \
-            simulate([(p.spec, p.theta, p.rows)])[0]
+        p.y_sim = best["y"] if sol.x.tobytes() == best["key"] else simulate([(p.spec, p.theta, p.rows)])[0]
         p.residual = residual(data, p.rows, p.y_sim)
         p.cost = float(np.sum(p.residual**2))
 
