@@ -70,9 +70,10 @@ def _load(args):
 
     records = read_csv(args.data)
     data = GreyData.from_records(records)  # experiment index = the CSV's experiment id
+    ids = [r.index for r in records]  # the records themselves are not kept: GreyData holds their signals
     spec = ModelSpec(args.poles, args.zeros, args.integrators, args.output)
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
-    return records, data, spec, effects
+    return ids, data, spec, effects
 
 
 def _fit(data, spec, effects):
@@ -102,9 +103,9 @@ def _compare(args) -> int:
     from agents.jsonable import to_json
     from agents.twin.workbench import compare
 
-    records, data, spec, effects = _load(args)
+    ids, data, spec, effects = _load(args)
     fit = _fit(data, spec, effects)
-    res = compare(data, fit, experiments=[r.index for r in records])
+    res = compare(data, fit, experiments=ids)
     if args.out:
         from agents.twin.report import compare_figure
 

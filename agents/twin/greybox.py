@@ -278,9 +278,25 @@ def _simulate_both(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, n
         if batch and size + one[2].size * n_steps > SIMULATION_BATCH_SAMPLES:
             out += _simulate_batch(data, batch)
             batch, size = [], 0
-        batch.append(one)
-        size += one[2].size * n_steps
+        if one[2].size * n_steps > SIMULATION_BATCH_SAMPLES:
+            out.append(_simulate_in_parts(data, *one))
+        else:
+            batch.append(one)
+            size += one[2].size * n_steps
     return out + _simulate_batch(data, batch) if batch else out
+
+
+def _simulate_in_parts(data: GreyData, spec: ModelSpec, theta: np.ndarray, rows: np.ndarray) -> tuple:
+    """``(measurement, plant output before the sensors)`` of one large set, a few records per pass."""
+    k, n_steps = rows.size, data.u.shape[1]
+    g = theta.size - 2 * k
+    y, y_true = np.empty((k, n_steps)), np.empty((k, n_steps))
+    per_pass = max(1, SIMULATION_BATCH_SAMPLES // n_steps)
+    for first in range(0, k, per_pass):
+        part = slice(first, first + per_pass)
+        piece = np.concatenate([theta[:g], theta[g : g + k][part], theta[g + k :][part]])
+        y[part], y_true[part] = _simulate_batch(data, [(spec, piece, rows[part])])[0]
+    return y, y_true
 
 
 def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]]) -> list[tuple]:
@@ -379,10 +395,16 @@ def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
     ndarray of shape (len(rows), n_steps)
         In the units of ``y``.
     """
-    penalty = 1e6 * (1.0 + np.abs(data.y[rows]).max())
+    every = rows.size == data.n_records and np.array_equal(rows, np.arange(rows.size))
+    y, mask = (data.y, data.mask) if every else (data.y[rows], data.mask[rows])  # no copy of all the records
+    penalty = 1e6 * (1.0 + max(float(y.max()), -float(y.min())))
     with np.errstate(invalid="ignore", over="ignore"):
-        err = np.where(data.mask[rows], y_sim - data.y[rows], 0.0)
-    return np.where(np.isfinite(err), np.clip(err, -penalty, penalty), penalty)
+        err = np.subtract(y_sim, y)
+    err[~mask] = 0.0
+    diverged = ~np.isfinite(err)
+    np.clip(err, -penalty, penalty, out=err)
+    err[diverged] = penalty
+    return err
 
 
 def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7, *,
@@ -461,6 +483,10 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None)
     sets_per_pass = max(1, SIMULATION_BATCH_SAMPLES // (k * n))
     columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
     best: dict = {"key": None, "y": None, "cost": np.inf}  # the lowest-cost point so far: least_squares' iterate
+    # the Jacobian's arrays, written again at each evaluation: least_squares (trf) does not use the previous
+    # Jacobian once it asks for the next, so one set of arrays serves them all
+    shared = np.empty((n_shared, k, n))
+    per_record = [np.empty((k, n)) for _ in columns[n_shared:]]
 
     def full(x: np.ndarray) -> np.ndarray:
         theta = start.copy()
@@ -491,20 +517,19 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None)
             base = None
         else:
             base = residual(data, p.rows, best["y"])
-        shared = np.empty((n_shared, k, n))
-        per_record, positions = [], [np.flatnonzero(free < g)]
+        positions = [np.flatnonzero(free < g)]
         i = 0
         for first_set in range(0, len(sets), sets_per_pass):  # each pass's outputs freed once used
             for y in simulate(sets[first_set : first_set + sets_per_pass], true_output=rough):
                 if base is None:
                     base = residual(data, p.rows, y)
                     continue
-                cols, diff = columns[i], (residual(data, p.rows, y) - base) / steps[i]
-                if i < n_shared:
-                    shared[i] = diff
-                else:
+                cols = columns[i]
+                out = shared[i] if i < n_shared else per_record[i - n_shared]
+                np.subtract(residual(data, p.rows, y), base, out=out)
+                out /= steps[i]
+                if i >= n_shared:
                     first = g if cols[0] < g + k else g + k
-                    per_record.append(diff)
                     positions.append(np.column_stack([np.searchsorted(free, cols), np.asarray(cols) - first]))
                 i += 1
         jacobian = RecordJacobian(shared, per_record, positions)
