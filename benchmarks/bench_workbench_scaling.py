@@ -15,6 +15,7 @@ command whose memory grows faster than the data fails with ``MemoryError``
 
     python benchmarks/bench_workbench_scaling.py                       # 10, 100, 1000; compare and resid
     python benchmarks/bench_workbench_scaling.py --sizes 10 100 --commands compare
+    python benchmarks/bench_workbench_scaling.py --tree /path/to/main    # the same data, another checkout
 """
 
 from __future__ import annotations
@@ -51,16 +52,16 @@ def write_data(n_experiments: int, path: Path, seed: int = 0) -> Path:
     return write_csv(records, path)
 
 
-def run_command(command: str, data: Path, memory_limit: float) -> dict:
+def run_command(command: str, data: Path, memory_limit: float, tree: Path = ROOT) -> dict:
     """Run ``gbo twin COMMAND DATA --json`` in a child process; its CPU s, wall s, peak MB and exit status."""
     def limit() -> None:
         resource.setrlimit(resource.RLIMIT_AS, (int(memory_limit), int(memory_limit)))
 
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env = dict(os.environ, PYTHONPATH=str(tree) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         start = time.perf_counter()
         proc = subprocess.Popen([sys.executable, "-m", "evaluation.cli", "twin", command, str(data), "--json"],
-                                stdout=out, stderr=err, cwd=ROOT, env=env, preexec_fn=limit)
+                                stdout=out, stderr=err, cwd=tree, env=env, preexec_fn=limit)
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - start
         proc.returncode = os.waitstatus_to_exitcode(status)
@@ -79,7 +80,8 @@ def run_command(command: str, data: Path, memory_limit: float) -> dict:
     return row
 
 
-def main(sizes=(10, 100, 1000), commands=("compare", "resid"), memory_limit: float = 8e9) -> list[dict]:
+def main(sizes=(10, 100, 1000), commands=("compare", "resid"), memory_limit: float = 8e9,
+         tree: Path = ROOT) -> list[dict]:
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         for n in sizes:
@@ -88,7 +90,7 @@ def main(sizes=(10, 100, 1000), commands=("compare", "resid"), memory_limit: flo
             generate = time.process_time() - start
             for command in commands:
                 row = {"n_experiments": n, "n_samples": 2501, "csv_mb": round(data.stat().st_size / 1e6, 1),
-                       "generate_cpu_s": round(generate, 2), **run_command(command, data, memory_limit)}
+                       "generate_cpu_s": round(generate, 2), **run_command(command, data, memory_limit, tree)}
                 rows.append(row)
                 print(json.dumps(row), file=sys.stderr, flush=True)
     return rows
@@ -110,8 +112,10 @@ if __name__ == "__main__":
     parser.add_argument("--commands", nargs="+", choices=("compare", "resid", "diagnose"),
                         default=["compare", "resid"])
     parser.add_argument("--memory-limit", type=float, default=8e9, help="address-space limit of a child, bytes")
+    parser.add_argument("--tree", type=Path, default=ROOT,
+                        help="source tree whose gbo runs (default this one; e.g. a checkout of main for 'before')")
     args = parser.parse_args()
-    result = main(args.sizes, args.commands, args.memory_limit)
+    result = main(args.sizes, args.commands, args.memory_limit, args.tree.resolve())
     print(table(result))
     for row in result:
         print(json.dumps(row))
