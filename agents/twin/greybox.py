@@ -14,10 +14,14 @@ linear model it is SRIVC's rest input ``u0_k`` in disguise,
 with ``scipy.optimize.least_squares`` (trust-region reflective, within bounds),
 started from the SRIVC fit of the linear part and data-based guesses of the
 effect parameters. The starts of many problems (candidate models, starts,
-cross-validation folds) are simulated in one vectorised pass; the Jacobian is
-a forward difference computed in one vectorised simulation, in which the
-per-record nuisance parameters are perturbed all at once (each only moves its
-own record).
+cross-validation folds) are simulated in vectorised passes of bounded size
+(:data:`SIMULATION_BATCH_SAMPLES`); the Jacobian is a forward difference, in
+which the per-record nuisance parameters are perturbed all at once (each only
+moves its own record). It is kept as its blocks
+(:class:`agents.twin.jacobian.RecordJacobian`: dense model columns, one block
+per record for the nuisances), so that memory and time grow linearly with the
+number of records; up to :data:`DENSE_JACOBIAN_BYTES` it is handed to the
+solver dense, whose trust-region steps are then exact.
 
 Parameters of effects whose simulation error is not differentiable (the
 quantization step) are not moved by the iteration; they are chosen from a
@@ -416,11 +420,14 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     method (``method="trf"``) within its bounds, with the variables scaled by
     ``scale``, stopping when an accepted step lowers the cost by less than the
     fraction ``tol`` (``ftol``) or after ``max_iter`` trial points (``max_nfev =
-    max_iter + 1``). The Jacobian is a forward difference computed in one
-    vectorised simulation (:func:`simulate_sets`), with the per-record rest levels
-    (and biases) perturbed all at once, since each only moves its own record; for
-    a model with a quantized output it is taken on the plant output before the
-    sensor, which is smooth in the parameters. ``benchmarks/bench_greybox_solver.py``
+    max_iter + 1``). The Jacobian is a forward difference computed in vectorised
+    simulations (:func:`simulate_sets`), with the per-record rest levels (and
+    biases) perturbed all at once, since each only moves its own record; for a
+    model with a quantized output it is taken on the plant output before the
+    sensor, which is smooth in the parameters. Up to :data:`DENSE_JACOBIAN_BYTES`
+    it is dense and the trust-region steps exact (``tr_solver="exact"``); above, it
+    is a :class:`~agents.twin.jacobian.RecordJacobian` and the steps come from LSMR
+    (``tr_solver="lsmr"``), so memory and time grow linearly with the records. ``benchmarks/bench_greybox_solver.py``
     compares it with the hand-written Levenberg-Marquardt iteration it replaced.
 
     Parameters
