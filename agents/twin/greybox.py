@@ -462,7 +462,7 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
 
         def solve(p: Problem, budget: int) -> None:
             try:
-                _solve(data, p, budget, float(tol), lockstep.simulate)
+                _solve(data, p, budget, float(tol), lockstep.simulate, n_parallel=len(todo))
             finally:
                 lockstep.leave()
 
@@ -472,10 +472,12 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     return problems
 
 
-def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None) -> None:
+def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None, n_parallel: int = 1) -> None:
     """One :class:`Problem` by ``least_squares`` (trf) from its start; see :func:`fit_problems`.
 
-    ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``).
+    ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``);
+    ``n_parallel`` problems make their requests together (:class:`_Lockstep`), so each asks for
+    its share of :data:`SIMULATION_BATCH_SAMPLES` at a time.
     """
     if simulate is None:
         def simulate(sets, true_output=False):
@@ -487,7 +489,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None)
     columns = [[j] for j in free[free < g]]  # one simulation per global parameter
     n_shared = len(columns)
     dense = 8 * k * n * free.size <= DENSE_JACOBIAN_BYTES
-    sets_per_pass = max(1, SIMULATION_BATCH_SAMPLES // (k * n))
+    sets_per_pass = max(1, SIMULATION_BATCH_SAMPLES // (k * n * n_parallel))
     columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
     best: dict = {"key": None, "y": None, "cost": np.inf}  # the lowest-cost point so far: least_squares' iterate
     # the Jacobian's arrays, written again at each evaluation: least_squares (trf) does not use the previous
