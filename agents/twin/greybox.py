@@ -46,8 +46,8 @@ from agents.twin.records import as_records
 from gbo_envs.physics.effects import EFFECTS, build_effect
 from gbo_envs.physics.lti import ContinuousPlant
 
-__all__ = ["DENSE_JACOBIAN_BYTES", "FITTED_PARAMETERS", "SIMULATION_BATCH_SAMPLES", "GreyData", "GreyFit",
-           "ModelSpec", "Problem", "fit_problems", "residual", "simulate_sets"]
+__all__ = ["DENSE_JACOBIANS_BYTES", "DENSE_JACOBIAN_BYTES", "FITTED_PARAMETERS", "SIMULATION_BATCH_SAMPLES",
+           "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "residual", "simulate_sets"]
 
 #: Effect parameters the grey-box fit estimates, and whether they are moved by the gradient
 #: iteration (``True``) or chosen on a grid (``False``). Other parameters keep their defaults.
@@ -70,6 +70,9 @@ FITTED_PARAMETERS: dict[str, tuple[tuple[str, bool], ...]] = {
 #: a larger one is kept as its blocks (:class:`agents.twin.jacobian.RecordJacobian`) and solved by LSMR,
 #: so that memory and time grow linearly with the number of records.
 DENSE_JACOBIAN_BYTES = 32 * 2**20
+#: Largest sum of the dense Jacobians of the problems solved together in lock-step (bytes); above it
+#: each is kept as its blocks, however small.
+DENSE_JACOBIANS_BYTES = 256 * 2**20
 #: Most samples (records times steps) simulated in one vectorised pass (about 32 MB per signal).
 SIMULATION_BATCH_SAMPLES = 2**22
 
@@ -488,7 +491,8 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
     start = p.theta.copy()
     columns = [[j] for j in free[free < g]]  # one simulation per global parameter
     n_shared = len(columns)
-    dense = 8 * k * n * free.size <= DENSE_JACOBIAN_BYTES
+    dense = 8 * k * n * free.size <= DENSE_JACOBIAN_BYTES and \
+        8 * k * n * free.size * n_parallel <= DENSE_JACOBIANS_BYTES
     sets_per_pass = max(1, SIMULATION_BATCH_SAMPLES // (k * n * n_parallel))
     columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
     best: dict = {"key": None, "y": None, "cost": np.inf}  # the lowest-cost point so far: least_squares' iterate
