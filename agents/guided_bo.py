@@ -700,7 +700,8 @@ class GuidedBO(BayesianOptimization):
                   "rmse": float(twin.rmse_), "previous_rmse": previous_rmse}
         named = ", ".join(f"+ {name} ({_format_values(values)})" for name, values in effects.items()) or "linear"
         before = f"{previous_rmse:.3g} -> " if previous_rmse is not None else ""
-        change["text"] = f"twin: {named}, RMSE {before}{twin.rmse_:.3g} (after {self.n_observations} experiment{'' if self.n_observations == 1 else 's'})"
+        after = f"{self.n_observations} experiment" + ("" if self.n_observations == 1 else "s")
+        change["text"] = f"twin: {named}, RMSE {before}{twin.rmse_:.3g} (after {after})"
         self.twin_changes_.append(change)
         self.log_event(change["text"])
 

@@ -122,9 +122,10 @@ def _load(args):
 
     records = read_csv(args.data)
     data = GreyData.from_records(records)  # experiment index = the CSV's experiment id
+    ids = [r.index for r in records]  # the records themselves are not kept: GreyData holds their signals
     spec = ModelSpec(args.poles, args.zeros, args.integrators, args.output)
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
-    return records, data, spec, effects
+    return ids, data, spec, effects
 
 
 def _fit(data, spec, effects):

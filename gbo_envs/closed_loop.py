@@ -113,11 +113,25 @@ class ClosedLoop:
             raise ValueError("r1, r2: the reference step must have non-zero height")
         object.__setattr__(self, "output_noise_std", validated_finite("output_noise_std", self.output_noise_std,
                                                                       "output units"))
-        object.__setattr__(self, "_discrete", self.current_plant.discretize(self.dt))
+        plant = self.current_plant
+        self._check_delay(plant)
+        object.__setattr__(self, "_discrete", plant.discretize(self.dt))
         num_p, den_p = self._discrete.transfer_function()
         _, u0 = self._discrete.equilibrium(self.r1)
         width = max(den_p.size, num_p.size) + 1
         object.__setattr__(self, "_linear_parts", (num_p, den_p, float(u0[0]), width))
+
+    def _check_delay(self, plant: ContinuousPlant) -> None:
+        """A dead time longer than the experiment never lets the input reach the output: refuse it."""
+        if plant.delay <= self.duration:
+            return
+        extra = sum(block.delay for block in self.plant_effects if block.name == "time_delay")
+        if extra and self.plant.delay + extra > self.duration:
+            raise ValueError(f"time_delay: parameter 'delay' must be in [0, {self.duration - self.plant.delay:g}] "
+                             f"(s; with the plant's own delay of {self.plant.delay:g} s at most the experiment's "
+                             f"length, duration = {self.duration:g} s), got {extra:g}")
+        raise ValueError(f"drift: the plant's delay at experiment {self.experiment_index} is {plant.delay:g} s, "
+                         f"longer than the experiment (duration = {self.duration:g} s)")
 
     def replace(self, **changes) -> ClosedLoop:
         """Copy with fields replaced (e.g. another plant for a digital twin)."""

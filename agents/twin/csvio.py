@@ -81,8 +81,8 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
             raise ValueError(f"{path}: a binary file (it holds NUL bytes); a workbench CSV is UTF-8 text with the "
                              f"header {','.join(REQUIRED_COLUMNS)}")
     _check_complete(path)
-    try:
-        frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True, encoding="utf-8")
+    try:  # numbers parsed by pandas' C parser; a column with anything else stays text (checked by _numbers)
+        frame = pd.read_csv(path, keep_default_na=False, skipinitialspace=True, encoding="utf-8")
     except pd.errors.EmptyDataError as exc:
         raise ValueError(f"{path}: the file is empty; expected a header {','.join(REQUIRED_COLUMNS)}") from exc
     except UnicodeDecodeError as exc:
@@ -90,7 +90,8 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
                          f"a workbench CSV is UTF-8 text with the header {','.join(REQUIRED_COLUMNS)}") from None
     except pd.errors.ParserError as exc:
         raise ValueError(f"{path}: not a CSV table ({' '.join(str(exc).split())})") from None
-    frame.columns = [str(c).strip() for c in frame.columns]
+    raw_names = {str(c).strip(): c for c in frame.columns}
+    frame.columns = list(raw_names)
     missing = [c for c in REQUIRED_COLUMNS if c not in frame.columns]
     if gain_names is not None:
         missing += [c for c in gain_names if c not in frame.columns]
@@ -103,19 +104,26 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
         gain_names = []
         while f"gain{len(gain_names)}" in frame.columns:
             gain_names.append(f"gain{len(gain_names)}")
-    text = {column: frame[column].astype(str).str.strip() for column in frame.columns}
-    values = {column: _numbers(path, column, text[column]) for column in (*REQUIRED_COLUMNS, *gain_names)}
-    costs = _numbers(path, "cost", text["cost"], allow_missing=True) if "cost" in frame.columns else None
+
+    def numbers(column: str, allow_missing: bool = False) -> np.ndarray:
+        return _numbers(path, column, frame[column], raw_names[column], allow_missing)
+
+    values = {column: numbers(column) for column in (*REQUIRED_COLUMNS, *gain_names)}
+    costs = numbers("cost", allow_missing=True) if "cost" in frame.columns else None
     exp = values["experiment"]
     not_int = np.flatnonzero(exp != np.round(exp))
     if not_int.size:
         i = int(not_int[0])
         raise ValueError(f"{path}, row {i + 2}, column 'experiment': experiment id must be an integer, "
-                         f"got {frame['experiment'].iloc[i]!r}")
+                         f"got {float(exp[i])!r}")
     ids = exp.astype(int)
+    if "source" in frame.columns:
+        source_codes, source_names = pd.factorize(frame["source"].astype(str).str.strip())
+    order = np.argsort(ids, kind="stable")  # the rows of each experiment, in file order
+    idents, first, counts = np.unique(ids[order], return_index=True, return_counts=True)
     records = []
-    for ident in dict.fromkeys(ids.tolist()):
-        rows = np.flatnonzero(ids == ident)
+    for j in np.argsort(order[first]):  # experiments in order of first appearance
+        ident, rows = int(idents[j]), order[first[j] : first[j] + counts[j]]
         try:
             signals = validate_signals(*(values[name][rows] for name in SIGNALS), min_steps=_MIN_SAMPLES,
                                        uniform_rtol=UNIFORM_RTOL_CSV)
@@ -125,8 +133,8 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
                              f"{exc.rule}") from None
         gains = [_constant(path, ident, rows, name, values[name][rows]) for name in gain_names]
         cost = math.nan if costs is None else _constant(path, ident, rows, "cost", costs[rows])
-        source = _constant(path, ident, rows, "source", text["source"].to_numpy()[rows]) if "source" in text \
-            else "plant"
+        source = "plant" if "source" not in frame.columns else \
+            _constant(path, ident, rows, "source", source_codes[rows], names=source_names)
         if source not in SOURCES:
             raise ValueError(f"{path}, row {rows[0] + 2}, column 'source': must be one of {SOURCES}, got {source!r}")
         records.append(Experiment(gains=gains, **signals, cost=cost, source=source, index=ident - 1))
@@ -201,10 +209,21 @@ def _check_complete(path: Path) -> None:
                      "the end of the file")
 
 
-def _numbers(path: Path, column: str, text, allow_missing: bool = False) -> np.ndarray:
-    """The column as floats; a missing, non-numeric or infinite value raises naming its row."""
+def _numbers(path: Path, column: str, series, raw_name, allow_missing: bool = False) -> np.ndarray:
+    """The column as floats; a missing, non-numeric or infinite value raises naming its row.
+
+    ``series`` is the column as pandas parsed it; a column not parsed as numbers, or with a
+    non-finite number, is checked on its text (column ``raw_name`` of the file read again as text).
+    """
     import pandas as pd
 
+    if series.dtype.kind in "iuf":
+        numbers = series.to_numpy(dtype=float)
+        if np.isfinite(numbers).all():
+            return numbers
+        series = pd.read_csv(path, usecols=[raw_name], dtype=str, keep_default_na=False,
+                             skipinitialspace=True)[raw_name]
+    text = series.astype(str).str.strip()
     numbers = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
     blank = text.str.lower().isin(_MISSING).to_numpy()
     bad = np.flatnonzero(~np.isfinite(numbers) & ~(blank & allow_missing))
@@ -218,15 +237,22 @@ def _numbers(path: Path, column: str, text, allow_missing: bool = False) -> np.n
     return np.where(blank, np.nan, numbers) if allow_missing else numbers
 
 
-def _constant(path: Path, ident: int, rows: np.ndarray, column: str, values: np.ndarray):
-    """The one value of ``column`` within experiment ``ident`` (rows ``rows`` of the data)."""
-    values = values.tolist()
+def _constant(path: Path, ident: int, rows: np.ndarray, column: str, values: np.ndarray, names=None):
+    """The one value of ``column`` within experiment ``ident`` (rows ``rows`` of the data).
+
+    ``values`` are numbers, or codes into ``names`` (the column's distinct texts).
+    """
+    def show(value):
+        return float(value) if names is None else str(names[value])
+
     first = values[0]
-    for row, value in zip(rows, values):
-        if value != first and not (isinstance(first, float) and math.isnan(first) and math.isnan(value)):
-            raise ValueError(f"{path}, row {row + 2}, column {column!r}: must be constant within experiment "
-                             f"{ident}, got {value!r} after {first!r}")
-    return first
+    changed = np.flatnonzero(values != first) if names is not None else \
+        np.flatnonzero((values != first) & ~(np.isnan(values) & np.isnan(first)))
+    if changed.size:
+        i = int(changed[0])
+        raise ValueError(f"{path}, row {rows[i] + 2}, column {column!r}: must be constant within experiment "
+                         f"{ident}, got {show(values[i])!r} after {show(first)!r}")
+    return show(first)
 
 
 def records_from_env(env, gains: np.ndarray, seed: int | None = None) -> list[Experiment]:

@@ -38,6 +38,7 @@ def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = Tru
                 "y": data.y[k][data.mask[k]]} for k in range(data.n_records)]
     fit = identify_linear(records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
                           max_delay=data.dt, refine_delay=False)
+    del records  # copies of the data: not kept through the refinement
     theta = np.concatenate([fit.params, [fit.delay]])
     y0, u0 = fit.rest_levels[:, 0], fit.rest_levels[:, 1]
     v_rest = fit.plant(spec.output).discretize(data.dt).equilibrium(y0)[1]

@@ -14,10 +14,14 @@ linear model it is SRIVC's rest input ``u0_k`` in disguise,
 with ``scipy.optimize.least_squares`` (trust-region reflective, within bounds),
 started from the SRIVC fit of the linear part and data-based guesses of the
 effect parameters. The starts of many problems (candidate models, starts,
-cross-validation folds) are simulated in one vectorised pass; the Jacobian is
-a forward difference computed in one vectorised simulation, in which the
-per-record nuisance parameters are perturbed all at once (each only moves its
-own record).
+cross-validation folds) are simulated in vectorised passes of bounded size
+(:data:`SIMULATION_BATCH_SAMPLES`); the Jacobian is a forward difference, in
+which the per-record nuisance parameters are perturbed all at once (each only
+moves its own record). It is kept as its blocks
+(:class:`agents.twin.jacobian.RecordJacobian`: dense model columns, one block
+per record for the nuisances), so that memory and time grow linearly with the
+number of records; up to :data:`DENSE_JACOBIAN_BYTES` it is handed to the
+solver dense, whose trust-region steps are then exact.
 
 Parameters of effects whose simulation error is not differentiable (the
 quantization step) are not moved by the iteration; they are chosen from a
@@ -36,13 +40,14 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from agents.twin.fidelity import rmse
+from agents.twin.jacobian import RecordJacobian
 from agents.twin.open_loop import simulate_open_loop
 from agents.twin.records import as_records
 from gbo_envs.physics.effects import EFFECTS, build_effect
 from gbo_envs.physics.lti import ContinuousPlant
 
-__all__ = ["FITTED_PARAMETERS", "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "jacobian", "residual",
-           "simulate_sets"]
+__all__ = ["DENSE_JACOBIANS_BYTES", "DENSE_JACOBIAN_BYTES", "FITTED_PARAMETERS", "SIMULATION_BATCH_SAMPLES",
+           "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "jacobian", "residual", "simulate_sets"]
 
 #: Effect parameters the grey-box fit estimates, and whether they are moved by the gradient
 #: iteration (``True``) or chosen on a grid (``False``). Other parameters keep their defaults.
@@ -59,6 +64,17 @@ FITTED_PARAMETERS: dict[str, tuple[tuple[str, bool], ...]] = {
     "offset": (("value", True),),
     "cogging": (("amplitude", True), ("period", True), ("phase", True)),
 }
+
+
+#: Largest Jacobian (bytes as a dense float64 matrix) whose trust-region steps are solved exactly (SVD);
+#: a larger one is kept as its blocks (:class:`agents.twin.jacobian.RecordJacobian`) and solved by LSMR,
+#: so that memory and time grow linearly with the number of records.
+DENSE_JACOBIAN_BYTES = 32 * 2**20
+#: Largest sum of the dense Jacobians of the problems solved together in lock-step (bytes); above it
+#: each is kept as its blocks, however small.
+DENSE_JACOBIANS_BYTES = 256 * 2**20
+#: Most samples (records times steps) simulated in one vectorised pass (about 32 MB per signal).
+SIMULATION_BATCH_SAMPLES = 2**22
 
 
 @dataclass(frozen=True, eq=False)
@@ -268,6 +284,40 @@ def simulate_sets(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np
 
 
 def _simulate_both(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]]) -> list[tuple]:
+    """``(measurement, plant output before the sensors)`` of each set, in vectorised passes.
+
+    Consecutive sets are simulated together up to :data:`SIMULATION_BATCH_SAMPLES` samples
+    (a larger set alone), so that the memory of one pass is bounded. The rows of a pass do not
+    interact, so the grouping does not change the values.
+    """
+    n_steps = data.u.shape[1]
+    out, batch, size = [], [], 0
+    for one in sets:
+        if batch and size + one[2].size * n_steps > SIMULATION_BATCH_SAMPLES:
+            out += _simulate_batch(data, batch)
+            batch, size = [], 0
+        if one[2].size * n_steps > SIMULATION_BATCH_SAMPLES:
+            out.append(_simulate_in_parts(data, *one))
+        else:
+            batch.append(one)
+            size += one[2].size * n_steps
+    return out + _simulate_batch(data, batch) if batch else out
+
+
+def _simulate_in_parts(data: GreyData, spec: ModelSpec, theta: np.ndarray, rows: np.ndarray) -> tuple:
+    """``(measurement, plant output before the sensors)`` of one large set, a few records per pass."""
+    k, n_steps = rows.size, data.u.shape[1]
+    g = theta.size - 2 * k
+    y, y_true = np.empty((k, n_steps)), np.empty((k, n_steps))
+    per_pass = max(1, SIMULATION_BATCH_SAMPLES // n_steps)
+    for first in range(0, k, per_pass):
+        part = slice(first, first + per_pass)
+        piece = np.concatenate([theta[:g], theta[g : g + k][part], theta[g + k :][part]])
+        y[part], y_true[part] = _simulate_batch(data, [(spec, piece, rows[part])])[0]
+    return y, y_true
+
+
+def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]]) -> list[tuple]:
     """``(measurement, plant output before the sensors)`` of each set, in one vectorised pass."""
     plants, chains, u, y0, bias, index, owner = [], [], [], [], [], [], []
     for s, (spec, theta, rows) in enumerate(sets):
@@ -285,21 +335,21 @@ def _simulate_both(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, n
         bias.append(theta[g + k :])
         index.append(data.index[rows])
         owner += [s] * k
-    out = [(np.full((rows.size, data.u.shape[1]), np.nan),) * 2 for _, _, rows in sets]
-    if not owner:
-        return out
-    try:
-        with np.errstate(all="ignore"):
-            res = simulate_open_loop(plants, np.concatenate(u), data.dt, chains, y0=np.concatenate(y0),
-                                     bias=np.concatenate(bias), experiment_index=np.concatenate(index))
-    except (np.linalg.LinAlgError, ValueError):  # a plant that cannot be sampled (overflowing coefficients)
-        if len(sets) == 1:
-            return out
-        return [_simulate_both(data, [one])[0] for one in sets]
-    owner = np.array(owner)
-    for s in set(owner.tolist()):
-        out[s] = (res.y[owner == s], res.y_true[owner == s])
-    return out
+    out: list = [None] * len(sets)
+    if owner:
+        try:
+            with np.errstate(all="ignore"):
+                res = simulate_open_loop(plants, np.concatenate(u), data.dt, chains, y0=np.concatenate(y0),
+                                         bias=np.concatenate(bias), experiment_index=np.concatenate(index))
+        except (np.linalg.LinAlgError, ValueError):  # a plant that cannot be sampled (overflowing coefficients)
+            if len(sets) > 1:
+                return [_simulate_batch(data, [one])[0] for one in sets]
+        else:
+            owner = np.array(owner)
+            for s in set(owner.tolist()):
+                out[s] = (res.y[owner == s], res.y_true[owner == s])
+    return [(np.full((rows.size, data.u.shape[1]), np.nan),) * 2 if pair is None else pair
+            for pair, (_, _, rows) in zip(out, sets)]
 
 
 class _Lockstep:
@@ -363,10 +413,16 @@ def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
     ndarray of shape (len(rows), n_steps)
         In the units of ``y``.
     """
-    penalty = 1e6 * (1.0 + np.abs(data.y[rows]).max())
+    every = rows.size == data.n_records and np.array_equal(rows, np.arange(rows.size))
+    y, mask = (data.y, data.mask) if every else (data.y[rows], data.mask[rows])  # no copy of all the records
+    penalty = 1e6 * (1.0 + max(float(y.max()), -float(y.min())))
     with np.errstate(invalid="ignore", over="ignore"):
-        err = np.where(data.mask[rows], y_sim - data.y[rows], 0.0)
-    return np.where(np.isfinite(err), np.clip(err, -penalty, penalty), penalty)
+        err = np.subtract(y_sim, y)
+    err[~mask] = 0.0
+    diverged = ~np.isfinite(err)
+    np.clip(err, -penalty, penalty, out=err)
+    err[diverged] = penalty
+    return err
 
 
 def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7, *,
@@ -378,11 +434,14 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     method (``method="trf"``) within its bounds, with the variables scaled by
     ``scale``, stopping when an accepted step lowers the cost by less than the
     fraction ``tol`` (``ftol``) or after ``max_iter`` trial points (``max_nfev =
-    max_iter + 1``). The Jacobian is a forward difference computed in one
-    vectorised simulation (:func:`simulate_sets`), with the per-record rest levels
-    (and biases) perturbed all at once, since each only moves its own record; for
-    a model with a quantized output it is taken on the plant output before the
-    sensor, which is smooth in the parameters. ``benchmarks/bench_greybox_solver.py``
+    max_iter + 1``). The Jacobian is a forward difference computed in vectorised
+    simulations (:func:`simulate_sets`), with the per-record rest levels (and
+    biases) perturbed all at once, since each only moves its own record; for a
+    model with a quantized output it is taken on the plant output before the
+    sensor, which is smooth in the parameters. Up to :data:`DENSE_JACOBIAN_BYTES`
+    it is dense and the trust-region steps exact (``tr_solver="exact"``); above, it
+    is a :class:`~agents.twin.jacobian.RecordJacobian` and the steps come from LSMR
+    (``tr_solver="lsmr"``), so memory and time grow linearly with the records. ``benchmarks/bench_greybox_solver.py``
     compares it with the hand-written Levenberg-Marquardt iteration it replaced.
 
     Parameters
@@ -417,7 +476,7 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
 
         def solve(p: Problem, budget: int) -> None:
             try:
-                _solve(data, p, budget, float(tol), lockstep.simulate)
+                _solve(data, p, budget, float(tol), lockstep.simulate, n_parallel=len(todo))
             finally:
                 lockstep.leave()
 
@@ -485,17 +544,31 @@ def jacobian(data: GreyData, p: Problem, theta: np.ndarray, simulate=None, y_at=
     return mat[:, free]
 
 
-def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None) -> None:
+def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None, n_parallel: int = 1) -> None:
     """One :class:`Problem` by ``least_squares`` (trf) from its start; see :func:`fit_problems`.
 
-    ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``).
+    ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``);
+    ``n_parallel`` problems make their requests together (:class:`_Lockstep`), so each asks for
+    its share of :data:`SIMULATION_BATCH_SAMPLES` at a time.
     """
     if simulate is None:
         def simulate(sets, true_output=False):
             return simulate_sets(data, sets, true_output=true_output)
     free = np.flatnonzero(p.free & (p.lower < p.upper))
+    g, k, n = p.n_global, p.rows.size, data.u.shape[1]
+    rough = any(not smooth for name, _ in p.spec.effects for _, smooth in FITTED_PARAMETERS[name])
     start = p.theta.copy()
-    simulated: dict[bytes, np.ndarray] = {}
+    columns = [[j] for j in free[free < g]]  # one simulation per global parameter
+    n_shared = len(columns)
+    dense = 8 * k * n * free.size <= DENSE_JACOBIAN_BYTES and \
+        8 * k * n * free.size * n_parallel <= DENSE_JACOBIANS_BYTES
+    sets_per_pass = max(1, SIMULATION_BATCH_SAMPLES // (k * n * n_parallel))
+    columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
+    best: dict = {"key": None, "y": None, "cost": np.inf}  # the lowest-cost point so far: least_squares' iterate
+    # the Jacobian's arrays, written again at each evaluation: least_squares (trf) does not use the previous
+    # Jacobian once it asks for the next, so one set of arrays serves them all
+    shared = np.empty((n_shared, k, n))
+    per_record = [np.empty((k, n)) for _ in columns[n_shared:]]
 
     def full(x: np.ndarray) -> np.ndarray:
         theta = start.copy()
@@ -504,22 +577,56 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None)
 
     def fun(x: np.ndarray) -> np.ndarray:
         y = simulate([(p.spec, full(x), p.rows)])[0]
-        simulated[x.tobytes()] = y
-        return residual(data, p.rows, y).ravel()
+        res = residual(data, p.rows, y).ravel()
+        cost = float(res @ res)
+        if cost < best["cost"]:
+            best.update(key=x.tobytes(), y=y, cost=cost)
+        return res
 
-    def jac(x: np.ndarray) -> np.ndarray:
-        return jacobian(data, p, full(x), simulate, simulated.get(x.tobytes()))
+    def jac(x: np.ndarray) -> RecordJacobian | np.ndarray:
+        theta = full(x)
+        sets, steps = [], []
+        for cols in columns:
+            h = 1e-6 * max(float(np.max(np.abs(theta[cols]))), p.scale[cols[0]])
+            if len(cols) == 1 and theta[cols[0]] + h > p.upper[cols[0]]:
+                h = -h
+            trial = theta.copy()
+            trial[cols] += h
+            sets.append((p.spec, trial, p.rows))
+            steps.append(h)
+        if rough or x.tobytes() != best["key"]:  # the smooth output at x itself, simulated first
+            sets.insert(0, (p.spec, theta, p.rows))
+            base = None
+        else:
+            base = residual(data, p.rows, best["y"])
+        positions = [np.flatnonzero(free < g)]
+        i = 0
+        for first_set in range(0, len(sets), sets_per_pass):  # each pass's outputs freed once used
+            for y in simulate(sets[first_set : first_set + sets_per_pass], true_output=rough):
+                if base is None:
+                    base = residual(data, p.rows, y)
+                    continue
+                cols = columns[i]
+                out = shared[i] if i < n_shared else per_record[i - n_shared]
+                np.subtract(residual(data, p.rows, y), base, out=out)
+                out /= steps[i]
+                if i >= n_shared:
+                    first = g if cols[0] < g + k else g + k
+                    positions.append(np.column_stack([np.searchsorted(free, cols), np.asarray(cols) - first]))
+                i += 1
+        jacobian = RecordJacobian(shared, per_record, positions)
+        return jacobian.toarray() if dense else jacobian
 
     scale = np.where(p.scale[free] > 0, p.scale[free], 1.0)
     sol = least_squares(fun, np.clip(start[free], p.lower[free], p.upper[free]), jac=jac,
-                        bounds=(p.lower[free], p.upper[free]), x_scale=scale, method="trf", ftol=tol, xtol=1e-12,
-                        gtol=1e-12, max_nfev=max_iter + 1)
+                        bounds=(p.lower[free], p.upper[free]), x_scale=scale, method="trf",
+                        tr_solver="exact" if dense else "lsmr",
+                        ftol=tol, xtol=1e-12, gtol=1e-12, max_nfev=max_iter + 1)
     cost = float(np.sum(sol.fun**2))
     p.n_iter += int(sol.nfev) - 1
     if cost < p.cost:
         p.theta = full(sol.x)
-        p.y_sim = simulated[sol.x.tobytes()] if sol.x.tobytes() in simulated else \
-            simulate([(p.spec, p.theta, p.rows)])[0]
+        p.y_sim = best["y"] if sol.x.tobytes() == best["key"] else simulate([(p.spec, p.theta, p.rows)])[0]
         p.residual = residual(data, p.rows, p.y_sim)
         p.cost = float(np.sum(p.residual**2))
 

@@ -18,10 +18,12 @@ import numpy as np
 
 from gbo_envs.experiment import SIGNALS, Experiment, RecordError, validate_signals
 
-__all__ = ["Batch", "UNIFORM_RTOL", "as_records", "decimate", "make_batches"]
+__all__ = ["BATCH_SAMPLES", "Batch", "UNIFORM_RTOL", "as_records", "decimate", "make_batches"]
 
 #: Largest relative deviation of a sample step from the median step that identification accepts.
 UNIFORM_RTOL = 1e-6
+#: Most samples (records times steps) stacked in one SRIVC batch (:func:`make_batches`).
+BATCH_SAMPLES = 2**18
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,19 +164,26 @@ def decimate(record: Experiment, n_samples: int | None) -> Experiment:
     return dataclasses.replace(record, t=record.t[idx], r=record.r[idx], u=record.u[idx], y=record.y[idx])
 
 
-def make_batches(records: list[Experiment]) -> list[Batch]:
-    """Group records by (length, sample time) and stack each group."""
+def make_batches(records: list[Experiment], max_samples: int = BATCH_SAMPLES) -> list[Batch]:
+    """Group records by (length, sample time) and stack each group, in batches of at most ``max_samples`` samples.
+
+    A group larger than ``max_samples`` is split (a record longer than it is a batch alone), so that
+    the filters of SRIVC work on bounded arrays however many records there are.
+    """
     groups: dict[tuple[int, float], list[int]] = {}
     for i, rec in enumerate(records):
         key = (rec.n_steps, round(rec.dt, 12))
         groups.setdefault(key, []).append(i)
     batches = []
-    for members in groups.values():
-        batches.append(Batch(
-            dt=float(records[members[0]].dt),
-            u=np.stack([records[i].u for i in members]),
-            y=np.stack([records[i].y for i in members]),
-            r2=np.array([records[i].r[-1] for i in members]),
-            index=np.array(members),
-        ))
+    for (n_steps, _), group in groups.items():
+        size = max(1, max_samples // n_steps)
+        for start in range(0, len(group), size):
+            batches.append(_stack(records, group[start : start + size]))
     return batches
+
+
+def _stack(records: list[Experiment], members: list[int]) -> Batch:
+    """The records ``members`` stacked into one batch."""
+    return Batch(dt=float(records[members[0]].dt), u=np.stack([records[i].u for i in members]),
+                 y=np.stack([records[i].y for i in members]), r2=np.array([records[i].r[-1] for i in members]),
+                 index=np.array(members))

@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from gbo_envs.physics.block import EffectBlock, EffectParameter
+from gbo_envs.physics.block import MAGNITUDE_LIMIT, EffectBlock, EffectParameter
 
 __all__ = ["Backlash", "Cogging", "DeadZone", "Offset", "Saturation"]
 
 _INF = float("inf")
+_MAX = MAGNITUDE_LIMIT
 
 
 class Saturation(EffectBlock):
@@ -36,7 +37,7 @@ class Saturation(EffectBlock):
 
     name = "saturation"
     side = "actuator"
-    parameters = (EffectParameter("limit", "input units", 0.0, _INF, None, _INF,
+    parameters = (EffectParameter("limit", "input units", 0.0, _MAX, None, _INF,
                                   "largest input magnitude the actuator delivers"),)
     magnitude_param = "limit"
 
@@ -67,7 +68,7 @@ class DeadZone(EffectBlock):
 
     name = "dead_zone"
     side = "actuator"
-    parameters = (EffectParameter("width", "input units", 0.0, _INF, None, 0.0,
+    parameters = (EffectParameter("width", "input units", 0.0, _MAX, None, 0.0,
                                   "total width of the band of inputs that produce nothing"),)
     magnitude_param = "width"
 
@@ -103,7 +104,7 @@ class Backlash(EffectBlock):
 
     name = "backlash"
     side = "actuator"
-    parameters = (EffectParameter("width", "input units", 0.0, _INF, None, 0.0,
+    parameters = (EffectParameter("width", "input units", 0.0, _MAX, None, 0.0,
                                   "total play the input travels on reversal before the load follows"),)
     magnitude_param = "width"
 
@@ -144,7 +145,7 @@ class Offset(EffectBlock):
 
     name = "offset"
     parameters = (EffectParameter("value", "input units (on='actuator') or output units (on='sensor')",
-                                  -_INF, _INF, None, 0.0, "constant bias"),)
+                                  -_MAX, _MAX, None, 0.0, "constant bias"),)
     options = {"on": ("actuator", "sensor")}
     magnitude_param = "value"
 
@@ -200,8 +201,8 @@ class Cogging(EffectBlock):
     name = "cogging"
     side = "actuator"
     parameters = (
-        EffectParameter("amplitude", "input units", 0.0, _INF, None, 0.0, "peak ripple"),
-        EffectParameter("period", "position units (rad for a speed loop in rad/s)", 1e-12, _INF, 2.0 * np.pi,
+        EffectParameter("amplitude", "input units", 0.0, _MAX, None, 0.0, "peak ripple"),
+        EffectParameter("period", "position units (rad for a speed loop in rad/s)", 1e-12, _MAX, 2.0 * np.pi,
                         float("nan"), "position travelled per ripple period"),
         EffectParameter("phase", "rad", -2.0 * np.pi, 2.0 * np.pi, 0.0, float("nan"), "phase at the start"),
     )

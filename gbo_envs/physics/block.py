@@ -40,10 +40,24 @@ import numpy as np
 
 from gbo_envs.physics.lti import ContinuousPlant
 
-__all__ = ["EffectBlock", "EffectParameter", "RowNoise", "SIDES", "validated_count", "validated_finite"]
+__all__ = ["DELAY_LIMIT", "DRIFT_RATE_LIMIT", "EffectBlock", "EffectParameter", "MAGNITUDE_LIMIT", "RowNoise", "SIDES",
+           "validated_count", "validated_finite"]
 
 #: Where a block acts in the loop.
 SIDES = ("actuator", "sensor", "plant")
+
+#: Upper bound of every effect parameter in input, output or speed units (a limit, width, torque, step,
+#: bias, amplitude, period, friction coefficient). Reason: 1e9 units is beyond any physical drive or
+#: sensor (the package's plants work below 1e3 V, N, rad/s or m), and a signal of that size times a
+#: loop's gains stays far inside double range, so a simulation cannot overflow to inf or NaN.
+MAGNITUDE_LIMIT = 1e9
+#: Upper bound of ``time_delay``'s ``delay`` in s. Reason: the delay line holds ``delay / dt`` samples
+#: (1e6 at 1 ms), and no loop experiment lasts that long; a loop also checks the delay against its
+#: experiment's length (a delay longer than the experiment never lets the input reach the output).
+DELAY_LIMIT = 1e3
+#: Upper bound of ``drift``'s ``rate`` (relative change per experiment). Reason: a parameter that grows
+#: more than tenfold from one experiment to the next belongs to a different plant, not to a drift.
+DRIFT_RATE_LIMIT = 10.0
 
 
 @dataclass(frozen=True)
@@ -59,8 +73,8 @@ class EffectParameter:
         (controller output), "output units" those of the measured output,
         "speed units" those of the mechanical speed.
     low, high : float
-        Allowed closed range ``[low, high]`` (``high`` may be ``inf``); a value must be finite
-        unless it is ``zero`` (a saturation's ``limit = inf`` is no saturation).
+        Allowed closed range ``[low, high]``, finite (see :data:`MAGNITUDE_LIMIT`); the ``zero``
+        value is also allowed outside it (a saturation's ``limit = inf`` is no saturation).
     default : float or None
         Value used when the parameter is not given; ``None`` means required.
     zero : float
@@ -85,6 +99,8 @@ class EffectParameter:
             raise ValueError(f"{effect}: parameter {self.name!r} must be a real number in {interval} "
                              f"({self.unit}), got {value!r} of type {type(value).__name__}")
         value = float(value)
+        if value == self.zero:
+            return value
         if np.isnan(value) or not (self.low <= value <= self.high):
             raise ValueError(f"{effect}: parameter {self.name!r} must be in {interval} ({self.unit}), "
                              f"got {value!r}")

@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from gbo_envs.physics.block import EffectBlock, EffectParameter
+from gbo_envs.physics.block import MAGNITUDE_LIMIT, EffectBlock, EffectParameter
 
 __all__ = ["CoulombFriction", "Stiction", "ViscousFriction"]
 
-_INF = float("inf")
+_MAX = MAGNITUDE_LIMIT
 
 
 class CoulombFriction(EffectBlock):
@@ -47,9 +47,9 @@ class CoulombFriction(EffectBlock):
     name = "coulomb_friction"
     side = "actuator"
     parameters = (
-        EffectParameter("torque", "input units", 0.0, _INF, None, 0.0,
+        EffectParameter("torque", "input units", 0.0, _MAX, None, 0.0,
                         "friction level as an equivalent input opposing the speed"),
-        EffectParameter("smoothing", "speed units", 0.0, _INF, 0.0, float("nan"),
+        EffectParameter("smoothing", "speed units", 0.0, _MAX, 0.0, float("nan"),
                         "speed below which the friction ramps linearly (0: sign)"),
     )
     magnitude_param = "torque"
@@ -88,7 +88,7 @@ class ViscousFriction(EffectBlock):
 
     name = "viscous_friction"
     side = "actuator"
-    parameters = (EffectParameter("coefficient", "input units per speed unit", 0.0, _INF, None, 0.0,
+    parameters = (EffectParameter("coefficient", "input units per speed unit", 0.0, _MAX, None, 0.0,
                                   "equivalent input per unit of speed"),)
     magnitude_param = "coefficient"
 
@@ -127,9 +127,9 @@ class Stiction(EffectBlock):
     name = "stiction"
     side = "actuator"
     parameters = (
-        EffectParameter("breakaway", "input units", 0.0, _INF, None, 0.0,
+        EffectParameter("breakaway", "input units", 0.0, _MAX, None, 0.0,
                         "static friction level as an equivalent input"),
-        EffectParameter("threshold", "speed units", 0.0, _INF, 0.0, float("nan"),
+        EffectParameter("threshold", "speed units", 0.0, _MAX, 0.0, float("nan"),
                         "speed at or below which the body counts as at rest"),
     )
     magnitude_param = "breakaway"

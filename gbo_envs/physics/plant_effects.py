@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from gbo_envs.physics.block import EffectBlock, EffectParameter
+from gbo_envs.physics.block import DELAY_LIMIT, DRIFT_RATE_LIMIT, EffectBlock, EffectParameter
 from gbo_envs.physics.lti import ContinuousPlant
 
 __all__ = ["DRIFT_MODES", "Drift", "TimeDelay", "plant_parameter"]
@@ -40,7 +40,7 @@ class TimeDelay(EffectBlock):
 
     name = "time_delay"
     side = "plant"
-    parameters = (EffectParameter("delay", "s", 0.0, float("inf"), None, 0.0, "extra input dead time"),)
+    parameters = (EffectParameter("delay", "s", 0.0, DELAY_LIMIT, None, 0.0, "extra input dead time"),)
     magnitude_param = "delay"
 
     def __init__(self, delay: float) -> None:
@@ -88,7 +88,7 @@ class Drift(EffectBlock):
 
     name = "drift"
     side = "plant"
-    parameters = (EffectParameter("rate", "1 per experiment", -1.0, float("inf"), None, 0.0,
+    parameters = (EffectParameter("rate", "1 per experiment", -1.0, DRIFT_RATE_LIMIT, None, 0.0,
                                   "relative parameter change per experiment"),)
     options = {"parameter": ("gain", "delay", "num<i>", "den<i>"), "mode": DRIFT_MODES, "start": ("int >= 0",)}
     magnitude_param = "rate"

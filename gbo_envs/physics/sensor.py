@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gbo_envs.physics.block import EffectBlock, EffectParameter
+from gbo_envs.physics.block import MAGNITUDE_LIMIT, EffectBlock, EffectParameter
 
 __all__ = ["Quantization"]
 
@@ -31,7 +31,7 @@ class Quantization(EffectBlock):
 
     name = "quantization"
     side = "sensor"
-    parameters = (EffectParameter("step", "output units", 0.0, float("inf"), None, 0.0,
+    parameters = (EffectParameter("step", "output units", 0.0, MAGNITUDE_LIMIT, None, 0.0,
                                   "distance between two measurable output levels"),)
     options = {"mode": ("round", "floor")}
     magnitude_param = "step"

@@ -1,7 +1,8 @@
 """Property tests of the effect blocks (hypothesis): finite in, finite out; bad parameters raise ValueError.
 
 For every block of the catalogue (``EFFECTS``) and the two encoders, with
-parameters drawn from their declared ranges (``EffectParameter.low/high``,
+parameters drawn from their declared ranges (``EffectParameter.low/high``, every
+upper bound finite since issue 19,
 magnitudes capped at ``CAP`` to stay physical) and finite inputs of up to
 ``CAP`` in size:
 
@@ -26,6 +27,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from gbo_envs.physics import EFFECT_NAMES, EFFECTS, build_effect
+from gbo_envs.physics.block import DELAY_LIMIT, MAGNITUDE_LIMIT
 from gbo_envs.physics.encoder import PositionEncoder, SpeedEncoder
 from gbo_envs.physics.plant_effects import DRIFT_MODES
 from tests.support import DC_PLANT
@@ -121,10 +123,11 @@ def _bad(spec, name: str) -> st.SearchStrategy:
     if np.isfinite(spec.low):
         bad.append(st.floats(max_value=spec.low, exclude_max=True, allow_nan=False, allow_infinity=False,
                              min_value=spec.low - CAP))
-    if np.isfinite(spec.high):
+    if np.isfinite(spec.high):  # above the upper bound, up to far beyond it (1e308: an overflow before)
         bad.append(st.floats(min_value=spec.high, exclude_min=True, allow_nan=False, allow_infinity=False,
                              max_value=spec.high + CAP))
-    elif not np.isinf(spec.zero):  # inf is in range, but only saturation (inf = off) can work with it
+        bad.append(st.floats(min_value=spec.high * 2.0, allow_nan=False, allow_infinity=False))
+    if not np.isinf(spec.zero):  # only saturation (limit = inf is "off") may be infinite
         bad.append(st.just(np.inf))
     return st.one_of(bad)
 
@@ -148,6 +151,42 @@ def test_bad_numeric_parameters_raise_value_error(name, parameter):
             build_effect(name, {**_valid(name), parameter: value})
 
     check()
+
+
+CATALOGUE_PARAMETERS = [(name, spec.name) for name in EFFECT_NAMES for spec in EFFECTS[name].parameters]
+
+
+@pytest.mark.parametrize(("name", "parameter"), CATALOGUE_PARAMETERS)
+def test_every_parameter_has_a_finite_upper_bound_named_in_its_error(name, parameter):
+    spec = next(s for s in EFFECTS[name].parameters if s.name == parameter)
+    assert np.isfinite(spec.high) and spec.high <= MAGNITUDE_LIMIT
+    for value in (spec.high * (1.0 + 1e-9) + 1e-12, 1e308):
+        with pytest.raises(ValueError) as info:
+            build_effect(name, {**_valid(name), parameter: value})
+        assert f"{name}: parameter {parameter!r}" in str(info.value)
+        assert f"{spec.high:g}]" in str(info.value)  # the allowed range
+
+
+@pytest.mark.parametrize("delay", [1e5, 1e308, DELAY_LIMIT * 1.001])
+def test_runaway_time_delays_are_refused(delay):
+    with pytest.raises(ValueError, match=r"time_delay: parameter 'delay' must be in \[0, 1000\]"):
+        build_effect("time_delay", {"delay": delay})
+
+
+def test_a_loop_refuses_a_delay_longer_than_its_experiment():
+    import gymnasium as gym
+
+    import gbo_envs  # noqa: F401  (registers the envs)
+
+    env = gym.make("gbo_envs/DCMotor-v0", effects={"time_delay": {"delay": 4.9}})  # within the 5 s experiment
+    assert env.unwrapped.loop.duration == 5.0
+    with pytest.raises(ValueError, match=r"time_delay: parameter 'delay' must be in \[0, 4.998\].*duration = 5 s"):
+        gym.make("gbo_envs/DCMotor-v0", effects={"time_delay": {"delay": 6.0}})
+    loop = gym.make("gbo_envs/DCMotor-v0", effects={"drift": {"rate": 1.0, "parameter": "delay",
+                                                              "mode": "exponential"}}).unwrapped.loop
+    assert loop.at_experiment(5).current_plant.delay == pytest.approx(0.002 * 2**5)
+    with pytest.raises(ValueError, match="drift: the plant's delay at experiment 20 is"):
+        loop.at_experiment(20)
 
 
 @pytest.mark.parametrize(("name", "option", "value"), [
