@@ -252,7 +252,12 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     the diagnosis restarts from that fit, so that no effect is credited with a
     better fit of parameters the model already has (each candidate then starts
     from its fit of the first round). With one experiment there is nothing to hold
-    out: the training RSS is used and ``validation`` says so.
+    out: the training RSS is used and ``validation`` says so. An effect that only
+    one experiment shows cannot be credited by cross-validation over experiments:
+    the fold that leaves that experiment out refits the effect's parameters on data
+    that do not show them, and its held-out error is the linear model's or worse.
+    Record the effect in at least two experiments (e.g. two slow loops through a
+    dead band).
 
     Decision rule: ``best`` is the candidate with the lowest ``delta_bic`` among
     those with ``delta_bic < -bic_margin``, a held-out RMSE below ``(1 - min_gain)``

@@ -29,7 +29,10 @@ GAINS = np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2], [1.05, 2.0], [0.5, 1.9]])
 HIDDEN = {
     "saturation": ({"limit": 150.0}, (245.0, 306.0), 4),
     "coulomb_friction": ({"torque": 8.0}, (-30.0, 30.0), 4),
-    "dead_zone": ({"width": 20.0}, (-30.0, 30.0), 4),
+    # 5 experiments: of the first 4, only the slowest loop (Kp 0.3) dwells in the dead band; a refit on the
+    # other three moves the width to 0.2 at the same cost, so leave-one-out cannot credit it (a limit of
+    # cross-validation over experiments, in diagnose's Notes), and the fifth (Kp 0.5) shows it a second time
+    "dead_zone": ({"width": 20.0}, (-30.0, 30.0), 5),
     "time_delay": ({"delay": 0.03}, (245.0, 306.0), 4),
     "drift": ({"rate": -0.06, "parameter": "gain"}, (245.0, 306.0), 5),
 }
