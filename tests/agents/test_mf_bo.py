@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import importlib.util
+import json
 import sys
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -121,3 +124,38 @@ def test_plot_colours_twin_rows_by_fidelity():
     colours = [c.get_array() for c in ax.collections if c.get_array() is not None]
     assert any(np.allclose(np.asarray(a), [0.6, 0.8]) for a in colours)
     assert "twin evaluations (colour: fidelity s)" in [t.get_text() for t in ax.get_legend().get_texts()]
+
+
+def _bench_module(monkeypatch, tmp_path):
+    root = Path(__file__).resolve().parents[2] / "benchmarks"
+    monkeypatch.syspath_prepend(str(root))
+    spec = importlib.util.spec_from_file_location("mf_bo_bench", root / "mf_bo.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(module, "RESULTS", tmp_path)
+    monkeypatch.setattr(module, "RUNS", tmp_path / "mf_bo_runs.jsonl")
+    monkeypatch.setattr(module, "REFERENCE_RUNS", tmp_path / "reference_runs.jsonl")
+    return module
+
+
+def test_benchmark_resumes_and_compares_with_the_logged_bo_and_guided_bo_runs(monkeypatch, tmp_path, capsys):
+    bench = _bench_module(monkeypatch, tmp_path)
+    # reaching ratio 1.05: bo at experiments 3 and 4, guided-bo at 1 and 2, mf-bo at 2 and never (budget + 1 = 5)
+    curves = {("bo", 0): [1.2, 1.1, 1.0, 1.0], ("bo", 1): [1.5, 1.2, 1.08, 1.01],
+              ("guided-bo", 0): [1.0, 1.0, 1.0, 1.0], ("guided-bo", 1): [1.2, 1.04, 1.0, 1.0]}
+    bench.REFERENCE_RUNS.write_text("".join(json.dumps({"plant": "DCMotor-v0", "variant": v, "seed": s, "ratios": r})
+                                            + "\n" for (v, s), r in curves.items()))
+
+    def fake_run(label, variant, seed, best):
+        ratios = [1.2, 1.04, 1.0, 1.0] if seed == 0 else [1.3, 1.2, 1.1, 1.1]
+        return {"plant": label, "variant": variant, "seed": seed, "ratios": ratios, "cpu_per_experiment": 1.5,
+                "twin_evaluations": 40, "fidelity": [0.0, 0.9]}
+
+    bench.RUNS.write_text(json.dumps(fake_run("DCMotor-v0", "mf-bo", 0, 1.0)) + "\n")
+    ran = []
+    monkeypatch.setattr(bench, "run_one", lambda *job: ran.append(job[2]) or fake_run(*job))
+    monkeypatch.setattr(sys, "argv", ["mf_bo.py", "--plants", "DCMotor-v0", "--seeds", "2"])
+    bench.main()
+    assert ran == [1]  # seed 0 was logged: the study resumed
+    assert "| DCMotor-v0 | 1.05 | 2 | mf-bo | 3.5 [-15.6, 22.6] (1 misses) | 3.5 [-2.9, 9.9] (0 misses) | " \
+           "1.5 [-4.9, 7.9] (0 misses) | 1.00 | 2.33 | 1.50 | 40.0 | 0.90 |" in capsys.readouterr().out
