@@ -144,6 +144,9 @@ class MultiFidelityBO(Tuner):
 
     # -- Tuner hooks ---------------------------------------------------------------------------------
     def _setup(self) -> None:
+        if not hasattr(getattr(self.env, "unwrapped", None), "loop"):
+            raise ValueError("env: mf-bo needs the plant env (with its closed loop) to simulate its twin; "
+                             "use run(env, ...) or setup(space, seed, env=env)")
         # the default BO, seeded as agents.make("bo"): the initial design, and every proposal without a twin
         self._bo = BayesianOptimization(n_initial=self.n_initial)
         self._bo.setup(self.space, seed=self.seed, env=self.env)

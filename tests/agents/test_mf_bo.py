@@ -66,6 +66,12 @@ def test_constructor_rejects_bad_arguments():
         agents.make("mf-bo", max_twin_evaluations=-1)
 
 
+def test_setup_without_the_plant_env_is_a_clear_error():
+    space = agents.GainSpace.from_env(gym.make("gbo_envs/DCMotor-v0"))
+    with pytest.raises(ValueError, match="env: mf-bo needs the plant env"):
+        agents.make("mf-bo").setup(space, seed=0)
+
+
 def test_a_missing_botorch_names_the_mf_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "botorch", None)
     with pytest.raises(ImportError, match=r'gbo-envs\[mf\]'):
