@@ -19,7 +19,7 @@ from agents.bo import BayesianOptimization
 from agents.guided_bo import TWIN_CHOICES, GuidedBO
 from agents.mf_correction import TwinCorrection
 from agents.parameters import HasMethods, Interval, Options, validate_params
-from agents.peers.base import require
+from agents.peers.base import latin_hypercube, require
 
 __all__ = ["MultiFidelityBO", "NUM_RESTARTS", "RAW_SAMPLES"]
 
@@ -53,6 +53,13 @@ class MultiFidelityBO(Tuner):
     jumps when the twin is refitted (the twin rows are re-simulated on the new twin).
     ``result.info["fidelity_trace"]`` records, per real experiment, ``s_twin``, ``a``,
     ``b`` and whether the twin was used.
+
+    **The twin design.** When the twin is first used (``s_twin >= min_fidelity``), it
+    is evaluated at ``twin_design`` Latin hypercube points of the gain box (twin rows
+    with ``design=True``): the twin is cheap, and the GP then knows its shape over
+    the whole box, not only where the acquisition sent it. (On ``DCMotor-v0`` seeds 0
+    and 1, 32 points took the best ratio after 35 experiments from 1.137 to 1.087 and
+    ratio 1.05 from experiment 25 to 6, at 1.6 to 1.8 CPU s per real experiment.)
 
     **The model** (while ``s_twin >= min_fidelity``). BoTorch's
     ``SingleTaskMultiFidelityGP`` with the fidelity as the last input column
@@ -95,8 +102,10 @@ class MultiFidelityBO(Tuner):
     twin_cost : float, default 0.1
         Cost of a twin evaluation relative to a real experiment, in ``(0, 1)``.
     max_twin_evaluations : int, default 2
-        Twin evaluations at most per real experiment (``>= 0``; 0 uses the twin's
-        data only through the plant records' correction, i.e. never).
+        Twin evaluations the acquisition may choose per real experiment (``>= 0``; with
+        0 the twin is never used).
+    twin_design : int, default 32
+        Twin evaluations of the design made when the twin is first used (``>= 0``).
     min_fidelity : float, default 0.5
         ``s_twin`` below which the twin is not used, in ``[0, 1]``.
     min_records : int, default 4
@@ -109,7 +118,7 @@ class MultiFidelityBO(Tuner):
     correction_ : TwinCorrection or None
         The last fitted correction.
     twin_evaluations_ : int
-        Twin evaluations chosen by the acquisition (the result's twin rows).
+        Twin evaluations of the design and chosen by the acquisition (the result's twin rows).
     twin_simulations_ : int
         Twin simulations in all (those plus the correction's, at the plant gains).
 
@@ -126,18 +135,21 @@ class MultiFidelityBO(Tuner):
         "twin": [Options(TWIN_CHOICES), HasMethods(("fit", "get_params"))],
         "twin_cost": [Interval(float, 0.0, 1.0, closed="neither")],
         "max_twin_evaluations": [Interval(int, 0, None)],
+        "twin_design": [Interval(int, 0, None)],
         "min_fidelity": [Interval(float, 0.0, 1.0)],
         "min_records": [Interval(int, 3, None)],
     }
 
     def __init__(self, *, n_initial: int = 1, twin="auto", twin_cost: float = 0.1, max_twin_evaluations: int = 2,
-                 min_fidelity: float = 0.5, min_records: int = 4) -> None:
+                 twin_design: int = 32, min_fidelity: float = 0.5, min_records: int = 4) -> None:
         params = validate_params(self._parameter_constraints, {
             "n_initial": n_initial, "twin": twin, "twin_cost": twin_cost,
-            "max_twin_evaluations": max_twin_evaluations, "min_fidelity": min_fidelity, "min_records": min_records})
+            "max_twin_evaluations": max_twin_evaluations, "twin_design": twin_design, "min_fidelity": min_fidelity,
+            "min_records": min_records})
         require("botorch", "botorch", extra="mf")
         self.n_initial, self.twin = params["n_initial"], twin
         self.twin_cost, self.max_twin_evaluations = params["twin_cost"], params["max_twin_evaluations"]
+        self.twin_design = params["twin_design"]
         self.min_fidelity, self.min_records = params["min_fidelity"], params["min_records"]
         self._params = {**{k: v for k, v in params.items() if k != "twin"},
                         "twin": twin if isinstance(twin, str) else type(twin).__name__}
@@ -153,6 +165,9 @@ class MultiFidelityBO(Tuner):
         self._keeper = GuidedBO(n_initial=self.n_initial, twin=self.twin)  # keeps D~ and fits the twin
         self._keeper.setup(self.space, seed=self.seed, env=self.env)
         self._torch_seeds = np.random.default_rng(self.rng.integers(2**31))
+        self._design = latin_hypercube(np.random.default_rng(self.rng.integers(2**31)), self.space.dim,
+                                       self.twin_design) if self.twin_design else np.empty((0, self.space.dim))
+        self._designed = False
         self._plant_X: list[np.ndarray] = []  # unit box
         self._plant_y: list[float] = []
         self._twin_X: list[np.ndarray] = []  # unit box, the twin evaluations of this run
@@ -175,6 +190,10 @@ class MultiFidelityBO(Tuner):
             "slope": None if self.correction_ is None else self.correction_.slope_})
         if not used:
             return np.asarray(self._bo.ask(), dtype=float)
+        if not self._designed:
+            self._designed = True
+            for unit in self._design:
+                self._evaluate_twin(twin_env, unit, design=True)
         return self._ask_multi_fidelity(twin_env)
 
     def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:
@@ -240,14 +259,14 @@ class MultiFidelityBO(Tuner):
             torch.set_num_threads(threads)
         raise AssertionError("unreachable: the last proposal is at the plant's fidelity")
 
-    def _evaluate_twin(self, twin_env, unit: np.ndarray) -> None:
+    def _evaluate_twin(self, twin_env, unit: np.ndarray, design: bool = False) -> None:
         gains = self.space.from_unit(unit)
         cost = float(self._twin_costs(twin_env, unit[None, :])[0])
         self._twin_X.append(unit)
         self.twin_evaluations_ += 1
         corrected = float(np.exp(self.correction_.predict_log([cost])[0]))
         self.log_twin(gains, cost, None, fidelity=self.fidelity_, corrected_cost=corrected,
-                      twin_iteration=self.twin_evaluations_)
+                      twin_iteration=self.twin_evaluations_, design=design)
 
     def _training_data(self):
         """Inputs ``[unit gains, s]`` and outcomes ``-log J`` of the plant and the (corrected) twin rows."""
