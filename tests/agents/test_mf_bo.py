@@ -64,6 +64,8 @@ def test_constructor_rejects_bad_arguments():
         agents.make("mf-bo", twin_cost=1.0)
     with pytest.raises(ValueError, match="max_twin_evaluations"):
         agents.make("mf-bo", max_twin_evaluations=-1)
+    with pytest.raises(ValueError, match="twin_design"):
+        agents.make("mf-bo", twin_design=1.5)
 
 
 def test_setup_without_the_plant_env_is_a_clear_error():
@@ -92,8 +94,10 @@ def test_twin_rows_carry_their_fidelity_and_only_real_experiments_count():
     assert [step["experiment"] for step in trace] == list(range(2, budget + 1))
     assert trace[-1]["fidelity"] > 0.5 and trace[-1]["twin_used"]  # DCMotor-v0's twin is faithful
     assert all(step["fidelity"] == 0.0 for step in trace[:3])  # not estimated before 4 records
-    # twin evaluations per real experiment are capped
-    assert twin.groupby("experiment").size().max() <= 2
+    # the design once, when the twin is first used; then at most 2 twin evaluations per real experiment
+    design = twin[twin["design"].astype(bool)]
+    assert len(design) == 32 and design["experiment"].nunique() == 1
+    assert twin[~twin["design"].astype(bool)].groupby("experiment").size().max() <= 2
 
 
 class _NoiseTwinMFBO(agents.MultiFidelityBO):
