@@ -453,6 +453,7 @@ class GuidedBO(BayesianOptimization):
         same twin and refit rules as guided BO's own use (see "Which twin" in the class doc);
         multi-fidelity BO (:mod:`agents.mf_bo`) takes its low fidelity from here.
         """
+        self._current_twin()  # a refit if the records added since the last fit call for one
         return self._current_twin_env()
 
     def metric_prior(self):
