@@ -57,9 +57,7 @@ class MultiFidelityBO(Tuner):
     **The twin design.** When the twin is first used (``s_twin >= min_fidelity``), it
     is evaluated at ``twin_design`` Latin hypercube points of the gain box (twin rows
     with ``design=True``): the twin is cheap, and the GP then knows its shape over
-    the whole box, not only where the acquisition sent it. (On ``DCMotor-v0`` seeds 0
-    and 1, 32 points took the best ratio after 35 experiments from 1.137 to 1.087 and
-    ratio 1.05 from experiment 25 to 6, at 1.6 to 1.8 CPU s per real experiment.)
+    the whole box, not only where the acquisition sent it (measured in benchmarks/README.md, "mf_bo.py").
 
     **The model** (while ``s_twin >= min_fidelity``). BoTorch's
     ``SingleTaskMultiFidelityGP`` with the fidelity as the last input column
@@ -82,11 +80,10 @@ class MultiFidelityBO(Tuner):
     fused model's best gains. Where these repeat a measured experiment (within
     ``10^-3`` of the unit box), the real experiment goes to the maximiser of
     ``LogExpectedImprovement`` at ``s = 1`` (incumbent: the lowest measured cost)
-    instead. (Multi-fidelity knowledge gradient took 6.4 CPU s per optimisation against
-    MF-MES's 0.44, ``python benchmarks/mf_bo.py --acquisition-timing``, beyond the
-    2 s per real experiment this tuner keeps to. The real experiment at
-    the MES maximiser, or at the log-EI maximiser, missed ratio 1.05 on
-    ``DCMotor-v0`` seed 0 in 35 experiments.)
+    instead. Multi-fidelity knowledge gradient is the other cost-aware acquisition
+    BoTorch has; it is many times slower per optimisation (``python benchmarks/mf_bo.py
+    --acquisition-timing``), beyond the 2 s per real experiment this tuner keeps to.
+    Why the real experiment is not the MES or log-EI maximiser: benchmarks/README.md.
 
     **A useless twin** (``s_twin < min_fidelity``) is not evaluated, and the real
     experiment is the default BO's proposal (:class:`~agents.bo.BayesianOptimization`,

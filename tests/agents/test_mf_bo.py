@@ -100,6 +100,17 @@ def test_twin_rows_carry_their_fidelity_and_only_real_experiments_count():
     assert twin[~twin["design"].astype(bool)].groupby("experiment").size().max() <= 2
 
 
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_the_twin_is_refitted_as_records_arrive():
+    # seed 4: the twin fitted on the first record alone simulates costs 7 to 208 against measured 0.4 to 1.0;
+    # refitted on more records it follows the plant
+    tuner = agents.make("mf-bo")
+    tuner.run(gym.make("gbo_envs/DCMotor-v0"), budget=8, seed=4)
+    assert len(tuner.run_summary()["twin_changes"]) >= 2
+    assert tuner.fidelity_ > 0.5
+
+
 class _NoiseTwinMFBO(agents.MultiFidelityBO):
     """mf-bo whose twin cost is pure noise around the median measured cost (independent of the gains)."""
 
