@@ -449,6 +449,16 @@ class GuidedBO(BayesianOptimization):
             self.repeats_ += 1
         return gains
 
+    def twin_env(self):
+        """The env of the current twin (:class:`agents.twin.TwinEnv`), fitted or refitted on ``D~`` if due.
+
+        ``None`` before the first plant record, or while the records identify no twin. The
+        same twin and refit rules as guided BO's own use (see "Which twin" in the class doc);
+        multi-fidelity BO (:mod:`agents.mf_bo`) takes its low fidelity from here.
+        """
+        self._current_twin()  # a refit if the records added since the last fit call for one
+        return self._current_twin_env()
+
     def metric_prior(self):
         """The twin's metrics (:class:`agents.twin.prior.TwinMetrics`) while they guide BO, else ``None``."""
         return self._prior

@@ -240,6 +240,7 @@ class TuningResult:
             experiments = [row["experiment"] for row in rows]
             ax.plot(experiments, [row["cost"] for row in rows], "o", ms=3, alpha=0.5, label="measured cost")
             ax.step(experiments, [row["best_cost"] for row in rows], where="post", label="best measured cost")
+            self._plot_twin_rows(ax)
             if optimum is not None:
                 ax.axhline(optimum, label="ground-truth optimum J*", **REFERENCE)
             # twin refits (guided BO): after experiment n the twin shown in the label drives the twin iterations
@@ -279,3 +280,22 @@ class TuningResult:
         ax = cost_surface(truth, ax=ax, points=points, path=path)
         ax.set_title(f"{self.tuner} on {self.env_id}, seed {self.seed}")
         return ax
+
+    def _plot_twin_rows(self, ax) -> None:
+        """Twin evaluations as crosses just before the plant experiment they were made for.
+
+        Coloured by their fidelity ``s`` (multi-fidelity BO's ``fidelity`` column; the
+        plant's is 1) with a colour bar, or in one colour when the rows carry none.
+        """
+        twins = [row for row in self.rows if row["source"] == "twin"]
+        if not twins:
+            return
+        x = [row["experiment"] - 0.5 for row in twins]
+        cost = [row["cost"] for row in twins]
+        fidelity = [row.get("fidelity", math.nan) for row in twins]
+        if all(math.isfinite(s) for s in fidelity):
+            points = ax.scatter(x, cost, c=fidelity, marker="x", s=14, cmap="viridis", vmin=0.0, vmax=1.0,
+                                label="twin evaluations (colour: fidelity s)")
+            ax.figure.colorbar(points, ax=ax, label="fidelity s (plant: 1)")
+        else:
+            ax.plot(x, cost, "x", ms=4, color="tab:purple", alpha=0.6, label="twin evaluations")

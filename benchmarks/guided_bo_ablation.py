@@ -41,7 +41,7 @@ import gymnasium as gym
 import numpy as np
 from data_efficiency import experiments_to_reach
 from effect_aware_guided_bo import PLANTS, interval, optimum, thresholds
-from run_log import append_runs, load_runs
+from run_log import load_runs, run_missing
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNS = RESULTS / "guided_bo_ablation_runs.jsonl"
@@ -160,13 +160,11 @@ def main() -> None:
     parser.add_argument("--traces", nargs=2, metavar=("BEFORE", "AFTER"), choices=list(VARIANTS),
                         help="plot the runs BEFORE missed at ratio 1.05 next to AFTER's on the same seeds")
     args = parser.parse_args()
-    runs = load_runs(RUNS)
-    if not args.summary:
+    if args.summary:
+        runs = load_runs(RUNS)
+    else:
         optima = {label: optimum(label)["cost"] for label in args.plants}
-        done = {(r["plant"], r["variant"], r["seed"]) for r in runs}
-        todo = [(p, v, s, optima[p]) for p in args.plants for v in args.variants for s in range(args.seeds)
-                if (p, v, s) not in done]
-        runs += append_runs(RUNS, run_one, todo, args.workers)
+        runs = run_missing(RUNS, run_one, args.plants, args.variants, args.seeds, optima, args.workers)
     table = summarise(runs)
     (RESULTS / "guided_bo_ablation.md").write_text(
         "Real experiments to each optimality ratio, mean [95 % CI] (misses; a miss counts as budget + 1), "

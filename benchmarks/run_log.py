@@ -48,3 +48,17 @@ def append_runs(path: Path, run: Callable[..., dict], jobs: Sequence[tuple], wor
             out.flush()
             finished.append(result)
     return finished
+
+
+def run_missing(path: Path, run: Callable[..., dict], plants: Sequence[str], variants: Sequence[str], seeds: int,
+                optima: dict[str, float], workers: int) -> list[dict]:
+    """Every run logged in ``path``, plus those of ``plants x variants x seeds 0..seeds-1`` not logged yet.
+
+    The missing runs are ``run(plant, variant, seed, optima[plant])``, appended to ``path``
+    as they finish (see :func:`append_runs`); logged runs are identified by their
+    ``plant``, ``variant`` and ``seed`` fields.
+    """
+    runs = load_runs(path)
+    done = {(r["plant"], r["variant"], r["seed"]) for r in runs}
+    todo = [(p, v, s, optima[p]) for p in plants for v in variants for s in range(seeds) if (p, v, s) not in done]
+    return runs + append_runs(path, run, todo, workers)

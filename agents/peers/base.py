@@ -14,12 +14,12 @@ from agents.parameters import Interval, validate_params
 
 __all__ = ["PeerTuner", "latin_hypercube", "require"]
 
-#: How to install the peer libraries, quoted in the ImportError of a missing one.
-INSTALL = 'pip install "gbo-envs[peers]"'
+#: What each extra installs, quoted in the ImportError of a missing library.
+EXTRAS = {"peers": "the peer libraries", "mf": "multi-fidelity BO"}
 
 
-def require(module: str, package: str) -> ModuleType:
-    """Import an optional peer library, or raise an ImportError that names the extra to install.
+def require(module: str, package: str, extra: str = "peers") -> ModuleType:
+    """Import an optional library, or raise an ImportError that names the extra to install.
 
     Parameters
     ----------
@@ -27,11 +27,14 @@ def require(module: str, package: str) -> ModuleType:
         Import name, e.g. ``"botorch"``.
     package : str
         Distribution name, e.g. ``"scikit-optimize"``.
+    extra : str, default "peers"
+        The ``gbo-envs`` extra that installs it, a key of :data:`EXTRAS`.
     """
     try:
         return importlib.import_module(module)
     except ImportError as exc:
-        raise ImportError(f"{package} is not installed; install the peer libraries with {INSTALL}") from exc
+        raise ImportError(f'{package} is not installed; install {EXTRAS[extra]} with pip install '
+                          f'"gbo-envs[{extra}]"') from exc
 
 
 def latin_hypercube(rng: np.random.Generator, dim: int, n_initial: int) -> np.ndarray:

@@ -16,6 +16,8 @@ BUDGET = 6
 #: Every tuner the package registers (test modules register theirs per test, through the
 #: ``tuner_registry`` fixture, so none of them is here).
 TUNERS = agents.registered_names()
+#: Tuners whose full run fits a twin (a few seconds for BUDGET experiments): slow.
+SLOW_TUNERS = ("guided-bo", "mf-bo")
 
 
 def _make(name: str):
@@ -47,7 +49,7 @@ def test_proposals_are_plain_floats_inside_the_feasible_set(name):
 
 
 @pytest.mark.filterwarnings("ignore::UserWarning")
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n == "guided-bo" else n for n in TUNERS])
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_TUNERS else n for n in TUNERS])
 def test_same_seed_reproduces_the_run(name):
     runs = [_make(name).run(gym.make("gbo_envs/DCMotor-v0"), budget=BUDGET, seed=11) for _ in range(2)]
     frames = [run.to_pandas() for run in runs]

@@ -1,0 +1,182 @@
+"""Multi-fidelity BO (issue 17): the twin's correction and fidelity, the twin rows, a useless twin, the extra."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import agents
+import gbo_envs  # noqa: F401
+from agents.mf_correction import TwinCorrection
+from agents.result import TuningResult
+from gbo_envs.experiment import Experiment
+
+pytest.importorskip("botorch")
+
+
+def test_correction_trusts_a_twin_that_follows_the_plant_and_not_a_noisy_one():
+    rng = np.random.default_rng(0)
+    twin = np.exp(rng.uniform(-2.0, 1.0, 12))
+    plant = 1.3 * twin**0.9 * np.exp(0.02 * rng.standard_normal(12))  # a biased but faithful twin
+    good = TwinCorrection().fit(twin, plant)
+    assert good.fidelity_ > 0.9
+    assert good.slope_ == pytest.approx(0.9, abs=0.05) and good.intercept_ == pytest.approx(np.log(1.3), abs=0.1)
+    np.testing.assert_allclose(good.predict_log(twin), np.log(plant), atol=0.1)
+    noise = np.exp(rng.standard_normal(12))
+    assert TwinCorrection().fit(noise, plant).fidelity_ < 0.2
+
+
+def test_fidelity_drops_when_the_records_contradict_the_twin():
+    rng = np.random.default_rng(1)
+    twin = np.exp(rng.uniform(-2.0, 1.0, 20))
+    plant = twin * np.exp(0.02 * rng.standard_normal(20))
+    before = TwinCorrection().fit(twin[:8], plant[:8]).fidelity_
+    plant[8:] = np.exp(rng.uniform(-2.0, 1.0, 12))  # the plant changed: the twin no longer predicts it
+    after = TwinCorrection().fit(twin, plant).fidelity_
+    assert before > 0.9 and after < 0.5
+
+
+def test_a_chance_fit_on_few_records_gets_no_fidelity():
+    twin = np.exp([0.0, 1.0, 2.0, 3.0])
+    plant = np.exp([0.0, 1.5, 1.2, 3.0])  # Q^2 0.48, but a correlation test p of 0.045
+    assert TwinCorrection(alpha=0.5).fit(twin, plant).fidelity_ > 0.4
+    fitted = TwinCorrection().fit(twin, plant)
+    assert 0.01 < fitted.p_value_ < 0.05 and fitted.fidelity_ == 0.0
+
+
+def test_correction_needs_min_records_and_positive_costs():
+    fitted = TwinCorrection(min_records=4).fit([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
+    assert fitted.fidelity_ == 0.0 and fitted.slope_ == 1.0 and fitted.intercept_ == 0.0
+    with pytest.raises(ValueError, match="twin_costs"):
+        TwinCorrection().fit([1.0, -2.0, 3.0, 4.0], [1.0, 2.0, 3.0, 4.0])
+    with pytest.raises(ValueError, match="min_records"):
+        TwinCorrection(min_records=2).fit([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
+
+
+def test_constructor_rejects_bad_arguments():
+    with pytest.raises(ValueError, match="twin_cost"):
+        agents.make("mf-bo", twin_cost=1.0)
+    with pytest.raises(ValueError, match="max_twin_evaluations"):
+        agents.make("mf-bo", max_twin_evaluations=-1)
+    with pytest.raises(ValueError, match="twin_design"):
+        agents.make("mf-bo", twin_design=1.5)
+
+
+def test_setup_without_the_plant_env_is_a_clear_error():
+    space = agents.GainSpace.from_env(gym.make("gbo_envs/DCMotor-v0"))
+    with pytest.raises(ValueError, match="env: mf-bo needs the plant env"):
+        agents.make("mf-bo").setup(space, seed=0)
+
+
+def test_a_missing_botorch_names_the_mf_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "botorch", None)
+    with pytest.raises(ImportError, match=r'gbo-envs\[mf\]'):
+        agents.make("mf-bo")
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_twin_rows_carry_their_fidelity_and_only_real_experiments_count():
+    budget = 7
+    result = agents.make("mf-bo").run(gym.make("gbo_envs/DCMotor-v0"), budget=budget, seed=2)
+    assert result.n_experiments == budget
+    frame = result.to_pandas(include_twin=True)
+    twin = frame[frame["source"] == "twin"]
+    assert len(twin) == result.info["twin_evaluations"] > 0
+    assert twin["fidelity"].between(0.5, 0.95).all()
+    trace = result.info["fidelity_trace"]
+    assert [step["experiment"] for step in trace] == list(range(2, budget + 1))
+    assert trace[-1]["fidelity"] > 0.5 and trace[-1]["twin_used"]  # DCMotor-v0's twin is faithful
+    assert all(step["fidelity"] == 0.0 for step in trace[:3])  # not estimated before 4 records
+    # the design once, when the twin is first used; then at most 2 twin evaluations per real experiment
+    design = twin[twin["design"].astype(bool)]
+    assert len(design) == 32 and design["experiment"].nunique() == 1
+    assert twin[~twin["design"].astype(bool)].groupby("experiment").size().max() <= 2
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_the_twin_is_refitted_as_records_arrive():
+    # seed 4: the twin fitted on the first record alone simulates costs 7 to 208 against measured 0.4 to 1.0;
+    # refitted on more records it follows the plant
+    tuner = agents.make("mf-bo")
+    tuner.run(gym.make("gbo_envs/DCMotor-v0"), budget=8, seed=4)
+    assert len(tuner.run_summary()["twin_changes"]) >= 2
+    assert tuner.fidelity_ > 0.5
+
+
+class _NoiseTwinMFBO(agents.MultiFidelityBO):
+    """mf-bo whose twin cost is pure noise around the median measured cost (independent of the gains)."""
+
+    def _twin_costs(self, twin_env, unit):
+        noise = np.random.default_rng(len(self._plant_y))
+        return float(np.median(self._plant_y)) * np.exp(noise.standard_normal(len(unit)))
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_a_useless_twin_is_switched_off_and_mf_bo_stays_within_1_2_times_bo():
+    budget, finals = 12, {"mf-bo": [], "bo": []}
+    for seed in range(3):
+        env = gym.make("gbo_envs/DCMotor-v0")
+        noisy = _NoiseTwinMFBO().run(env, budget=budget, seed=seed)
+        trace = noisy.info["fidelity_trace"]
+        assert max(step["fidelity"] for step in trace) < 0.5 and noisy.info["twin_evaluations"] == 0
+        finals["mf-bo"].append(noisy.min_true_cost_curve()[-1])
+        finals["bo"].append(agents.make("bo").run(gym.make("gbo_envs/DCMotor-v0"), budget=budget,
+                                                  seed=seed).min_true_cost_curve()[-1])
+    assert np.mean(finals["mf-bo"]) <= 1.2 * np.mean(finals["bo"])
+
+
+def test_plot_colours_twin_rows_by_fidelity():
+    result = TuningResult(tuner="mf-bo", env_id="DCMotor-v0", gain_names=("Kp", "Ki"))
+    plant = Experiment.from_mapping({"gains": [0.5, 1.0], "cost": 0.4})
+    for experiment, fidelity in ((1, 0.6), (2, 0.8)):
+        twin = Experiment.from_mapping({"gains": [0.4, 1.1], "cost": 0.5}, source="twin")
+        result.add(twin, experiment, np.nan, 0.0, {"fidelity": fidelity})
+        result.add(plant, experiment, 0.4, 0.0)
+    ax = result.plot()
+    colours = [c.get_array() for c in ax.collections if c.get_array() is not None]
+    assert any(np.allclose(np.asarray(a), [0.6, 0.8]) for a in colours)
+    assert "twin evaluations (colour: fidelity s)" in [t.get_text() for t in ax.get_legend().get_texts()]
+
+
+def _bench_module(monkeypatch, tmp_path):
+    root = Path(__file__).resolve().parents[2] / "benchmarks"
+    monkeypatch.syspath_prepend(str(root))
+    spec = importlib.util.spec_from_file_location("mf_bo_bench", root / "mf_bo.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(module, "RESULTS", tmp_path)
+    monkeypatch.setattr(module, "RUNS", tmp_path / "mf_bo_runs.jsonl")
+    monkeypatch.setattr(module, "REFERENCE_RUNS", tmp_path / "reference_runs.jsonl")
+    return module
+
+
+def test_benchmark_resumes_and_compares_with_the_logged_bo_and_guided_bo_runs(monkeypatch, tmp_path, capsys):
+    bench = _bench_module(monkeypatch, tmp_path)
+    # reaching ratio 1.05: bo at experiments 3 and 4, guided-bo at 1 and 2, mf-bo at 2 and never (budget + 1 = 5)
+    curves = {("bo", 0): [1.2, 1.1, 1.0, 1.0], ("bo", 1): [1.5, 1.2, 1.08, 1.01],
+              ("guided-bo", 0): [1.0, 1.0, 1.0, 1.0], ("guided-bo", 1): [1.2, 1.04, 1.0, 1.0]}
+    bench.REFERENCE_RUNS.write_text("".join(json.dumps({"plant": "DCMotor-v0", "variant": v, "seed": s, "ratios": r})
+                                            + "\n" for (v, s), r in curves.items()))
+
+    def fake_run(label, variant, seed, best):
+        ratios = [1.2, 1.04, 1.0, 1.0] if seed == 0 else [1.3, 1.2, 1.1, 1.1]
+        return {"plant": label, "variant": variant, "seed": seed, "ratios": ratios, "cpu_per_experiment": 1.5,
+                "twin_evaluations": 40, "fidelity": [0.0, 0.9]}
+
+    bench.RUNS.write_text(json.dumps(fake_run("DCMotor-v0", "mf-bo", 0, 1.0)) + "\n")
+    ran = []
+    monkeypatch.setattr(bench, "run_one", lambda *job: ran.append(job[2]) or fake_run(*job))
+    monkeypatch.setattr(sys, "argv", ["mf_bo.py", "--plants", "DCMotor-v0", "--seeds", "2"])
+    bench.main()
+    assert ran == [1]  # seed 0 was logged: the study resumed
+    assert "| DCMotor-v0 | 1.05 | 2 | mf-bo | 3.5 [-15.6, 22.6] (1 misses) | 3.5 [-2.9, 9.9] (0 misses) | " \
+           "1.5 [-4.9, 7.9] (0 misses) | 1.00 | 2.33 | 1.50 | 40.0 | 0.90 |" in capsys.readouterr().out
