@@ -7,10 +7,11 @@ STAMP := $(VENV)/.installed-stamp
 
 .PHONY: setup chromium demo test test-fast bench lint clean
 
-setup: $(STAMP) chromium
+setup: $(STAMP)
 
 # Debian's chromium for the browser test of the HTML reports (tests/evaluation/test_report_browser.py):
-# installed only where missing and when we are root with apt-get; never fails setup (the test then skips)
+# installed only where missing and when we are root with apt-get; never fails (the test then skips).
+# make test depends on it; make demo does not need it
 chromium:
 	@command -v chromium >/dev/null 2>&1 || { \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
@@ -23,8 +24,8 @@ chromium:
 # torch first, pinned to the CPU build, so that stable-baselines3 never pulls a CUDA build
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(PIP) install --quiet "torch==2.13.0"
-	$(PIP) install --quiet -e ".[all]"
+	$(PIP) install --progress-bar on "torch==2.13.0"
+	$(PIP) install --progress-bar on -e ".[all]"
 	touch $(STAMP)
 
 demo: setup
@@ -32,7 +33,7 @@ demo: setup
 
 # the whole suite (CI runs this); pytest-xdist spreads it over WORKERS processes
 WORKERS ?= 2
-test: setup
+test: setup chromium
 	$(PY) -m pytest -n $(WORKERS)
 
 # everything but the tests marked slow (twin diagnosis, rig surfaces, processes, clusters)

@@ -4,7 +4,7 @@
 after the ``load`` event, writes into the DOM what a reader would see: each
 image's natural size (0 for a broken image) and drawn size, the tables, and
 whether the page is wider than the window; ``--dump-dom`` then returns it.
-Debian's ``chromium`` package provides the browser (``make setup`` installs it
+Debian's ``chromium`` package provides the browser (``make test`` installs it
 where missing).
 """
 

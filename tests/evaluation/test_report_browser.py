@@ -4,7 +4,7 @@ Chromium loads the twin report (``gbo twin report``) and a study report
 (``gbo bench``'s ``report.html``) at 1280 and 390 px; every image must have
 loaded (``naturalWidth > 0``) and be drawn, the page must not scroll sideways,
 and the tables (the twin report's error ladder) must be there. Skips when no
-Chromium is installed (``make setup`` installs Debian's ``chromium``).
+Chromium is installed (``make test`` installs Debian's ``chromium`` where missing).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from tests.support import loop_records
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(find_chromium() is None,
-                                 reason="chromium is not installed (make setup installs it; as root: "
+                                 reason="chromium is not installed (make test installs it; as root: "
                                         "apt-get install -y chromium)")]
 WIDTHS = (DESKTOP_WIDTH, PHONE_WIDTH)
 
