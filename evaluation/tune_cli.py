@@ -101,10 +101,10 @@ def _tune(args: argparse.Namespace) -> int:
     from evaluation.sessions import ReplayMismatch, SessionBusy, TuningSession
 
     progress = False if args.quiet else None
+    events, printer, level = logging.getLogger("agents.base"), _PrintEvents(), None
     if not progress_enabled(progress):  # without a bar the tuner's events (e.g. "twin: + saturation ...") are printed
-        events = logging.getLogger("agents.base")
-        if not any(isinstance(h, _PrintEvents) for h in events.handlers):
-            events.addHandler(_PrintEvents())
+        level = events.level
+        events.addHandler(printer)
         events.setLevel(logging.INFO)
     try:
         session = TuningSession(args.db, args.env, args.tuner, budget=args.budget, seed=args.seed,
@@ -118,6 +118,10 @@ def _tune(args: argparse.Namespace) -> int:
     except (TuningStopped, ReplayMismatch, SessionBusy) as exc:
         print(f"gbo tune: {exc}", file=sys.stderr)
         return 1
+    finally:  # the logger is the process's: leave it as it was (gbo tune may run inside a Python session)
+        if level is not None:
+            events.removeHandler(printer)
+            events.setLevel(level)
     resumed = f" (resumed after {session.n_replayed})" if session.n_replayed else ""
     if result.n_experiments > args.budget:
         resumed += f"; the session already held more than --budget {args.budget}, nothing was run"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import socket
 import sqlite3
@@ -432,6 +433,10 @@ def test_cli_tune_prints_when_the_twin_changes(tmp_path, capsys):
                 "--tuner-kwargs", '{"grid_points": 30}', "--no-progress"]) == 0
     out = capsys.readouterr().out
     assert "guided-bo: twin: linear, RMSE" in out and "(after 1 experiment)" in out
+    events = logging.getLogger("agents.base")  # the process's logger is left as it was
+    assert not [h for h in events.handlers if type(h).__name__ == "_PrintEvents"]
+    agents.make("guided-bo", grid_points=30).run(gym.make(ENV), budget=2, seed=0)
+    assert "twin" not in capsys.readouterr().out  # a later run in the same process prints nothing
 
 
 def test_force_takes_a_session_over_and_fences_its_previous_owner(tmp_path, monkeypatch):
