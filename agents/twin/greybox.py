@@ -335,8 +335,11 @@ def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, 
                 return [_simulate_batch(data, [one])[0] for one in sets]
         else:
             owner = np.array(owner)
-            for s in set(owner.tolist()):
-                out[s] = (res.y[owner == s], res.y_true[owner == s])
+            if (owner == owner[0]).all():  # one set: its outputs as they are, not copied
+                out[owner[0]] = (res.y, res.y_true)
+            else:
+                for s in set(owner.tolist()):
+                    out[s] = (res.y[owner == s], res.y_true[owner == s])
     return [(np.full((rows.size, data.u.shape[1]), np.nan),) * 2 if pair is None else pair
             for pair, (_, _, rows) in zip(out, sets)]
 
