@@ -319,7 +319,8 @@ def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, 
             continue
         plants += [plant] * k
         chains += [blocks] * k
-        u.append(data.u[rows])
+        every = rows.size == data.n_records and np.array_equal(rows, np.arange(rows.size))
+        u.append(data.u if every else data.u[rows])  # read only: no copy of all the records
         y0.append(theta[g : g + k])
         bias.append(theta[g + k :])
         index.append(data.index[rows])
@@ -328,7 +329,7 @@ def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, 
     if owner:
         try:
             with np.errstate(all="ignore"):
-                res = simulate_open_loop(plants, np.concatenate(u), data.dt, chains, y0=np.concatenate(y0),
+                res = simulate_open_loop(plants, u[0] if len(u) == 1 else np.concatenate(u), data.dt, chains, y0=np.concatenate(y0),
                                          bias=np.concatenate(bias), experiment_index=np.concatenate(index))
         except (np.linalg.LinAlgError, ValueError):  # a plant that cannot be sampled (overflowing coefficients)
             if len(sets) > 1:
