@@ -14,6 +14,7 @@ same. Row numbers in messages are line numbers of the file (the header is line 1
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -33,6 +34,8 @@ _MIN_SAMPLES = 3
 #: Bytes read to tell a binary file (NUL bytes) from text.
 _SNIFF_BYTES = 8192
 _MISSING = ("", "nan", "na", "null", "none")
+#: Rows of a CSV parsed at a time by :func:`read_csv` (bounds the parser's memory).
+CHUNK_ROWS = 2**17
 
 
 def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[Experiment]:
@@ -81,35 +84,32 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
             raise ValueError(f"{path}: a binary file (it holds NUL bytes); a workbench CSV is UTF-8 text with the "
                              f"header {','.join(REQUIRED_COLUMNS)}")
     _check_complete(path)
-    try:  # numbers parsed by pandas' C parser; a column with anything else stays text (checked by _numbers)
-        frame = pd.read_csv(path, keep_default_na=False, skipinitialspace=True, encoding="utf-8")
-    except pd.errors.EmptyDataError as exc:
-        raise ValueError(f"{path}: the file is empty; expected a header {','.join(REQUIRED_COLUMNS)}") from exc
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not UTF-8 text (it holds the byte {exc.object[exc.start:exc.start + 1]!r}); "
-                         f"a workbench CSV is UTF-8 text with the header {','.join(REQUIRED_COLUMNS)}") from None
-    except pd.errors.ParserError as exc:
-        raise ValueError(f"{path}: not a CSV table ({' '.join(str(exc).split())})") from None
-    raw_names = {str(c).strip(): c for c in frame.columns}
-    frame.columns = list(raw_names)
-    missing = [c for c in REQUIRED_COLUMNS if c not in frame.columns]
+    options = {"keep_default_na": False, "skipinitialspace": True, "encoding": "utf-8"}
+    with _parse_errors(path):
+        try:
+            header = pd.read_csv(path, nrows=0, **options).columns
+        except pd.errors.EmptyDataError as exc:
+            raise ValueError(f"{path}: the file is empty; expected a header {','.join(REQUIRED_COLUMNS)}") from exc
+    raw_names = {str(c).strip(): c for c in header}
+    columns = list(raw_names)
+    missing = [c for c in REQUIRED_COLUMNS if c not in columns]
     if gain_names is not None:
-        missing += [c for c in gain_names if c not in frame.columns]
+        missing += [c for c in gain_names if c not in columns]
     if missing:
         raise ValueError(f"{path}, row 1 (header): missing column(s) {missing}; the header must contain "
-                         f"{','.join(REQUIRED_COLUMNS)} (found {list(frame.columns)})")
-    if len(frame) == 0:
-        raise ValueError(f"{path}: no data rows after the header")
+                         f"{','.join(REQUIRED_COLUMNS)} (found {columns})")
     if gain_names is None:
         gain_names = []
-        while f"gain{len(gain_names)}" in frame.columns:
+        while f"gain{len(gain_names)}" in columns:
             gain_names.append(f"gain{len(gain_names)}")
-
-    def numbers(column: str, allow_missing: bool = False) -> np.ndarray:
-        return _numbers(path, column, frame[column], raw_names[column], allow_missing)
-
-    values = {column: numbers(column) for column in (*REQUIRED_COLUMNS, *gain_names)}
-    costs = numbers("cost", allow_missing=True) if "cost" in frame.columns else None
+    numeric = {column: False for column in (*REQUIRED_COLUMNS, *gain_names)}
+    if "cost" in columns:
+        numeric["cost"] = True  # missing values allowed
+    with _parse_errors(path):
+        values, source_codes, source_names = _read_columns(path, raw_names, numeric, "source" in columns, options)
+    if values["experiment"].size == 0:
+        raise ValueError(f"{path}: no data rows after the header")
+    costs = values.pop("cost", None)
     exp = values["experiment"]
     not_int = np.flatnonzero(exp != np.round(exp))
     if not_int.size:
@@ -117,8 +117,6 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
         raise ValueError(f"{path}, row {i + 2}, column 'experiment': experiment id must be an integer, "
                          f"got {float(exp[i])!r}")
     ids = exp.astype(int)
-    if "source" in frame.columns:
-        source_codes, source_names = pd.factorize(frame["source"].astype(str).str.strip())
     order = np.argsort(ids, kind="stable")  # the rows of each experiment, in file order
     idents, first, counts = np.unique(ids[order], return_index=True, return_counts=True)
     records = []
@@ -133,7 +131,7 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
                              f"{exc.rule}") from None
         gains = [_constant(path, ident, rows, name, values[name][rows]) for name in gain_names]
         cost = math.nan if costs is None else _constant(path, ident, rows, "cost", costs[rows])
-        source = "plant" if "source" not in frame.columns else \
+        source = "plant" if source_codes is None else \
             _constant(path, ident, rows, "source", source_codes[rows], names=source_names)
         if source not in SOURCES:
             raise ValueError(f"{path}, row {rows[0] + 2}, column 'source': must be one of {SOURCES}, got {source!r}")
@@ -209,21 +207,100 @@ def _check_complete(path: Path) -> None:
                      "the end of the file")
 
 
-def _numbers(path: Path, column: str, series, raw_name, allow_missing: bool = False) -> np.ndarray:
-    """The column as floats; a missing, non-numeric or infinite value raises naming its row.
+@contextlib.contextmanager
+def _parse_errors(path: Path):
+    """Turn the parser's codec and table errors into a ``ValueError`` naming the file."""
+    import pandas as pd
 
-    ``series`` is the column as pandas parsed it; a column not parsed as numbers, or with a
-    non-finite number, is checked on its text (column ``raw_name`` of the file read again as text).
+    try:
+        yield
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text (it holds the byte {exc.object[exc.start:exc.start + 1]!r}); "
+                         f"a workbench CSV is UTF-8 text with the header {','.join(REQUIRED_COLUMNS)}") from None
+    except pd.errors.ParserError as exc:
+        raise ValueError(f"{path}: not a CSV table ({' '.join(str(exc).split())})") from None
+
+
+def _read_columns(path: Path, raw_names: dict, numeric: dict, with_source: bool, options: dict):
+    """The numeric columns as floats and the ``source`` column as codes, parsed ``CHUNK_ROWS`` rows at a time.
+
+    Parameters
+    ----------
+    path : Path
+    raw_names : dict
+        Column name (stripped) to its name in the file.
+    numeric : dict
+        Numeric columns to read, each mapped to whether a missing value is allowed (read as NaN).
+    with_source : bool
+        Whether to read the ``source`` column.
+    options : dict
+        Options of :func:`pandas.read_csv`.
+
+    Returns
+    -------
+    values : dict
+        Column name to its values, ndarray of shape (n_rows,).
+    source_codes : ndarray of int or None
+        Per row, an index into ``source_names`` (None without ``source``).
+    source_names : list of str or None
+        The distinct stripped texts of the ``source`` column.
+
+    Raises
+    ------
+    ValueError
+        A missing, non-numeric or non-finite value, naming its row and column (:func:`_numbers`).
     """
+    import pandas as pd
+
+    usecols = [raw_names[c] for c in numeric] + ([raw_names["source"]] if with_source else [])
+    parts = {column: [] for column in numeric}
+    checked_as_text = []  # columns with a value that is not a finite number in a chunk: checked on the whole file
+    codes, names = [], {}
+    for chunk in pd.read_csv(path, usecols=usecols, chunksize=CHUNK_ROWS, **options):
+        for column, allow_missing in numeric.items():
+            if column not in checked_as_text:
+                numbers = _finite_numbers(chunk[raw_names[column]], allow_missing)
+                if numbers is None:
+                    checked_as_text.append(column)
+                    parts[column] = []
+                else:
+                    parts[column].append(numbers)
+        if with_source:
+            chunk_codes, chunk_names = pd.factorize(chunk[raw_names["source"]].astype(str).str.strip())
+            codes.append(np.array([names.setdefault(name, len(names)) for name in chunk_names], dtype=int)[chunk_codes])
+    values = {}
+    for column, allow_missing in numeric.items():  # in order, so that the first bad column is the one named
+        if column in checked_as_text:
+            values[column] = _numbers(path, column, raw_names[column], allow_missing)
+        else:
+            values[column] = np.concatenate(parts.pop(column)) if parts[column] else np.empty(0)
+    if not with_source:
+        return values, None, None
+    return values, np.concatenate(codes) if codes else np.empty(0, dtype=int), list(names)
+
+
+def _finite_numbers(series, allow_missing: bool) -> np.ndarray | None:
+    """A chunk's column as floats, or None if it has a value that is not a finite number (nor allowed missing)."""
     import pandas as pd
 
     if series.dtype.kind in "iuf":
         numbers = series.to_numpy(dtype=float)
-        if np.isfinite(numbers).all():
-            return numbers
-        series = pd.read_csv(path, usecols=[raw_name], dtype=str, keep_default_na=False,
-                             skipinitialspace=True)[raw_name]
+        return numbers if np.isfinite(numbers).all() else None
     text = series.astype(str).str.strip()
+    numbers = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
+    blank = text.str.lower().isin(_MISSING).to_numpy()
+    if (~np.isfinite(numbers) & ~(blank & allow_missing)).any():
+        return None
+    return np.where(blank, np.nan, numbers) if allow_missing else numbers
+
+
+def _numbers(path: Path, column: str, raw_name, allow_missing: bool = False) -> np.ndarray:
+    """Column ``raw_name`` of the file checked on its text, as floats; a missing, non-numeric or infinite value
+    raises naming its row (the file line) and ``column``."""
+    import pandas as pd
+
+    text = pd.read_csv(path, usecols=[raw_name], dtype=str, keep_default_na=False,
+                       skipinitialspace=True)[raw_name].astype(str).str.strip()
     numbers = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
     blank = text.str.lower().isin(_MISSING).to_numpy()
     bad = np.flatnonzero(~np.isfinite(numbers) & ~(blank & allow_missing))

@@ -330,7 +330,8 @@ def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, 
             continue
         plants += [plant] * k
         chains += [blocks] * k
-        u.append(data.u[rows])
+        every = rows.size == data.n_records and np.array_equal(rows, np.arange(rows.size))
+        u.append(data.u if every else data.u[rows])  # read only: no copy of all the records
         y0.append(theta[g : g + k])
         bias.append(theta[g + k :])
         index.append(data.index[rows])
@@ -339,15 +340,19 @@ def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, 
     if owner:
         try:
             with np.errstate(all="ignore"):
-                res = simulate_open_loop(plants, np.concatenate(u), data.dt, chains, y0=np.concatenate(y0),
-                                         bias=np.concatenate(bias), experiment_index=np.concatenate(index))
+                res = simulate_open_loop(plants, u[0] if len(u) == 1 else np.concatenate(u), data.dt, chains,
+                                         y0=np.concatenate(y0), bias=np.concatenate(bias),
+                                         experiment_index=np.concatenate(index))
         except (np.linalg.LinAlgError, ValueError):  # a plant that cannot be sampled (overflowing coefficients)
             if len(sets) > 1:
                 return [_simulate_batch(data, [one])[0] for one in sets]
         else:
             owner = np.array(owner)
-            for s in set(owner.tolist()):
-                out[s] = (res.y[owner == s], res.y_true[owner == s])
+            if (owner == owner[0]).all():  # one set: its outputs as they are, not copied
+                out[owner[0]] = (res.y, res.y_true)
+            else:
+                for s in set(owner.tolist()):
+                    out[s] = (res.y[owner == s], res.y_true[owner == s])
     return [(np.full((rows.size, data.u.shape[1]), np.nan),) * 2 if pair is None else pair
             for pair, (_, _, rows) in zip(out, sets)]
 
@@ -401,12 +406,22 @@ class _Lockstep:
         self.cond.notify_all()
 
 
-def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
+def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """Simulation error ``y_sim - y`` of the records ``rows``, the residual :func:`fit_problems` minimises.
 
     Padding samples give 0; a non-finite or huge simulated value (a diverged model) gives a large
     finite penalty, ``1e6 (1 + max |y|)``, so that the cost stays comparable and its sum of squares
     cannot overflow inside the solver.
+
+    Parameters
+    ----------
+    data : GreyData
+    rows : ndarray of int
+        The records simulated, in the order of the rows of ``y_sim``.
+    y_sim : ndarray of shape (len(rows), n_steps)
+        Simulated measurement, units of ``y``.
+    out : ndarray of shape (len(rows), n_steps), optional
+        Array to write the residual into (e.g. a Jacobian column); default a new one.
 
     Returns
     -------
@@ -417,7 +432,7 @@ def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
     y, mask = (data.y, data.mask) if every else (data.y[rows], data.mask[rows])  # no copy of all the records
     penalty = 1e6 * (1.0 + max(float(y.max()), -float(y.min())))
     with np.errstate(invalid="ignore", over="ignore"):
-        err = np.subtract(y_sim, y)
+        err = np.subtract(y_sim, y, out=out)
     err[~mask] = 0.0
     diverged = ~np.isfinite(err)
     np.clip(err, -penalty, penalty, out=err)
@@ -564,7 +579,8 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
         8 * k * n * free.size * n_parallel <= DENSE_JACOBIANS_BYTES
     sets_per_pass = max(1, SIMULATION_BATCH_SAMPLES // (k * n * n_parallel))
     columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
-    best: dict = {"key": None, "y": None, "cost": np.inf}  # the lowest-cost point so far: least_squares' iterate
+    # the lowest-cost point so far (least_squares' iterate), its simulated output and residual
+    best: dict = {"key": None, "y": None, "residual": None, "cost": np.inf}
     # the Jacobian's arrays, written again at each evaluation: least_squares (trf) does not use the previous
     # Jacobian once it asks for the next, so one set of arrays serves them all
     shared = np.empty((n_shared, k, n))
@@ -580,7 +596,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
         res = residual(data, p.rows, y).ravel()
         cost = float(res @ res)
         if cost < best["cost"]:
-            best.update(key=x.tobytes(), y=y, cost=cost)
+            best.update(key=x.tobytes(), y=y, residual=res, cost=cost)
         return res
 
     def jac(x: np.ndarray) -> RecordJacobian | np.ndarray:
@@ -598,7 +614,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
             sets.insert(0, (p.spec, theta, p.rows))
             base = None
         else:
-            base = residual(data, p.rows, best["y"])
+            base = best["residual"].reshape(k, n)  # residual(data, p.rows, best["y"]), already computed
         positions = [np.flatnonzero(free < g)]
         i = 0
         for first_set in range(0, len(sets), sets_per_pass):  # each pass's outputs freed once used
@@ -608,7 +624,8 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
                     continue
                 cols = columns[i]
                 out = shared[i] if i < n_shared else per_record[i - n_shared]
-                np.subtract(residual(data, p.rows, y), base, out=out)
+                residual(data, p.rows, y, out=out)
+                out -= base
                 out /= steps[i]
                 if i >= n_shared:
                     first = g if cols[0] < g + k else g + k

@@ -229,7 +229,7 @@ def _prepare_rest(continuous, discrete, chains, u, y0, bias, dt: float, column: 
     """
     perm, inverse = _sorted_rows(chains)
     continuous, discrete, chains = [continuous[r] for r in perm], [discrete[r] for r in perm], [chains[r] for r in perm]
-    u, y0, bias = u[perm], y0[perm], bias[perm]
+    y0, bias = y0[perm], bias[perm]
     groups = _groups(chains, column=column)
     y_true0 = y0.copy()
     for sl, sensors, _ in groups:
@@ -239,9 +239,7 @@ def _prepare_rest(continuous, discrete, chains, u, y0, bias, dt: float, column: 
                 y_true0[idx] = _flat(block.level_for, y_true0[idx]) if column else block.level_for(y_true0[idx])
     x0, v_rest, speed0 = _rest(continuous, discrete, y_true0)
     u_rest = _holding_command(groups, v_rest - bias, speed0, dt, column)
-    lags = np.array([d.delay_steps for d in discrete])
-    k = np.arange(u.shape[1])[None, :] - lags[:, None]
-    u_delayed = np.where(k >= 0, np.take_along_axis(u, np.maximum(k, 0), axis=1), u_rest[:, None])
+    u_delayed = _delayed(u, perm, np.array([d.delay_steps for d in discrete]), u_rest)
     return _Rest(continuous=continuous, discrete=discrete, groups=groups, inverse=inverse, bias=bias,
                  y_true0=y_true0, x0=x0, v_rest=v_rest, u_rest=u_rest, u_delayed=u_delayed)
 
@@ -275,6 +273,8 @@ def _direct(continuous, discrete, chains, u, y0, bias) -> OpenLoopResult:
             for block, part in stage.parts:
                 idx = _global(sl, part)
                 y[idx] = block.measure(y[idx])
+    if np.array_equal(inverse, np.arange(batch)):  # rows already in order: no copies
+        return OpenLoopResult(y=y, y_true=y_true, v=v, u_rest=rest.u_rest, v_rest=v_rest)
     return OpenLoopResult(y=y[inverse], y_true=y_true[inverse], v=v[inverse], u_rest=rest.u_rest[inverse],
                           v_rest=v_rest[inverse])
 
@@ -314,6 +314,24 @@ def _transfer_functions(discrete: list[DiscretePlant]) -> dict[int, tuple[np.nda
             num[:, k + 1] += cg[:, 1]
         for i, d in enumerate(plants):
             out[id(d)] = (np.trim_zeros(num[i], "b"), den[i])
+    return out
+
+
+def _delayed(u: np.ndarray, perm: np.ndarray, lags: np.ndarray, u_rest: np.ndarray) -> np.ndarray:
+    """Rows ``perm`` of the commands ``u`` (shape (batch, n_steps)), row ``i`` delayed by ``lags[i]`` >= 0 samples
+    and preceded by ``u_rest[i]``; filled by slices per distinct delay (no index arrays of the data's size)."""
+    batch, n = u.shape
+    out = np.empty((batch, n))
+    in_order = np.array_equal(perm, np.arange(batch))
+    for lag in np.unique(lags):
+        rows = np.flatnonzero(lags == lag)
+        lag = min(int(lag), n)
+        if in_order and rows.size == batch:  # every row: plain slices, no copy of the commands
+            out[:, :lag] = u_rest[:, None]
+            out[:, lag:] = u[:, : n - lag]
+        else:
+            out[rows, :lag] = u_rest[rows, None]
+            out[rows, lag:] = u[perm[rows], : n - lag]
     return out
 
 

@@ -26,3 +26,16 @@ def test_a_diverged_simulation_gives_a_bounded_residual_whose_squares_do_not_ove
     assert np.all(np.isfinite(err)) and np.max(np.abs(err)) <= penalty
     assert np.isfinite(np.dot(err.ravel(), err.ravel()))
     np.testing.assert_array_equal(err[0, :10], 0.0)  # the exact samples keep their zero error
+
+
+def test_residual_written_into_out_equals_the_new_array():
+    data = _data(n_records=3)
+    rows = np.array([2, 0])
+    y_sim = data.y[rows] + 0.25
+    y_sim[1, 5] = np.inf
+    data.mask[2, 40:] = False  # padding samples give 0
+    out = np.full((2, data.y.shape[1]), 7.0)
+    got = residual(data, rows, y_sim, out=out)
+    assert got is out
+    np.testing.assert_array_equal(out, residual(data, rows, y_sim))
+    np.testing.assert_array_equal(out[0, 40:], 0.0)

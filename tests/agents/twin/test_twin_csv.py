@@ -127,3 +127,29 @@ def test_csv_numbers_experiments_as_the_result_table_does(tmp_path):
     numbers = pd.read_csv(path)["experiment"].unique().tolist()
     assert numbers == result.to_pandas()["experiment"].tolist() == [1, 2]  # counted from 1 in both
     assert [r.index for r in read_csv(path)] == [r.index for r in result.experiments] == [0, 1]
+
+
+def test_chunked_reading_matches_one_chunk_and_names_rows_in_later_chunks(tmp_path, monkeypatch):
+    """Read in chunks of 5 rows (``CHUNK_ROWS``): the same records as in one chunk; a bad value in a later
+    chunk is named by its file line; a cost blank in one chunk and numeric in another is read per experiment."""
+    import agents.twin.csvio as csvio
+
+    lines = [HEADER + ",gain0,source,cost"]
+    for exp in range(4):
+        cost = "" if exp % 2 else f"{1.5 + exp}"
+        lines += [f"{row},{0.7 + exp},{'twin' if exp == 3 else 'plant'},{cost}" for row in _good_rows(exp, 6)]
+    path = _write(tmp_path, "\n".join(lines) + "\n")
+    whole = read_csv(path)
+    monkeypatch.setattr(csvio, "CHUNK_ROWS", 5)
+    chunked = read_csv(path)
+    assert [r.index for r in chunked] == [r.index for r in whole] == [-1, 0, 1, 2]  # CSV numbers 0-3 count from 1
+    for a, b in zip(whole, chunked):
+        for name in ("t", "r", "u", "y", "gains"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        assert a.source == b.source and (a.cost == b.cost or (np.isnan(a.cost) and np.isnan(b.cost)))
+    assert [r.source for r in chunked] == ["plant", "plant", "plant", "twin"]
+    assert [r.cost for r in chunked][::2] == [1.5, 3.5] and np.isnan(chunked[1].cost)
+    lines[20] = lines[20].replace(",306,", ",abc,")  # line 21 of the file, in the 4th chunk
+    path = _write(tmp_path, "\n".join(lines) + "\n")
+    with pytest.raises(ValueError, match=r"row 21, column 'r': non-numeric value 'abc'"):
+        read_csv(path)
