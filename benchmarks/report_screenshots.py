@@ -81,7 +81,8 @@ def main(argv: list[str] | None = None) -> int:
     here = Path.cwd()
     os.chdir(work)  # the report names its data as given: rig.csv
     try:
-        status = gbo(["twin", "report", "rig.csv", "--out", "twin", "--max-steps", "1"])
+        status = gbo(["twin", "report", "rig.csv", "--out", "twin", "--max-steps", "1", "--y-unit", "rad/s",
+                      "--u-unit", "V", "--quiet"])
     finally:
         os.chdir(here)
     if status != 0:
