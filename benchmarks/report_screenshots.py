@@ -2,8 +2,9 @@
 
 Usage: ``python benchmarks/report_screenshots.py [--out docs/screenshots] [--work DIR]``.
 
-1. Four experiments of DCMotorRig-v0 (every 5th sample of its 2 ms records)
-   written as a workbench CSV, then ``gbo twin report --max-steps 1``.
+1. The bundled workbench data (``examples/data/dc_rig.csv``: four experiments of
+   DCMotorRig-v0, every 5th sample of its 2 ms records), then ``gbo twin report
+   --max-steps 1 --y-unit rad/s --u-unit V``.
 2. ``gbo bench smoke`` (random search and BO, 4 batches of 8 experiments).
 3. Each page (``index.html``, ``report.html``) checked with
    :func:`evaluation.browser.page_check` (no broken image, no sideways scroll of
@@ -11,7 +12,7 @@ Usage: ``python benchmarks/report_screenshots.py [--out docs/screenshots] [--wor
    ``OUT/twin_report_{desktop,phone}.png``, ``OUT/study_report_{desktop,phone}.png``.
 
 Prints one JSON object: the files written and the check of each page.
-Needs Chromium (``make setup`` installs Debian's ``chromium`` where missing).
+Needs Chromium (``make test`` installs Debian's ``chromium`` where missing).
 """
 
 from __future__ import annotations
@@ -19,31 +20,23 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import tempfile
 import warnings
 from pathlib import Path
 
-import gymnasium as gym
-import numpy as np
-
-import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin.csvio import records_from_env, write_csv
 from evaluation.browser import DESKTOP_WIDTH, PHONE_WIDTH, page_check, screenshot
 from evaluation.cli import main as gbo
 
 #: Window size of each screenshot, in CSS px.
 SIZES = {"desktop": (DESKTOP_WIDTH, 2200), "phone": (PHONE_WIDTH, 2400)}
-STRIDE = 5
+#: the bundled workbench data
+RIG_CSV = Path(__file__).resolve().parents[1] / "examples" / "data" / "dc_rig.csv"
 
 
 def twin_csv(path: Path) -> Path:
-    """Four rig experiments at random gains (seed 1), every 5th sample, as a workbench CSV."""
-    env = gym.make("gbo_envs/DCMotorRig-v0")
-    low, high = env.action_space.low, env.action_space.high
-    gains = np.random.default_rng(1).uniform(low, high, size=(4, low.size))
-    records = [r.replace(t=r.t[::STRIDE], r=r.r[::STRIDE], u=r.u[::STRIDE], y=r.y[::STRIDE])
-               for r in records_from_env(env, gains, seed=1)]
-    return write_csv(records, path)
+    """The bundled workbench data, copied to ``path`` (``examples/data/make_dc_rig.py`` writes it)."""
+    return Path(shutil.copyfile(RIG_CSV, path))
 
 
 def photograph(page: Path, name: str, out: Path) -> dict:
