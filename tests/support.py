@@ -75,3 +75,18 @@ class RaiseAt(gym.Wrapper):
         if self.count in self.calls:
             raise self.error
         return self.env.step(action)
+
+
+def benchmark_module(monkeypatch, script: str, **paths):
+    """``benchmarks/<script>.py`` imported as a module, with its module-level paths (``RESULTS``, ``RUNS`` ...)
+    set to ``paths`` so that a test writes nothing into the checkout."""
+    import importlib.util
+
+    monkeypatch.syspath_prepend(str(REPO_ROOT / "benchmarks"))
+    spec = importlib.util.spec_from_file_location(f"{script}_bench", REPO_ROOT / "benchmarks" / f"{script}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    for name, value in paths.items():
+        monkeypatch.setattr(module, name, value)
+    return module
+

@@ -501,6 +501,44 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     return problems
 
 
+def _difference_layout(data: GreyData, p: Problem, simulate=None):
+    """``(simulate, free, rough, columns)`` of a forward-difference Jacobian of ``p``.
+
+    ``simulate`` defaults to :func:`simulate_sets` on ``data``; ``free`` are the moving
+    parameters; ``rough`` says a grid parameter (a quantized output) makes the
+    Jacobian be taken on the plant output before the sensor; ``columns`` groups the
+    free parameters one per simulation: each global parameter alone, then all rest
+    levels together and all biases together (each moves only its own record).
+    """
+    if simulate is None:
+        def simulate(sets, true_output=False):
+            return simulate_sets(data, sets, true_output=true_output)
+    free = np.flatnonzero(p.free & (p.lower < p.upper))
+    g, k = p.n_global, p.rows.size
+    rough = any(not smooth for name, _ in p.spec.effects for _, smooth in FITTED_PARAMETERS[name])
+    columns = [[j] for j in free[free < g]]
+    columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
+    return simulate, free, rough, columns
+
+
+def _difference_sets(p: Problem, theta: np.ndarray, columns: list[list[int]]) -> tuple[list, list[float]]:
+    """Forward-difference trial sets of ``p`` at ``theta``: one per group of ``columns``, and their steps.
+
+    The step of a group is ``1e-6`` times its largest magnitude (at least its scale),
+    taken backwards where a lone parameter would cross its upper bound.
+    """
+    sets, steps = [], []
+    for cols in columns:
+        h = 1e-6 * max(float(np.max(np.abs(theta[cols]))), p.scale[cols[0]])
+        if len(cols) == 1 and theta[cols[0]] + h > p.upper[cols[0]]:
+            h = -h
+        trial = theta.copy()
+        trial[cols] += h
+        sets.append((p.spec, trial, p.rows))
+        steps.append(h)
+    return sets, steps
+
+
 def jacobian(data: GreyData, p: Problem, theta: np.ndarray, simulate=None, y_at=None) -> np.ndarray:
     """Forward-difference Jacobian of the residual of ``p`` with respect to its free parameters, at ``theta``.
 
@@ -526,23 +564,9 @@ def jacobian(data: GreyData, p: Problem, theta: np.ndarray, simulate=None, y_at=
     ndarray of shape (len(p.rows) * n_steps, n_free)
         Units of ``y`` per unit of each free parameter.
     """
-    if simulate is None:
-        def simulate(sets, true_output=False):
-            return simulate_sets(data, sets, true_output=true_output)
-    free = np.flatnonzero(p.free & (p.lower < p.upper))
+    simulate, free, rough, columns = _difference_layout(data, p, simulate)
     g, k, n = p.n_global, p.rows.size, data.u.shape[1]
-    rough = any(not smooth for name, _ in p.spec.effects for _, smooth in FITTED_PARAMETERS[name])
-    columns = [[j] for j in free[free < g]]  # one simulation per global parameter
-    columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
-    sets, steps = [], []
-    for cols in columns:
-        h = 1e-6 * max(float(np.max(np.abs(theta[cols]))), p.scale[cols[0]])
-        if len(cols) == 1 and theta[cols[0]] + h > p.upper[cols[0]]:
-            h = -h
-        trial = theta.copy()
-        trial[cols] += h
-        sets.append((p.spec, trial, p.rows))
-        steps.append(h)
+    sets, steps = _difference_sets(p, theta, columns)
     if rough or y_at is None:  # the smooth output at theta itself
         sets.append((p.spec, theta, p.rows))
     ys = simulate(sets, true_output=rough)
@@ -566,19 +590,13 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
     ``n_parallel`` problems make their requests together (:class:`_Lockstep`), so each asks for
     its share of :data:`SIMULATION_BATCH_SAMPLES` at a time.
     """
-    if simulate is None:
-        def simulate(sets, true_output=False):
-            return simulate_sets(data, sets, true_output=true_output)
-    free = np.flatnonzero(p.free & (p.lower < p.upper))
+    simulate, free, rough, columns = _difference_layout(data, p, simulate)
     g, k, n = p.n_global, p.rows.size, data.u.shape[1]
-    rough = any(not smooth for name, _ in p.spec.effects for _, smooth in FITTED_PARAMETERS[name])
     start = p.theta.copy()
-    columns = [[j] for j in free[free < g]]  # one simulation per global parameter
-    n_shared = len(columns)
+    n_shared = int(np.sum(free < g))  # the first columns: one simulation per global parameter
     dense = 8 * k * n * free.size <= DENSE_JACOBIAN_BYTES and \
         8 * k * n * free.size * n_parallel <= DENSE_JACOBIANS_BYTES
     sets_per_pass = max(1, SIMULATION_BATCH_SAMPLES // (k * n * n_parallel))
-    columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
     # the lowest-cost point so far (least_squares' iterate), its simulated output and residual
     best: dict = {"key": None, "y": None, "residual": None, "cost": np.inf}
     # the Jacobian's arrays, written again at each evaluation: least_squares (trf) does not use the previous
@@ -601,15 +619,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
 
     def jac(x: np.ndarray) -> RecordJacobian | np.ndarray:
         theta = full(x)
-        sets, steps = [], []
-        for cols in columns:
-            h = 1e-6 * max(float(np.max(np.abs(theta[cols]))), p.scale[cols[0]])
-            if len(cols) == 1 and theta[cols[0]] + h > p.upper[cols[0]]:
-                h = -h
-            trial = theta.copy()
-            trial[cols] += h
-            sets.append((p.spec, trial, p.rows))
-            steps.append(h)
+        sets, steps = _difference_sets(p, theta, columns)
         if rough or x.tobytes() != best["key"]:  # the smooth output at x itself, simulated first
             sets.insert(0, (p.spec, theta, p.rows))
             base = None

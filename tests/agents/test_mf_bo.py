@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -16,6 +14,7 @@ import gbo_envs  # noqa: F401
 from agents.mf_correction import TwinCorrection
 from agents.result import TuningResult
 from gbo_envs.experiment import Experiment
+from tests.support import benchmark_module
 
 pytest.importorskip("botorch")
 
@@ -147,20 +146,9 @@ def test_plot_colours_twin_rows_by_fidelity():
     assert "twin evaluations (colour: fidelity s)" in [t.get_text() for t in ax.get_legend().get_texts()]
 
 
-def _bench_module(monkeypatch, tmp_path):
-    root = Path(__file__).resolve().parents[2] / "benchmarks"
-    monkeypatch.syspath_prepend(str(root))
-    spec = importlib.util.spec_from_file_location("mf_bo_bench", root / "mf_bo.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    monkeypatch.setattr(module, "RESULTS", tmp_path)
-    monkeypatch.setattr(module, "RUNS", tmp_path / "mf_bo_runs.jsonl")
-    monkeypatch.setattr(module, "REFERENCE_RUNS", tmp_path / "reference_runs.jsonl")
-    return module
-
-
 def test_benchmark_resumes_and_compares_with_the_logged_bo_and_guided_bo_runs(monkeypatch, tmp_path, capsys):
-    bench = _bench_module(monkeypatch, tmp_path)
+    bench = benchmark_module(monkeypatch, "mf_bo", RESULTS=tmp_path, RUNS=tmp_path / "mf_bo_runs.jsonl",
+                             REFERENCE_RUNS=tmp_path / "reference_runs.jsonl")
     # reaching ratio 1.05: bo at experiments 3 and 4, guided-bo at 1 and 2, mf-bo at 2 and never (budget + 1 = 5)
     curves = {("bo", 0): [1.2, 1.1, 1.0, 1.0], ("bo", 1): [1.5, 1.2, 1.08, 1.01],
               ("guided-bo", 0): [1.0, 1.0, 1.0, 1.0], ("guided-bo", 1): [1.2, 1.04, 1.0, 1.0]}

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
 
@@ -12,7 +11,7 @@ import pytest
 
 import agents
 import gbo_envs  # noqa: F401
-from tests.support import REPO_ROOT
+from tests.support import benchmark_module
 
 #: (registry name, keywords) of every peer row; each starts from BO's initial design with n_initial
 PEERS = [("botorch", {}), ("botorch", {"acquisition": "logei"}), ("skopt", {}), ("bayes-opt", {}),
@@ -73,14 +72,8 @@ def test_bad_botorch_options_raise_value_errors_naming_the_parameter():
 
 
 def _peers_module(monkeypatch, tmp_path):
-    monkeypatch.syspath_prepend(str(REPO_ROOT / "benchmarks"))
-    spec = importlib.util.spec_from_file_location("peers_bench", REPO_ROOT / "benchmarks" / "peers.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    monkeypatch.setattr(module, "RESULTS", tmp_path)
-    monkeypatch.setattr(module, "RUNS", tmp_path / "peers_runs.jsonl")
-    monkeypatch.setattr(module, "ABLATION_RUNS", tmp_path / "guided_bo_ablation_runs.jsonl")
-    return module
+    return benchmark_module(monkeypatch, "peers", RESULTS=tmp_path, RUNS=tmp_path / "peers_runs.jsonl",
+                            ABLATION_RUNS=tmp_path / "guided_bo_ablation_runs.jsonl")
 
 
 def test_peers_summary_of_a_fake_runs_file(monkeypatch, tmp_path, capsys):
