@@ -122,10 +122,9 @@ def _load(args):
 
     records = read_csv(args.data)
     data = GreyData.from_records(records)  # experiment index = the CSV's experiment id
-    ids = [r.index for r in records]  # the records themselves are not kept: GreyData holds their signals
     spec = ModelSpec(args.poles, args.zeros, args.integrators, args.output)
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
-    return ids, data, spec, effects
+    return data, spec, effects
 
 
 def _fit(data, spec, effects):
@@ -147,6 +146,17 @@ def _run(handler):
     return wrapped
 
 
+def _print_unobservable(result) -> None:
+    """The effects ``result`` (a diagnosis) finds unobservable, one line each, if any."""
+    from agents.twin.ladder_text import unobservable_lines
+
+    lines = unobservable_lines(result)
+    if lines:
+        print("not observable in this data:")
+        for line in lines:
+            print(f"  {line}")
+
+
 def default_out(data_path: str) -> Path:
     """Where ``gbo twin compare`` writes its plots without ``--out``: ``out/twin/<data file name>``."""
     return Path("out") / "twin" / Path(data_path).stem
@@ -155,7 +165,7 @@ def default_out(data_path: str) -> Path:
 def _load_and_fit(args, bar):
     """Read the data and fit the model, one step of ``bar`` each; returns ``(data, fit)``."""
     bar.set_postfix_str("reading the data")
-    _, data, spec, effects = _load(args)
+    data, spec, effects = _load(args)
     bar.update(1)
     bar.set_postfix_str("fitting " + "+".join([spec.label, *effects]))
     fit = _fit(data, spec, effects)
@@ -244,10 +254,10 @@ def _resid(args) -> int:
 @_run
 def _diagnose(args) -> int:
     from agents.jsonable import to_json
-    from agents.twin.ladder_text import advice, unobservable_lines
+    from agents.twin.ladder_text import advice
     from agents.twin.workbench import diagnose
 
-    _, data, spec, effects = _load(args)
+    data, spec, effects = _load(args)
     result = diagnose(data, effects=effects, spec=spec, n_folds=args.folds, progress=_progress(args))
     units = _units(args)
     step = result.step(result.best, units) if result.best is not None else None
@@ -269,11 +279,7 @@ def _diagnose(args) -> int:
         print(f"{c['effect']:>18} {c['rmse']:14.5g} {c['delta_bic']:12.1f}  {c['evidence']}")
     print(f"best: {step['text']}" if step else "best: none (no effect improves the held-out error beyond its "
                                                "complexity cost)")
-    lines = unobservable_lines(result)
-    if lines:
-        print("not observable in this data:")
-        for line in lines:
-            print(f"  {line}")
+    _print_unobservable(result)
     for a, b in payload["indistinguishable"]:
         print(f"indistinguishable on this data: {a} and {b}")
     if payload["suggested_experiment"]:
@@ -284,11 +290,11 @@ def _diagnose(args) -> int:
 
 @_run
 def _report(args) -> int:
-    from agents.twin.ladder_text import advice, unobservable_lines
+    from agents.twin.ladder_text import advice
     from agents.twin.report import write_report
     from agents.twin.workbench import error_ladder, residuals
 
-    _, data, spec, effects = _load(args)
+    data, spec, effects = _load(args)
     rungs, diagnoses = error_ladder(data, effects=effects, spec=spec, max_steps=args.max_steps,
                                     progress=_progress(args), units=_units(args))
     fits = [diagnoses[0].current] + ([diagnoses[-1].current] if len(diagnoses) > 1 else [])
@@ -302,11 +308,7 @@ def _report(args) -> int:
         print(f"  {r['text']}; held-out RMSE {r['heldout_rmse']:.4g} {y}")
     noise = last.noise_rmse
     print(f"{last.noise_label}: " + ("n/a" if noise is None else f"{noise:.4g} {y}"))
-    lines = unobservable_lines(last)
-    if lines:
-        print("not observable in this data:")
-        for line in lines:
-            print(f"  {line}")
+    _print_unobservable(last)
     print(advice(last, last.current.spec.effect_names, args.data,
                  stopped_at_max=last.best is not None, units=_units(args)))
     print(f"report: {path}")

@@ -281,17 +281,22 @@ def _read_columns(path: Path, raw_names: dict, numeric: dict, with_source: bool,
 
 def _finite_numbers(series, allow_missing: bool) -> np.ndarray | None:
     """A chunk's column as floats, or None if it has a value that is not a finite number (nor allowed missing)."""
-    import pandas as pd
 
     if series.dtype.kind in "iuf":
         numbers = series.to_numpy(dtype=float)
         return numbers if np.isfinite(numbers).all() else None
     text = series.astype(str).str.strip()
-    numbers = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
-    blank = text.str.lower().isin(_MISSING).to_numpy()
+    numbers, blank = _parse_text(text)
     if (~np.isfinite(numbers) & ~(blank & allow_missing)).any():
         return None
     return np.where(blank, np.nan, numbers) if allow_missing else numbers
+
+
+def _parse_text(text) -> tuple[np.ndarray, np.ndarray]:
+    """``(numbers, blank)`` of a column's stripped texts: floats (NaN where not a number), and which are missing."""
+    import pandas as pd
+
+    return pd.to_numeric(text, errors="coerce").to_numpy(dtype=float), text.str.lower().isin(_MISSING).to_numpy()
 
 
 def _numbers(path: Path, column: str, raw_name, allow_missing: bool = False) -> np.ndarray:
@@ -301,8 +306,7 @@ def _numbers(path: Path, column: str, raw_name, allow_missing: bool = False) -> 
 
     text = pd.read_csv(path, usecols=[raw_name], dtype=str, keep_default_na=False,
                        skipinitialspace=True)[raw_name].astype(str).str.strip()
-    numbers = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
-    blank = text.str.lower().isin(_MISSING).to_numpy()
+    numbers, blank = _parse_text(text)
     bad = np.flatnonzero(~np.isfinite(numbers) & ~(blank & allow_missing))
     if bad.size:
         i = int(bad[0])

@@ -35,7 +35,7 @@ from agents.twin.fitting import (
 from agents.twin.greybox import FITTED_PARAMETERS, GreyData, GreyFit, ModelSpec, Problem, fit_problems, simulate_sets
 from agents.twin.greybox_twin import GreyBoxTwin
 from agents.twin.ladder_text import rung_text
-from agents.twin.noise_floor import NOISE_FLOOR_LABELS, noise_floor, noise_floor_method
+from agents.twin.noise_floor import NOISE_FLOOR_LABELS, noise_floor_estimate
 from agents.twin.uncertainty import parameter_intervals
 from gbo_envs.physics.effects import EFFECT_NAMES, EFFECTS, describe_effect
 
@@ -357,7 +357,7 @@ def _diagnose(data: GreyData, current: GreyFit, names: list, skipped: list, note
                       "evidence": f"not fitted: {notes[name]}", "train_rmse": float(current.rmse),
                       "extra_params": extra, "effect_rms": 0.0, "note": notes[name], "fitted": False})
     cands.sort(key=lambda c: c["delta_bic"])
-    noise = noise_floor(data)
+    noise, noise_method = noise_floor_estimate(data)
     # an improvement counts if it passes BIC, lowers the held-out error by min_gain, and comes from the
     # effect itself: switching the effect off must move the output by a fifth of what the effect explains
     # and the gain must be resolvable by the measurement: at least noise_gain times its noise floor
@@ -379,7 +379,7 @@ def _diagnose(data: GreyData, current: GreyFit, names: list, skipped: list, note
     if blind_pairs and suggestion is None:
         suggestion = REVEALING_EXPERIMENTS.get(blind_pairs[0][0], separating_experiment(*blind_pairs[0]))
     return Diagnosis(current, fits, cands, best, noise, compare(data, current).fit_percent_all, cur_rmse,
-                     validation, pairs + blind_pairs, suggestion, unobservable, noise_floor_method(data), data)
+                     validation, pairs + blind_pairs, suggestion, unobservable, noise_method, data)
 
 
 def effect_intervals(data: GreyData, fit: GreyFit, name: str, level: float = 0.95) -> dict[str, dict]:

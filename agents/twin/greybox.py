@@ -151,6 +151,10 @@ class GreyData:
         """Real samples in all."""
         return int(self.mask.sum())
 
+    def is_all(self, rows: np.ndarray) -> bool:
+        """Whether ``rows`` are all the records in order (so that the arrays serve as they are, uncopied)."""
+        return rows.size == self.n_records and np.array_equal(rows, np.arange(rows.size))
+
     def subset(self, rows: Sequence[int]) -> GreyData:
         """The records ``rows`` (experiment indices kept)."""
         rows = np.asarray(rows, dtype=int)
@@ -330,8 +334,7 @@ def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, 
             continue
         plants += [plant] * k
         chains += [blocks] * k
-        every = rows.size == data.n_records and np.array_equal(rows, np.arange(rows.size))
-        u.append(data.u if every else data.u[rows])  # read only: no copy of all the records
+        u.append(data.u if data.is_all(rows) else data.u[rows])  # read only: no copy of all the records
         y0.append(theta[g : g + k])
         bias.append(theta[g + k :])
         index.append(data.index[rows])
@@ -428,8 +431,7 @@ def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarra
     ndarray of shape (len(rows), n_steps)
         In the units of ``y``.
     """
-    every = rows.size == data.n_records and np.array_equal(rows, np.arange(rows.size))
-    y, mask = (data.y, data.mask) if every else (data.y[rows], data.mask[rows])  # no copy of all the records
+    y, mask = (data.y, data.mask) if data.is_all(rows) else (data.y[rows], data.mask[rows])  # no copies
     penalty = 1e6 * (1.0 + max(float(y.max()), -float(y.min())))
     with np.errstate(invalid="ignore", over="ignore"):
         err = np.subtract(y_sim, y, out=out)
@@ -539,7 +541,7 @@ def _difference_sets(p: Problem, theta: np.ndarray, columns: list[list[int]]) ->
     return sets, steps
 
 
-def jacobian(data: GreyData, p: Problem, theta: np.ndarray, simulate=None, y_at=None) -> np.ndarray:
+def jacobian(data: GreyData, p: Problem, theta: np.ndarray, simulate=None) -> np.ndarray:
     """Forward-difference Jacobian of the residual of ``p`` with respect to its free parameters, at ``theta``.
 
     One simulation per free global parameter and one for each group of per-record
@@ -556,8 +558,6 @@ def jacobian(data: GreyData, p: Problem, theta: np.ndarray, simulate=None, y_at=
         All parameters of ``p`` (globals, rest levels, biases).
     simulate : callable, optional
         ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``).
-    y_at : ndarray, optional
-        The simulated measurement at ``theta`` if already known (smooth models only).
 
     Returns
     -------
@@ -565,22 +565,25 @@ def jacobian(data: GreyData, p: Problem, theta: np.ndarray, simulate=None, y_at=
         Units of ``y`` per unit of each free parameter.
     """
     simulate, free, rough, columns = _difference_layout(data, p, simulate)
-    g, k, n = p.n_global, p.rows.size, data.u.shape[1]
     sets, steps = _difference_sets(p, theta, columns)
-    if rough or y_at is None:  # the smooth output at theta itself
-        sets.append((p.spec, theta, p.rows))
-    ys = simulate(sets, true_output=rough)
-    base = residual(data, p.rows, ys[-1] if len(ys) > len(columns) else y_at)
-    mat = np.zeros((base.size, theta.size))
-    for cols, h, y in zip(columns, steps, ys):
-        diff = (residual(data, p.rows, y) - base) / h
-        if len(cols) == 1:
-            mat[:, cols[0]] = diff.ravel()
-        else:
-            for j in cols:
-                r = j - (g if j < g + k else g + k)
-                mat[r * n : (r + 1) * n, j] = diff[r]
-    return mat[:, free]
+    ys = simulate([*sets, (p.spec, theta, p.rows)], true_output=rough)  # last the output at theta itself
+    base = residual(data, p.rows, ys[-1])
+    diffs = [(residual(data, p.rows, y) - base) / h for y, h in zip(ys, steps)]
+    n_shared = int(np.sum(free < p.n_global))
+    shared = np.array(diffs[:n_shared]).reshape(n_shared, *base.shape)
+    return _record_jacobian(p, free, columns, shared, diffs[n_shared:]).toarray()
+
+
+def _record_jacobian(p: Problem, free: np.ndarray, columns: list[list[int]], shared: np.ndarray,
+                     per_record: list[np.ndarray]) -> RecordJacobian:
+    """The :class:`RecordJacobian` of ``p`` from its difference quotients: ``shared`` (one per free global
+    parameter, the first groups of ``columns``) and ``per_record`` (one per later group of ``columns``)."""
+    g, k = p.n_global, p.rows.size
+    positions = [np.flatnonzero(free < g)]
+    for cols in columns[shared.shape[0]:]:
+        first = g if cols[0] < g + k else g + k
+        positions.append(np.column_stack([np.searchsorted(free, cols), np.asarray(cols) - first]))
+    return RecordJacobian(shared, per_record, positions)
 
 
 def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None, n_parallel: int = 1) -> None:
@@ -625,23 +628,18 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
             base = None
         else:
             base = best["residual"].reshape(k, n)  # residual(data, p.rows, best["y"]), already computed
-        positions = [np.flatnonzero(free < g)]
         i = 0
         for first_set in range(0, len(sets), sets_per_pass):  # each pass's outputs freed once used
             for y in simulate(sets[first_set : first_set + sets_per_pass], true_output=rough):
                 if base is None:
                     base = residual(data, p.rows, y)
                     continue
-                cols = columns[i]
                 out = shared[i] if i < n_shared else per_record[i - n_shared]
                 residual(data, p.rows, y, out=out)
                 out -= base
                 out /= steps[i]
-                if i >= n_shared:
-                    first = g if cols[0] < g + k else g + k
-                    positions.append(np.column_stack([np.searchsorted(free, cols), np.asarray(cols) - first]))
                 i += 1
-        jacobian = RecordJacobian(shared, per_record, positions)
+        jacobian = _record_jacobian(p, free, columns, shared, per_record)
         return jacobian.toarray() if dense else jacobian
 
     scale = np.where(p.scale[free] > 0, p.scale[free], 1.0)

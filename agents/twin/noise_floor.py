@@ -6,7 +6,7 @@ import numpy as np
 
 from agents.twin.greybox import GreyData
 
-__all__ = ["NOISE_FLOOR_LABELS", "noise_floor", "noise_floor_method", "quantization_step"]
+__all__ = ["NOISE_FLOOR_LABELS", "noise_floor", "noise_floor_estimate", "noise_floor_method", "quantization_step"]
 
 
 def quantization_step(y: np.ndarray, mask: np.ndarray | None = None) -> tuple[float | None, float]:
@@ -58,7 +58,7 @@ def noise_floor(data: GreyData) -> float | None:
     the response's own curvature adds to the second differences, and a model that
     reproduces a quantized or coloured measurement can fit below it.
     """
-    return _estimate(data)[0]
+    return noise_floor_estimate(data)[0]
 
 
 def noise_floor_method(data: GreyData) -> str:
@@ -66,10 +66,11 @@ def noise_floor_method(data: GreyData) -> str:
 
     :data:`NOISE_FLOOR_LABELS` maps it to the label printed next to the value.
     """
-    return _estimate(data)[1]
+    return noise_floor_estimate(data)[1]
 
 
-def _estimate(data: GreyData) -> tuple[float | None, str]:
+def noise_floor_estimate(data: GreyData) -> tuple[float | None, str]:
+    """``(noise_floor(data), noise_floor_method(data))`` from one estimate."""
     d2 = np.diff(data.y, n=2, axis=1)[data.mask[:, 2:]]
     if d2.size < 10:
         return None, "none"

@@ -177,10 +177,6 @@ def ladder_figure(rungs: Sequence[dict], noise_rmse: float | None = None, y_unit
     return fig
 
 
-def _img(fig, alt: str, caption: str = "") -> str:
-    return image_tag(fig, alt, caption)
-
-
 def _grid(items) -> str:
     """Figures side by side on a wide screen, one under the other on a phone."""
     return f"<div class='grid'>{''.join(items)}</div>"
@@ -221,8 +217,7 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
     y_unit, u_unit : str
         Units of the measured output and the input, for the axes ("" when unknown).
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = Path(out_dir)  # created by atomic_write
     first, last = diagnoses[0], diagnoses[-1]
     fits = [first.current] + ([last.current] if last is not first else [])
     noise = first.noise_rmse
@@ -238,12 +233,12 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
         _table(rungs, ["model", "added", "rmse", "heldout_rmse", "fit_percent", "params"], table_id="ladder"),
         "<ul>" + "".join(f"<li>{html.escape(r['text'])}</li>" for r in rungs if "text" in r) + "</ul>",
         f"<p><b>{html.escape(next_step)}</b></p>",
-        _img(ladder_figure(rungs, noise, y_unit=y_unit), "error ladder",
-             "RMSE of each model on the data it was fitted to (bars) and on held-out experiments (dots)."),
+        image_tag(ladder_figure(rungs, noise, y_unit=y_unit), "error ladder",
+                  "RMSE of each model on the data it was fitted to (bars) and on held-out experiments (dots)."),
         "<h2>Measured vs simulated</h2>",
         "<p>Measured output (solid, dark) above each model (dashed); below, the simulation error.</p>",
-        _grid(_img(compare_figure(data, fits, y_unit=y_unit, experiments=[k]),
-                   f"measured against simulated output, experiment {int(data.numbers[k])}")
+        _grid(image_tag(compare_figure(data, fits, y_unit=y_unit, experiments=[k]),
+                        f"measured against simulated output, experiment {int(data.numbers[k])}")
               for k in shown_experiments(data)),
         "<h2>Ranking of the effects (first diagnosis)</h2>",
         f"<p>Model: {html.escape(first.current.spec.label)}; best: <b>{html.escape(str(first.best))}</b>; "
@@ -258,8 +253,8 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
                      f"{html.escape(str(first.suggested_experiment))}.</p>")
     for analysis, fit in zip(analyses, fits):
         parts += [f"<h2>Residuals of {html.escape(fit.spec.label)}</h2>",
-                  _grid(_img(residual_figure(analysis, y_unit=y_unit, u_unit=u_unit, panels=[panel]),
-                             f"residuals of {fit.spec.label}: {panel}") for panel in RESIDUAL_PANELS),
+                  _grid(image_tag(residual_figure(analysis, y_unit=y_unit, u_unit=u_unit, panels=[panel]),
+                                  f"residuals of {fit.spec.label}: {panel}") for panel in RESIDUAL_PANELS),
                   "<p>Worst segments:</p>",
                   _table(analysis.worst, ["experiment", "t_start", "t_end", "rms", "mean"])]
     path = out / "index.html"
