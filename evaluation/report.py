@@ -132,11 +132,7 @@ def write_report(study: Study, out: Path | str, frame: pd.DataFrame | None = Non
               f"`{_rel(study.path)}`.", ""]
     if frame.empty:
         lines += ["No finished batches yet: run `gbo bench` first.", ""]
-        path = out / "report.md"
-        with atomic_write(path) as handle:
-            handle.write("\n".join(lines))
-        write_html(path, title=study.title)
-        return path
+        return _write_markdown(out / "report.md", lines, study.title)
 
     truth = analysis.study_ground_truth(study, out)
     thresholds = analysis.resolve_thresholds(study, truth)
@@ -173,10 +169,14 @@ def write_report(study: Study, out: Path | str, frame: pd.DataFrame | None = Non
     if study.text:
         language = "yaml" if study.path is not None and study.path.suffix in (".yaml", ".yml") else "toml"
         lines += ["## Spec", "", f"```{language}", study.text.rstrip(), "```", ""]
-    path = out / "report.md"
+    return _write_markdown(out / "report.md", lines, study.title)
+
+
+def _write_markdown(path: Path, lines: list[str], title: str) -> Path:
+    """Write ``lines`` to ``path`` atomically, and its HTML page beside it (:func:`write_html`)."""
     with atomic_write(path) as handle:
         handle.write("\n".join(lines))
-    write_html(path, title=study.title)
+    write_html(path, title=title)
     return path
 
 

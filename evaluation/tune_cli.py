@@ -22,7 +22,7 @@ import json
 import logging
 import sys
 
-from evaluation.cli_args import EnvId, env_id, int_at_least, json_object, positive_int
+from evaluation.cli_args import EXIT_BAD_INPUT, EnvId, env_id, int_at_least, json_object, positive_int
 
 __all__ = ["add_parser"]
 
@@ -137,22 +137,10 @@ def _tune(args: argparse.Namespace) -> int:
     return 0
 
 
-def _existing_store(db: str):
-    """The session store in ``db`` opened read-only.
-
-    A missing file, or a file that is not a gbo session database, raises
-    ``FileNotFoundError`` or ``ValueError`` naming it: the CLI's error boundary
-    turns either into one line and exit status 2.
-    """
-    from evaluation.sessions import SessionStore
-
-    return SessionStore(db, read_only=True)
-
-
 def _sessions(args: argparse.Namespace) -> int:
-    from evaluation.sessions import sessions_table
+    from evaluation.sessions import SessionStore, sessions_table
 
-    store = _existing_store(args.db)
+    store = SessionStore(args.db, read_only=True)  # a missing or foreign file: one line and exit status 2
     with store:
         sessions = store.sessions()
     if args.json:
@@ -166,15 +154,15 @@ def _sessions(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from evaluation.sessions import export_csv
+    from evaluation.sessions import SessionStore, export_csv
 
-    store = _existing_store(args.db)
+    store = SessionStore(args.db, read_only=True)
     with store:
         try:
             info, count = export_csv(store, args.csv, session_id=args.session, include_twin=args.include_twin,
                                      include_failed=args.include_failed)
         except LookupError as exc:  # no such session: bad input, as the boundary's exit status says
             print(f"gbo export: {exc.args[0] if exc.args else exc}", file=sys.stderr)
-            return 2
+            return EXIT_BAD_INPUT
     print(f"wrote {count} experiments of session {info.id} ({info.tuner} on {info.env_id}) to {args.csv}")
     return 0

@@ -62,10 +62,11 @@ def identify(path: str | Path) -> str:
             raise NotASessionDatabase(f"{path}: session database of schema version {version}; this version of "
                                       f"gbo reads versions up to {SCHEMA_VERSION} (upgrade gbo-envs)")
         return "current"
-    if application_id == 0 and _has_version_1_tables(path):
+    tables = {} if application_id else _tables(path)  # read once: for the version-1 check and the message
+    if not application_id and all(columns <= tables.get(name, set()) for name, columns in _V1_COLUMNS.items()):
         return "version 1"
     raise NotASessionDatabase(f"{path}: an SQLite database of another application "
-                              f"({_describe(path, application_id)}), not a gbo session database; the file was not "
+                              f"({_describe(application_id, tables)}), not a gbo session database; the file was not "
                               "changed (give another --db file)")
 
 
@@ -82,13 +83,8 @@ def _tables(path: Path) -> dict[str, set[str]]:
         conn.close()
 
 
-def _has_version_1_tables(path: Path) -> bool:
-    tables = _tables(path)
-    return all(columns <= tables.get(name, set()) for name, columns in _V1_COLUMNS.items())
-
-
-def _describe(path: Path, application_id: int) -> str:
+def _describe(application_id: int, tables: dict[str, set[str]]) -> str:
     if application_id:
         return f"application id {application_id:#010x}"
-    names = sorted(_tables(path))
+    names = sorted(tables)
     return f"tables: {', '.join(names[:5])}{', ...' if len(names) > 5 else ''}" if names else "no tables"

@@ -104,7 +104,7 @@ class EffectParameter:
         if np.isnan(value) or not (self.low <= value <= self.high):
             raise ValueError(f"{effect}: parameter {self.name!r} must be in {interval} ({self.unit}), "
                              f"got {value!r}")
-        if np.isinf(value) and value != self.zero:  # only an "off" value (saturation: limit = inf) may be infinite
+        if np.isinf(value):  # only the "off" value, returned above (saturation: limit = inf), may be infinite
             raise ValueError(f"{effect}: parameter {self.name!r} must be finite, in {interval} ({self.unit}), "
                              f"got {value!r}")
         return value
