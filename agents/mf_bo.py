@@ -286,13 +286,11 @@ class MultiFidelityBO(Tuner):
         decides the fidelity (only 1 if ``last``); a real experiment goes to the maximiser
         of log EI at ``s = 1`` (see "The acquisition" in the class doc).
         """
-        import torch
         from botorch.optim import optimize_acqf_mixed
 
         dim = self.space.dim
         model = self._fit_model()
-        bounds = torch.zeros(2, dim + 1, dtype=torch.float64)
-        bounds[1] = 1.0
+        bounds = _unit_box(dim + 1)
         if not last:
             candidate, _ = optimize_acqf_mixed(self._information_per_cost(model), bounds=bounds, q=1,
                                                num_restarts=NUM_RESTARTS, raw_samples=RAW_SAMPLES,
@@ -339,13 +337,11 @@ class MultiFidelityBO(Tuner):
 
     def _plant_point(self, model) -> np.ndarray:
         """The real experiment: the posterior mean's maximiser at ``s = 1``, or log EI's where that repeats."""
-        import torch
         from botorch.acquisition import FixedFeatureAcquisitionFunction, LogExpectedImprovement, PosteriorMean
         from botorch.optim import optimize_acqf
 
         dim = self.space.dim
-        bounds = torch.zeros(2, dim, dtype=torch.float64)
-        bounds[1] = 1.0
+        bounds = _unit_box(dim)
         mean = FixedFeatureAcquisitionFunction(PosteriorMean(model), d=dim + 1, columns=[dim], values=[1.0])
         candidate, _ = optimize_acqf(mean, bounds=bounds, q=1, num_restarts=NUM_RESTARTS, raw_samples=RAW_SAMPLES)
         point = np.clip(candidate.detach().numpy().reshape(dim), 0.0, 1.0)
@@ -357,3 +353,12 @@ class MultiFidelityBO(Tuner):
         candidate, _ = optimize_acqf(acquisition, bounds=bounds, q=1, num_restarts=NUM_RESTARTS,
                                      raw_samples=RAW_SAMPLES)
         return np.clip(candidate.detach().numpy().reshape(dim), 0.0, 1.0)
+
+
+def _unit_box(dim: int):
+    """The bounds ``[0, 1]^dim`` of ``optimize_acqf``, a float64 tensor of shape (2, dim)."""
+    import torch
+
+    bounds = torch.zeros(2, dim, dtype=torch.float64)
+    bounds[1] = 1.0
+    return bounds

@@ -273,13 +273,19 @@ class TuningResult:
         """
         from gbo_envs.plotting import cost_surface
 
-        path = np.array([[row[name] for name in self.gain_names] for row in self.plant_rows]).reshape(-1, len(
-            self.gain_names))
-        twin = np.array([[row[name] for name in self.gain_names] for row in self.rows if row["source"] == "twin"])
+        path = self._gains_of(self.plant_rows)
+        twin = self._gains_of(self._twin_rows())
         points = {f"twin evaluations ({len(twin)})": twin} if len(twin) else None
         ax = cost_surface(truth, ax=ax, points=points, path=path)
         ax.set_title(f"{self.tuner} on {self.env_id}, seed {self.seed}")
         return ax
+
+    def _twin_rows(self) -> list[dict]:
+        return [row for row in self.rows if row["source"] == "twin"]
+
+    def _gains_of(self, rows: list[dict]) -> np.ndarray:
+        """The gains of ``rows``, shape (len(rows), n_gains)."""
+        return np.array([[row[name] for name in self.gain_names] for row in rows]).reshape(-1, len(self.gain_names))
 
     def _plot_twin_rows(self, ax) -> None:
         """Twin evaluations as crosses just before the plant experiment they were made for.
@@ -287,7 +293,7 @@ class TuningResult:
         Coloured by their fidelity ``s`` (multi-fidelity BO's ``fidelity`` column; the
         plant's is 1) with a colour bar, or in one colour when the rows carry none.
         """
-        twins = [row for row in self.rows if row["source"] == "twin"]
+        twins = self._twin_rows()
         if not twins:
             return
         x = [row["experiment"] - 0.5 for row in twins]

@@ -284,10 +284,10 @@ def _run_costs(runs, use_true: bool) -> Iterable[tuple[str, np.ndarray]]:
         for (tuner, _), part in frame.groupby(["tuner", run_column], sort=False):
             yield str(tuner), part.sort_values("experiment")[column].to_numpy(dtype=float)
         return
+    key = "true_cost" if use_true else "cost"
     for result in runs:
         if not hasattr(result, "plant_rows"):
             raise TypeError(f"runs: expected TuningResult objects or a DataFrame, got {type(result).__name__}")
-        key = "true_cost" if use_true else "cost"
         yield result.tuner, np.array([row.get(key, row["cost"]) for row in result.plant_rows], dtype=float)
 
 

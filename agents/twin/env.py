@@ -95,6 +95,7 @@ class TwinEnv(ControllerTuningEnv):
             unstable_cost=base.unstable_cost,
             expectation_draws=draws,
         )
+        self._noise_free: TwinEnv | None = None  # made by noise_free() on first use
 
     def evaluate(self, gains: np.ndarray, experiment_index: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Metrics of shape (batch, 4) and cost of shape (batch,) of the twin for gains of shape (batch, n_gains).
@@ -116,7 +117,7 @@ class TwinEnv(ControllerTuningEnv):
         """
         if self.loop.output_noise_std == 0.0:
             return self
-        if getattr(self, "_noise_free", None) is None:
+        if self._noise_free is None:
             self._noise_free = TwinEnv(self.plant_env, self.twin, cost_noise_std=self.cost_noise_std,
                                        measurement_noise_std=0.0, draws=self.expectation_draws)
         return self._noise_free
