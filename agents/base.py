@@ -68,6 +68,8 @@ class Tuner(abc.ABC):
     """
 
     name: str = "tuner"
+    #: ``progress`` of the current :meth:`run`, for a tuner's inner loops (e.g. RL pre-training)
+    _run_progress: bool | None = False
 
     # -- the interface -----------------------------------------------------------------------------
     def setup(self, space: GainSpace, seed: int | None = None, env=None) -> None:

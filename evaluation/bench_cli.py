@@ -17,7 +17,7 @@ import importlib.util
 import sys
 from pathlib import Path
 
-from evaluation.cli_args import positive_int
+from evaluation.cli_args import EXIT_BAD_INPUT, positive_int
 
 __all__ = ["add_parser", "bench"]
 
@@ -61,14 +61,14 @@ def bench(args: argparse.Namespace) -> int:
         return 0
     if not args.study:
         print("gbo bench: give a STUDY (a shipped name or a spec path); see gbo bench --list", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     if args.address and args.backend != "dask":
         print("gbo bench: --address needs --backend dask", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     if importlib.util.find_spec("pyarrow") is None:
         print("gbo bench: the batch results are Parquet files and need pyarrow, a dependency of gbo-envs "
               "missing from this environment; install it with `pip install pyarrow`", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     study = load_study(args.study)  # StudySpecError (a ValueError) names file, key and allowed values
     if args.batches is not None:
         study = study.with_batches(args.batches)

@@ -19,13 +19,11 @@ import argparse
 import importlib
 import json
 import os
-import re
 import sqlite3
 import sys
 
 __all__ = [
     "EXIT_BAD_INPUT",
-    "NAME_PATTERN",
     "EnvId",
     "OneLineParser",
     "check_env_id",
@@ -39,8 +37,6 @@ __all__ = [
 
 #: Exit status of a command refused for bad input (argparse's own status for usage errors).
 EXIT_BAD_INPUT = 2
-#: Study and session names: letters, digits, ``_`` and ``-`` (no dots: ``..`` is no name).
-NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]+")
 
 
 #: File errors and what they mean, most specific first.

@@ -61,7 +61,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from evaluation.cli_args import NAME_PATTERN
+#: Study names: letters, digits, ``_`` and ``-`` (no dots: ``..`` is no name, and no path).
+NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]+")
 
 __all__ = [
     "Study",

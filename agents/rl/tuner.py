@@ -229,7 +229,7 @@ class RLTuner(Tuner):
         if plant_gradient_steps is not None:
             self._driver.gradient_steps = 1
         bar = progress_bar(self.pretrain_steps, f"rl pre-training on {env_id(model_env)}",
-                           self.progress or getattr(self, "_run_progress", False))
+                           self.progress or self._run_progress)
         observation, _ = mdp.reset(seed=self._sb3_seed)
         try:
             for step in range(self.pretrain_steps):
