@@ -221,7 +221,9 @@ def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], dia
     first, last = diagnoses[0], diagnoses[-1]
     fits = [first.current] + ([last.current] if last is not first else [])
     noise = first.noise_rmse
-    next_step = advice(last, last.current.spec.effect_names, source or "DATA.csv", stopped_at_max=last.best is not None)
+    units = {key: unit for key, unit in (("y", y_unit), ("u", u_unit)) if unit}
+    next_step = advice(last, last.current.spec.effect_names, source or "DATA.csv", stopped_at_max=last.best is not None,
+                       units=units)
     parts = [
         f"<h1>Twin workbench: {html.escape(source)}</h1>",
         f"<p>{data.n_records} experiments, {data.n_samples} samples, dt = {data.dt:g} s; "
