@@ -68,7 +68,7 @@ def test_noise_free_step_is_the_ground_truth_cell(env_id):
 
 @pytest.mark.parametrize("rig_id", ["gbo_envs/DCMotorRig-v0", "gbo_envs/LinearMotorRig-v0"])
 def test_rig_ground_truth_is_a_common_random_numbers_mean(rig_id):
-    env = gym.make(rig_id).unwrapped
+    env = gym.make(rig_id, expectation_draws=16).unwrapped  # the mechanism, at any K
     a, b = np.array([env.action_space.low, env.action_space.high])
     alone = env.evaluate(a[None, :])[1]
     together = env.evaluate(np.array([b, a, b]))[1]
@@ -78,14 +78,13 @@ def test_rig_ground_truth_is_a_common_random_numbers_mean(rig_id):
     infos = [env.step(a)[4] for _ in range(8)]
     assert all(i["true_cost"] == pytest.approx(alone[0], rel=1e-12) for i in infos)
     assert len({i["cost"] for i in infos}) == 8
-    other = gym.make(rig_id, expectation_seed=1).unwrapped.evaluate(a[None, :])[1]
+    other = gym.make(rig_id, expectation_draws=16, expectation_seed=1).unwrapped.evaluate(a[None, :])[1]
     assert other[0] != alone[0] and other[0] == pytest.approx(alone[0], rel=0.01)
 
 
-@pytest.mark.parametrize("rig_id", [pytest.param("gbo_envs/DCMotorRig-v0", marks=pytest.mark.slow),
-                                    "gbo_envs/LinearMotorRig-v0"])
+@pytest.mark.parametrize("rig_id", ["gbo_envs/DCMotorRig-v0", "gbo_envs/LinearMotorRig-v0"])
 def test_rig_near_optimal_set_is_one_connected_region(rig_id):
-    truth = ground_truth(rig_id, resolution=30)
+    truth = ground_truth(rig_id)  # the shipped 100 x 100 table, equal to the live one (test_ground_truth_tables)
     inside = truth.costs <= 1.1 * truth.cost
     labels, regions = ndimage.label(inside)
     largest = np.bincount(labels.ravel())[1:].max()
@@ -95,7 +94,7 @@ def test_rig_near_optimal_set_is_one_connected_region(rig_id):
 @pytest.mark.parametrize(("rig_id", "model_id"), [("gbo_envs/DCMotorRig-v0", "gbo_envs/DCMotor-v0"),
                                                   ("gbo_envs/LinearMotorRig-v0", "gbo_envs/LinearMotor-v0")])
 def test_rig_cost_surface_differs_from_the_identified_model(rig_id, model_id):
-    rig = gym.make(rig_id).unwrapped
+    rig = gym.make(rig_id, expectation_draws=16).unwrapped  # magnitudes far above the Monte Carlo error
     model = gym.make(model_id).unwrapped
     grid = gain_grid(rig, 15)
     rig_metrics, rig_cost = rig.evaluate(grid)
