@@ -98,18 +98,18 @@ class DCMotorRigEnv(DCMotorEnv):
 
     ``J(theta)`` is the expected cost over the measurement noise. ``evaluate``,
     ``gbo_envs.ground_truth`` and ``gym.make(..., noise=False).step`` estimate
-    it as the mean over ``K = 768`` fixed draws of the encoder noise (common
+    it as the mean over ``K = 56`` fixed draws of the encoder noise (common
     random numbers: every gain sees the same draws). At the optimum one
     experiment's cost has a heavy-tailed spread, as the paper's rig has (it
     measured a standard deviation of 3.8 % of ``J*``): about 1.6 % of the
     experiments leave the settling band once more and settle at 2.9-3.2 s
     instead of 1.58 s. Over 4096 draws its standard deviation is ``s =
-    4.7-4.8 %`` of ``J*`` (bootstrap 95 % interval 4.2-5.1 %; fewer draws see
+    4.8 %`` of ``J*`` (bootstrap 95 % interval 4.3-5.3 %; fewer draws see
     too few late settlers and underestimate it, 512 gave 3.5 %). The standard
-    error of ``J*`` is ``s / sqrt(K)``: 0.64 % with ``K = 56``. A standard
-    error of 0.2 % takes ``K`` of 550-660, 0.17 % ``K = 768``: 14 times the
-    simulation, about 25 min of CPU for the 100 x 100 grid. The optimum does
-    not move between two independent sets of draws
+    error of ``J*`` is ``s / sqrt(K)``: 0.64 % with ``K = 56`` (0.58-0.71 %).
+    A standard error of 0.2 % takes ``K`` of 570-700, and 0.17 % ``K = 768``:
+    14 times the simulation, about 25 min of CPU for the 100 x 100 grid. The
+    optimum does not move between two independent sets of draws
     (``benchmarks/rig_surfaces.py``). The 100 x 100 grid is precomputed and
     shipped (``benchmarks/ground_truth_tables.py``, see
     :func:`gbo_envs.ground_truth`).
