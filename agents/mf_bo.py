@@ -16,7 +16,7 @@ import numpy as np
 
 from agents.base import Tuner
 from agents.bo import BayesianOptimization
-from agents.guided_bo import TWIN_CHOICES, GuidedBO
+from agents.guided_bo import RMSE_FLOOR, TWIN_CHOICES, GuidedBO
 from agents.mf_correction import TwinCorrection
 from agents.parameters import HasMethods, Interval, Options, validate_params
 from agents.peers.base import latin_hypercube, require
@@ -32,6 +32,15 @@ NUM_MV_SAMPLES, NUM_FANTASIES, CANDIDATES = 8, 8, 256
 #: The learned fidelity ``s_twin`` never exceeds this: a twin is never the plant.
 MAX_FIDELITY = 0.95
 
+#: Nelder-Mead's search for a twin's robust optimum: at most this many steps, to this tolerance of the unit box.
+OPTIMUM_STEPS, OPTIMUM_TOLERANCE = 200, 1e-3
+
+#: Radius of the robust optimum's neighbourhood, a fraction of each gain's range (guided BO's grid spacing).
+ROBUST_RADIUS = 0.01
+
+#: Noise std of ``log J`` on a twin row (a deterministic simulation), and the least on a plant row.
+TWIN_LOG_NOISE = 1e-3
+
 
 class MultiFidelityBO(Tuner):
     r"""Multi-fidelity BO: the twin at fidelity ``s_twin``, the plant at ``s = 1``, in one BoTorch GP.
@@ -44,20 +53,45 @@ class MultiFidelityBO(Tuner):
 
     **The correction and the fidelity** (:class:`~agents.mf_correction.TwinCorrection`).
     Before every proposal the current twin is simulated at the gains of every plant
-    experiment, and the line ``log J = a + b log J_twin`` is fitted through the pairs
-    (twin cost, measured cost). ``s_twin`` is the line's leave-one-out explained
-    variance (``Q^2``) on the measured log costs, in ``[0, 0.95]``: 0 until
-    ``min_records`` (4) plant records exist, then the share of the plant's cost
-    variation the corrected twin predicts out of sample. It rises as a good twin's
-    predictions are confirmed, falls when a new record contradicts the twin, and
-    jumps when the twin is refitted (the twin rows are re-simulated on the new twin).
-    ``result.info["fidelity_trace"]`` records, per real experiment, ``s_twin``, ``a``,
-    ``b`` and whether the twin was used.
+    experiment. ``s_twin`` (in ``[0, 0.95]``) is estimated from the twin's error on the
+    plant records, in two stages:
 
-    **The twin design.** When the twin is first used (``s_twin >= min_fidelity``), it
-    is evaluated at ``twin_design`` Latin hypercube points of the gain box (twin rows
-    with ``design=True``): the twin is cheap, and the GP then knows its shape over
-    the whole box, not only where the acquisition sent it (measured in benchmarks/README.md, "mf_bo.py").
+    * from the first record, by the twin's *response* error: with ``e_RMSE`` the twin's
+      normalised simulation error on its records (eq. (RMSE), guided BO's ``rmse_``) and
+      ``s_n`` their normalised noise floor (at least ``10^-3``),
+      ``s_twin = min(0.95, s_n^2 / e_RMSE^2)``, the share of the response error the
+      measurement noise explains (``e_RMSE^2 ~ s_n^2 + e_model^2``): a twin as right as
+      the noise allows gets 0.95, one twice the noise floor off 0.25. It is 0 if the
+      twin's cost at a record's gains is more than ``3 sigma_eps`` off the measured cost
+      (a twin whose response fits but whose cost does not, such as a pure-noise cost,
+      is not used). The correction is the identity ``a = 0, b = 1`` at this stage;
+    * from ``min_records`` (4) records on, by the twin's *cost* error: the line
+      ``log J = a + b log J_twin`` is fitted through the pairs (twin cost, measured
+      cost), and ``s_twin`` is its leave-one-out explained variance on the measured
+      log costs, ``Q^2 = 1 - sum_i (log J_i - a_{-i} - b_{-i} log J_twin,i)^2 /
+      sum_i (log J_i - mean log J)^2`` (``a_{-i}, b_{-i}``: the line fitted without
+      record ``i``), 0 unless the twin's and the plant's log costs are significantly
+      positively correlated (one-sided Pearson test, ``p < 0.01``).
+
+    Over a run: ``s_twin`` is 0 until a twin is fitted (the first record), jumps to the
+    response estimate (DCMotor-v0: 0.95 from the second or third experiment), may step
+    at the fourth record when the cost pairs take over (a chance near-tie of four
+    costs can give ``Q^2 = 0`` for an experiment or two), then rises as a good twin's
+    predictions are confirmed, falls when a new record contradicts the twin, and jumps
+    when the twin is refitted (the twin rows are re-simulated on the new twin). A
+    pure-noise twin stays at 0 throughout. ``result.info["fidelity_trace"]`` records,
+    per real experiment, ``s_twin``, what it was estimated from (``estimate``:
+    ``"none"``, ``"response"`` or ``"costs"``), ``a``, ``b`` and whether the twin was used.
+
+    **The twin design and the twin's optimum.** When the twin is first used
+    (``s_twin >= min_fidelity``), it is evaluated at ``twin_design`` Latin hypercube
+    points of the gain box (twin rows with ``design=True``): the twin is cheap, and the
+    GP then knows its shape over the whole box. Each new twin's robust optimum
+    (:meth:`_twin_optimum`: Nelder-Mead on the worst twin cost within 1 % of each gain's
+    range) and its neighbours ``+- 1 %`` along each gain are twin rows too
+    (``twin_optimum=True``): the cost's optimum can sit in a thin valley or on the edge
+    of a cliff (DCMotor-v0's cost jumps from 1.0 to 1.4 times the optimum across a line
+    through it), which design points 0.1 apart do not resolve.
 
     **The model** (while ``s_twin >= min_fidelity``). BoTorch's
     ``SingleTaskMultiFidelityGP`` with the fidelity as the last input column
@@ -65,8 +99,13 @@ class MultiFidelityBO(Tuner):
     ``[0, 1]``, trained on the plant experiments at ``s = 1`` and every twin evaluation
     of this run at ``s = s_twin``, outcomes ``-log J`` (twin rows: the corrected
     ``-(a + b log J_twin)``) standardised. The log makes the cost's orders of magnitude
-    (an unstable loop's cost is large) comparable. Hyperparameters by
-    ``fit_gpytorch_mll``, warm-started from the last fit.
+    (an unstable loop's cost is large) comparable. The noise is fixed, not learned: a
+    plant row's ``log J`` has the std ``sigma_eps / J`` (the cost noise, to first
+    order), a twin row (a deterministic simulation) ``10^-3``. (With a learned noise the
+    GP took the twin's cliff for noise, std 0.16 of the standardised outcome, and its
+    mean at ``s = 1`` stayed 0.2 below the twin's optimum in ``log J``, so the real
+    experiments went elsewhere.) Hyperparameters by ``fit_gpytorch_mll``, warm-started
+    from the last fit.
 
     **The acquisition.** ``qMultiFidelityMaxValueEntropy`` (information about the
     plant's optimum, with the fantasies projected to ``s = 1``) divided by the cost of
@@ -106,7 +145,8 @@ class MultiFidelityBO(Tuner):
     min_fidelity : float, default 0.5
         ``s_twin`` below which the twin is not used, in ``[0, 1]``.
     min_records : int, default 4
-        Plant records before ``s_twin`` is estimated (``>= 3``).
+        Plant records before ``s_twin`` is estimated from the cost pairs (``>= 3``); before,
+        from the twin's response error.
 
     Attributes
     ----------
@@ -169,6 +209,7 @@ class MultiFidelityBO(Tuner):
         self._plant_y: list[float] = []
         self._twin_X: list[np.ndarray] = []  # unit box, the twin evaluations of this run
         self._twin_cache: tuple[object, dict[tuple, float]] = (None, {})  # (twin env, unit gains -> twin cost)
+        self._optimum_of = None  # the twin env whose optimum is a twin row
         self._gp_state = None
         self.fidelity_ = 0.0
         self.correction_: TwinCorrection | None = None
@@ -183,6 +224,7 @@ class MultiFidelityBO(Tuner):
         used = twin_env is not None and self.fidelity_ >= self.min_fidelity and self.max_twin_evaluations > 0
         self.fidelity_trace_.append({
             "experiment": len(self._plant_y) + 1, "fidelity": self.fidelity_, "twin_used": used,
+            "estimate": "none" if self.correction_ is None else self.correction_.estimate_,
             "intercept": None if self.correction_ is None else self.correction_.intercept_,
             "slope": None if self.correction_ is None else self.correction_.slope_})
         if not used:
@@ -191,6 +233,10 @@ class MultiFidelityBO(Tuner):
             self._designed = True
             for unit in self._design:
                 self._evaluate_twin(twin_env, unit, design=True)
+        if self._optimum_of is not twin_env:
+            self._optimum_of = twin_env
+            for unit in _neighbourhood(self._twin_optimum(twin_env)):
+                self._evaluate_twin(twin_env, unit, optimum=True)
         return self._ask_multi_fidelity(twin_env)
 
     def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:
@@ -232,10 +278,36 @@ class MultiFidelityBO(Tuner):
             self.fidelity_, self.correction_ = 0.0, None
             return None
         twin = self._twin_costs(twin_env, np.asarray(self._plant_X))
+        keeper = self._keeper
         self.correction_ = TwinCorrection(min_records=self.min_records, max_fidelity=MAX_FIDELITY).fit(
-            twin, self._plant_y)
+            twin, self._plant_y, response_rmse=float(keeper.twin_.rmse_),
+            noise_floor=max(keeper.noise_floor_, RMSE_FLOOR), cost_noise=keeper.sigma_eps)
         self.fidelity_ = self.correction_.fidelity_
         return twin_env
+
+    def _twin_optimum(self, twin_env) -> np.ndarray:
+        """The twin's robust minimiser (unit box): the gains whose worst twin cost within ``ROBUST_RADIUS`` is lowest.
+
+        Nelder-Mead on ``max_{v in N(u)} log J_twin(v)`` (``N(u)``: ``u`` and ``u +- r e_i``,
+        :func:`_neighbourhood`), from the lowest twin row or experiment. A simulation costs
+        well under a millisecond, a GP fit tens, so each new twin's optimum is searched
+        directly; it enters the GP with its neighbourhood as twin rows, where a thin
+        optimal valley between the design points would otherwise stay unseen. Robust,
+        because an optimum can sit on a cliff of the cost (DCMotor-v0's jumps from ratio 1.0
+        to 1.4 across a line through its optimum): the twin's plain minimiser lies on the
+        edge, and the plant's edge, a little off the twin's, puts it on the high side.
+        """
+        from scipy.optimize import minimize
+
+        known = np.vstack([np.asarray(self._twin_X).reshape(-1, self.space.dim), np.asarray(self._plant_X)])
+        start = known[int(np.argmin(self._twin_costs(twin_env, known)))]
+
+        def worst_log_cost(unit: np.ndarray) -> float:
+            return float(np.log(np.max(self._twin_costs(twin_env, _neighbourhood(unit)))))
+
+        found = minimize(worst_log_cost, start, method="Nelder-Mead", bounds=[(0.0, 1.0)] * self.space.dim,
+                         options={"maxfev": OPTIMUM_STEPS, "xatol": OPTIMUM_TOLERANCE, "fatol": 1e-6})
+        return np.clip(found.x, 0.0, 1.0)
 
     # -- multi-fidelity proposals --------------------------------------------------------------------
     def _ask_multi_fidelity(self, twin_env) -> np.ndarray:
@@ -256,28 +328,36 @@ class MultiFidelityBO(Tuner):
             torch.set_num_threads(threads)
         raise AssertionError("unreachable: the last proposal is at the plant's fidelity")
 
-    def _evaluate_twin(self, twin_env, unit: np.ndarray, design: bool = False) -> None:
+    def _evaluate_twin(self, twin_env, unit: np.ndarray, design: bool = False, optimum: bool = False) -> None:
         gains = self.space.from_unit(unit)
         cost = float(self._twin_costs(twin_env, unit[None, :])[0])
         self._twin_X.append(unit)
         self.twin_evaluations_ += 1
         corrected = float(np.exp(self.correction_.predict_log([cost])[0]))
         self.log_twin(gains, cost, None, fidelity=self.fidelity_, corrected_cost=corrected,
-                      twin_iteration=self.twin_evaluations_, design=design)
+                      twin_iteration=self.twin_evaluations_, design=design, twin_optimum=optimum)
 
     def _training_data(self):
-        """Inputs ``[unit gains, s]`` and outcomes ``-log J`` of the plant and the (corrected) twin rows."""
+        """Inputs ``[unit gains, s]``, outcomes ``-log J`` and their noise variances, plant and (corrected) twin rows.
+
+        A measured cost's noise ``sigma_eps`` is ``sigma_eps / J`` on ``log J`` (to first
+        order); a twin row is a deterministic simulation, noise-free but for the jitter
+        ``TWIN_LOG_NOISE``.
+        """
         import torch
 
         twin_env = self._twin_cache[0]
+        costs = np.maximum(self._plant_y, 1e-300)
         X = [np.column_stack([np.asarray(self._plant_X), np.ones(len(self._plant_X))])]
-        y = [-np.log(np.maximum(self._plant_y, 1e-300))]
+        y = [-np.log(costs)]
+        variance = [np.maximum(self._keeper.sigma_eps / costs, TWIN_LOG_NOISE) ** 2]
         if self._twin_X:
             unit = np.asarray(self._twin_X)
             X.append(np.column_stack([unit, np.full(len(unit), self.fidelity_)]))
             y.append(-self.correction_.predict_log(self._twin_costs(twin_env, unit)))
-        return (torch.as_tensor(np.vstack(X), dtype=torch.float64),
-                torch.as_tensor(np.concatenate(y), dtype=torch.float64).unsqueeze(-1))
+            variance.append(np.full(len(unit), TWIN_LOG_NOISE**2))
+        return tuple(torch.as_tensor(a, dtype=torch.float64).reshape(len(a), -1)
+                     for a in (np.vstack(X), np.concatenate(y), np.concatenate(variance)))
 
     def _propose(self, last: bool) -> tuple[np.ndarray, float]:
         """The next evaluation: unit-box gains and fidelity (``s_twin``, or 1 for the real experiment).
@@ -307,8 +387,8 @@ class MultiFidelityBO(Tuner):
         from botorch.models.transforms.outcome import Standardize
         from gpytorch.mlls import ExactMarginalLogLikelihood
 
-        train_x, train_y = self._training_data()
-        model = SingleTaskMultiFidelityGP(train_x, train_y, data_fidelities=[self.space.dim],
+        train_x, train_y, train_yvar = self._training_data()
+        model = SingleTaskMultiFidelityGP(train_x, train_y, train_Yvar=train_yvar, data_fidelities=[self.space.dim],
                                           outcome_transform=Standardize(m=1))
         if self._gp_state is not None:
             model.load_state_dict(self._gp_state, strict=False)
@@ -353,6 +433,13 @@ class MultiFidelityBO(Tuner):
         candidate, _ = optimize_acqf(acquisition, bounds=bounds, q=1, num_restarts=NUM_RESTARTS,
                                      raw_samples=RAW_SAMPLES)
         return np.clip(candidate.detach().numpy().reshape(dim), 0.0, 1.0)
+
+
+def _neighbourhood(unit: np.ndarray) -> np.ndarray:
+    """``u`` and ``u +- ROBUST_RADIUS e_i`` in the unit box, shape (2 n_gains + 1, n_gains)."""
+    unit = np.clip(np.asarray(unit, dtype=float), 0.0, 1.0)
+    steps = ROBUST_RADIUS * np.vstack([np.zeros(unit.size), np.eye(unit.size), -np.eye(unit.size)])
+    return np.clip(unit + steps, 0.0, 1.0)
 
 
 def _unit_box(dim: int):

@@ -49,6 +49,37 @@ def test_a_chance_fit_on_few_records_gets_no_fidelity():
     assert 0.01 < fitted.p_value_ < 0.05 and fitted.fidelity_ == 0.0
 
 
+def test_before_min_records_the_fidelity_is_the_noise_share_of_the_response_error():
+    twin, plant = [0.66, 0.51], [0.67, 0.49]  # costs within 3 sigma_eps = 0.027
+    exact = TwinCorrection().fit(twin, plant, response_rmse=2e-7, noise_floor=1e-3, cost_noise=0.009)
+    assert exact.fidelity_ == 0.95 and exact.estimate_ == "response"
+    assert (exact.intercept_, exact.slope_) == (0.0, 1.0)  # the identity until the line is fitted
+    twice = TwinCorrection().fit(twin, plant, response_rmse=2e-3, noise_floor=1e-3, cost_noise=0.009)
+    assert twice.fidelity_ == pytest.approx(0.25)  # s_n^2 / e_RMSE^2: the noise explains a quarter
+    without = TwinCorrection().fit(twin, plant)
+    assert without.fidelity_ == 0.0 and without.estimate_ == "none"
+
+
+def test_a_twin_with_the_right_response_but_a_wrong_cost_gets_no_fidelity():
+    # the response within the noise, but the second record's cost 0.05 off (sigma_eps 0.009): a noise twin's cost
+    fitted = TwinCorrection().fit([0.66, 0.54], [0.67, 0.49], response_rmse=2e-7, noise_floor=1e-3, cost_noise=0.009)
+    assert fitted.fidelity_ == 0.0 and fitted.estimate_ == "response"
+
+
+def test_from_min_records_the_cost_pairs_decide():
+    twin = np.exp([0.0, 1.0, 2.0, 3.0])
+    plant = np.exp([0.0, 1.5, 1.2, 3.0])  # no significant correlation
+    fitted = TwinCorrection().fit(twin, plant, response_rmse=0.0, noise_floor=1e-3, cost_noise=10.0)
+    assert fitted.estimate_ == "costs" and fitted.fidelity_ == 0.0
+
+
+def test_response_fidelity_rejects_bad_noise_values():
+    with pytest.raises(ValueError, match="noise_floor"):
+        TwinCorrection().fit([1.0], [1.0], response_rmse=1e-3, noise_floor=0.0, cost_noise=0.01)
+    with pytest.raises(ValueError, match="response_rmse"):
+        TwinCorrection().fit([1.0], [1.0], response_rmse=np.inf, noise_floor=1e-3, cost_noise=0.01)
+
+
 def test_correction_needs_min_records_and_positive_costs():
     fitted = TwinCorrection(min_records=4).fit([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
     assert fitted.fidelity_ == 0.0 and fitted.slope_ == 1.0 and fitted.intercept_ == 0.0
@@ -56,6 +87,33 @@ def test_correction_needs_min_records_and_positive_costs():
         TwinCorrection().fit([1.0, -2.0, 3.0, 4.0], [1.0, 2.0, 3.0, 4.0])
     with pytest.raises(ValueError, match="min_records"):
         TwinCorrection(min_records=2).fit([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
+
+
+class _CliffTwinEnv:
+    """A twin whose cost is lowest at (0.5, 0.5) in the unit box, on the edge of a cliff at Kp = 0.5."""
+
+    unstable_cost = 100.0
+
+    def __init__(self, space):
+        self.space = space
+
+    def evaluate(self, gains):
+        unit = self.space.to_unit(np.asarray(gains))
+        cost = np.where(unit[:, 0] >= 0.5, 1.0 + np.sum((unit - 0.5) ** 2, axis=1), 2.0)
+        return np.zeros((len(unit), 4)), cost
+
+
+def test_the_twin_optimum_row_keeps_off_a_cliff_of_the_cost():
+    from agents.mf_bo import ROBUST_RADIUS
+
+    env = gym.make("gbo_envs/DCMotor-v0")
+    tuner = agents.make("mf-bo")
+    tuner.setup(agents.GainSpace.from_env(env), seed=0, env=env)
+    tuner._plant_X = [np.array([0.8, 0.8])]
+    optimum = tuner._twin_optimum(_CliffTwinEnv(tuner.space))
+    # the plain minimiser is the edge (0.5, 0.5); a plant's edge a little off the twin's would put it on the cliff
+    assert optimum[0] >= 0.5 + 0.9 * ROBUST_RADIUS and optimum[0] <= 0.5 + 2 * ROBUST_RADIUS
+    assert optimum[1] == pytest.approx(0.5, abs=ROBUST_RADIUS)
 
 
 def test_constructor_rejects_bad_arguments():
@@ -92,11 +150,15 @@ def test_twin_rows_carry_their_fidelity_and_only_real_experiments_count():
     trace = result.info["fidelity_trace"]
     assert [step["experiment"] for step in trace] == list(range(2, budget + 1))
     assert trace[-1]["fidelity"] > 0.5 and trace[-1]["twin_used"]  # DCMotor-v0's twin is faithful
-    assert all(step["fidelity"] == 0.0 for step in trace[:3])  # not estimated before 4 records
-    # the design once, when the twin is first used; then at most 2 twin evaluations per real experiment
-    design = twin[twin["design"].astype(bool)]
-    assert len(design) == 32 and design["experiment"].nunique() == 1
-    assert twin[~twin["design"].astype(bool)].groupby("experiment").size().max() <= 2
+    # the response error judges the twin from the first record, the cost pairs from the fourth
+    assert [step["estimate"] for step in trace] == ["response"] * 3 + ["costs"] * (budget - 4)
+    assert any(step["twin_used"] for step in trace[:3])
+    # the design once, when the twin is first used; each twin's optimum with its 4 neighbours;
+    # then at most 2 twin evaluations per real experiment
+    design, optimum = twin["design"].astype(bool), twin["twin_optimum"].astype(bool)
+    assert design.sum() == 32 and twin[design]["experiment"].nunique() == 1
+    assert optimum.sum() > 0 and optimum.sum() % 5 == 0
+    assert twin[~design & ~optimum].groupby("experiment").size().max() <= 2
 
 
 @pytest.mark.slow
