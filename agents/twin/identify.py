@@ -298,6 +298,8 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
     """
     orders = check_orders(n_poles, n_zeros, n_integrators)
     data, batches, signals = prepare_signals(records, orders, n_samples, hold, oversample, offset)
+    batch_index = np.concatenate([b.index for b in batches])  # record of each row of the signals, batch after batch
+    del batches  # stacked copies of u and y: the signals hold what SRIVC needs
     dt = min(rec.dt for rec in data)
     horizon = min(rec.t[-1] - rec.t[0] for rec in data)
 
@@ -349,7 +351,7 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
         theta, tau_best = _polish(orders, theta, tau_best, signals, score, bounds, offset)
     fit_rmse, fit_rmse_abs, levels = simulation_error(orders, theta, tau_best, signals, offset)
     rest = np.empty((len(data), 2))
-    rest[np.concatenate([b.index for b in batches])] = levels
+    rest[batch_index] = levels
     order = np.argsort(list(cache))
     return LinearIdentification(
         orders=orders, theta=theta, delay=float(tau_best), rmse=float(fit_rmse), rmse_abs=float(fit_rmse_abs),
