@@ -467,8 +467,8 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     it is dense and the trust-region steps exact (``tr_solver="exact"``); above, it
     is compressed record by record (:class:`~agents.twin.jacobian.RecordQR`) and the
     same iteration takes its steps in the 2-D subspace of ``tr_solver="lsmr"``
-    (:func:`agents.twin.trust_region.trf`), so memory and time grow linearly with the records. ``benchmarks/bench_greybox_solver.py``
-    compares it with the hand-written Levenberg-Marquardt iteration it replaced.
+    (:func:`agents.twin.trust_region.trf`), so memory and time grow linearly with the records.
+    ``benchmarks/bench_greybox_solver.py`` compares it with the hand-written Levenberg-Marquardt iteration it replaced.
 
     Parameters
     ----------
