@@ -116,7 +116,7 @@ class GreyData:
 
     @classmethod
     def from_records(cls, records, experiment_index: Sequence[int] | None = None) -> GreyData:
-        """Validate records (:func:`agents.twin.records.as_records`) and stack them.
+        """Validate records (:func:`agents.twin.records.as_records`) and stack them into read-only arrays.
 
         ``experiment_index`` defaults to the records' :attr:`~gbo_envs.Experiment.index`
         as :func:`~agents.twin.records.as_records` sets it.
@@ -142,6 +142,8 @@ class GreyData:
                 arrays[name][k, :m] = getattr(rec, name)
                 arrays[name][k, m:] = getattr(rec, name)[-1]
             arrays["t"][k] = rec.t[0] + np.arange(n) * rec.dt
+        for array in (*arrays.values(), mask):  # read-only: records of their rows share them, uncopied
+            array.setflags(write=False)
         return cls(**arrays, mask=mask, dt=float(dts[0]), index=index, first_index=first)
 
     @property
