@@ -75,6 +75,7 @@ def residuals(data: GreyData, fit: GreyFit, max_lag: int | None = None, n_bins: 
     ccf = np.array([np.sum(ec[:, lag:] * uc[:, : uc.shape[1] - lag]) if lag >= 0 else
                     np.sum(ec[:, : ec.shape[1] + lag] * uc[:, -lag:]) for lag in lags])
     ccf = ccf / max(np.sqrt(ee * uu), 1e-300)
+    del ec, uc  # memory for the bins below
     band = Z99 / np.sqrt(n_total)
     white = bool(np.mean(np.abs(acf[1:]) > band) <= 0.01)
     independent = bool(np.mean(np.abs(ccf) > band) <= 0.01)
@@ -83,13 +84,19 @@ def residuals(data: GreyData, fit: GreyFit, max_lag: int | None = None, n_bins: 
     velocity = np.gradient(speed, data.dt, axis=1) if fit.spec.output != "position" else speed
     if fit.spec.output != "position":  # a speed loop: the sign of the speed itself
         velocity = speed
-    t_rel = data.t - data.t[:, :1]
+    every = bool(m.all())
+
+    def real(x: np.ndarray) -> np.ndarray:
+        """The real samples of ``x``, record after record (a view of ``x`` when there is no padding)."""
+        return x.reshape(-1) if every else x[m]
+
+    e_real = real(e)
     bins = {
-        "time": _binned(t_rel[m], e[m], n_bins),
-        "experiment": _grouped(np.broadcast_to(data.numbers[:, None], e.shape)[m], e[m]),
-        "input": _binned(data.u[m], e[m], n_bins, quantiles=True),
-        "output": _binned(data.y[m], e[m], n_bins, quantiles=True),
-        "velocity_sign": _grouped(np.sign(np.round(velocity[m], 12)), e[m]),
+        "time": _binned(real(data.t - data.t[:, :1]), e_real, n_bins),
+        "experiment": _grouped(real(np.broadcast_to(data.numbers[:, None], e.shape)), e_real),
+        "input": _binned(real(data.u), e_real, n_bins, quantiles=True),
+        "output": _binned(real(data.y), e_real, n_bins, quantiles=True),
+        "velocity_sign": _grouped(np.sign(np.round(real(velocity), 12)), e_real),
     }
     return ResidualAnalysis(np.arange(lag_max + 1), acf, lags, ccf, float(band), white, independent, bins,
                             _worst_segments(data, e, n_worst))
