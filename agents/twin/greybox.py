@@ -704,6 +704,7 @@ def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, sim
         return np.concatenate([theta[:g], theta[g : g + k][records], theta[g + k :][records]])
 
     def cost(x: np.ndarray) -> float:
+        trial.update(key=None, y=None, residual=None)  # a rejected trial point's arrays: freed first
         y = simulate([(p.spec, full(x), p.rows)])[0]
         res = residual(data, p.rows, y)
         trial.update(key=x.tobytes(), y=y, residual=res)
@@ -736,6 +737,7 @@ def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, sim
     lower, upper = p.lower[free], p.upper[free]
     x0 = make_strictly_feasible(np.clip(start[free], lower, upper), lower, upper)
     if not np.array_equal(x0, start[free]):  # the start moved inside the bounds: its residual is not p's
+        p.y_sim = p.residual = None  # p's arrays freed meanwhile (simulated again if nothing beats them)
         cost(x0)
         at.update(trial)
     at["key"] = x0.tobytes()
@@ -748,6 +750,9 @@ def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, sim
     if new_cost < p.cost:
         p.theta = full(x)
         p.y_sim, p.residual, p.cost = at["y"], at["residual"], new_cost
+    elif p.y_sim is None:
+        p.y_sim = simulate([(p.spec, p.theta, p.rows)])[0]
+        p.residual = residual(data, p.rows, p.y_sim)
 
 
 def _record_positions(p: Problem, free: np.ndarray, columns: list[list[int]], n_shared: int) -> np.ndarray:
@@ -803,9 +808,9 @@ class GreyFit:
     def from_problem(cls, data: GreyData, p: Problem) -> GreyFit:
         """Collect a solved :class:`Problem` (its records must be ``data``'s)."""
         g, k = p.n_global, p.rows.size
+        y, mask = (data.y, data.mask) if data.is_all(p.rows) else (data.y[p.rows], data.mask[p.rows])  # no copies
         return cls(p.spec, p.theta[:g].copy(), p.spec.plant(p.theta[:g]), p.spec.blocks(p.theta[:g]),
-                   p.theta[g : g + k].copy(), p.theta[g + k :].copy(), p.y_sim,
-                   rmse(data.y[p.rows] - p.y_sim, mask=data.mask[p.rows]))
+                   p.theta[g : g + k].copy(), p.theta[g + k :].copy(), p.y_sim, rmse(y - p.y_sim, mask=mask))
 
     @property
     def effect_params(self) -> dict[str, dict]:

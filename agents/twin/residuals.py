@@ -60,13 +60,20 @@ class ResidualAnalysis:
 def residuals(data: GreyData, fit: GreyFit, max_lag: int | None = None, n_bins: int = 10,
               n_worst: int = 5) -> ResidualAnalysis:
     """Residual whiteness, residual-input correlation and the residual's distribution over the operating range."""
-    e = np.where(data.mask, data.y - fit.y_sim, 0.0)
+    m = data.mask
+    every = bool(m.all())
+
+    def padded_zero(x: np.ndarray) -> np.ndarray:
+        """``x`` with 0 on the padding (``x`` itself when nothing is padded: no copy of all samples)."""
+        return x if every else np.where(m, x, 0.0)
+
+    e = padded_zero(data.y - fit.y_sim)
     n_min = int(data.mask.sum(axis=1).min())
     lag_max = int(max_lag if max_lag is not None else min(50, max(n_min // 4, 1)))
     means = np.sum(e, axis=1) / data.mask.sum(axis=1)
-    ec = np.where(data.mask, e - means[:, None], 0.0)
-    u_mean = np.sum(np.where(data.mask, data.u, 0.0), axis=1) / data.mask.sum(axis=1)
-    uc = np.where(data.mask, data.u - u_mean[:, None], 0.0)
+    ec = padded_zero(e - means[:, None])
+    u_mean = np.sum(padded_zero(data.u), axis=1) / data.mask.sum(axis=1)
+    uc = padded_zero(data.u - u_mean[:, None])
     n_total = data.n_samples
     ee, uu = float(np.sum(ec**2)), float(np.sum(uc**2))
     acf = np.array([np.sum(ec[:, lag:] * ec[:, : ec.shape[1] - lag]) for lag in range(lag_max + 1)])
@@ -79,12 +86,8 @@ def residuals(data: GreyData, fit: GreyFit, max_lag: int | None = None, n_bins: 
     band = Z99 / np.sqrt(n_total)
     white = bool(np.mean(np.abs(acf[1:]) > band) <= 0.01)
     independent = bool(np.mean(np.abs(ccf) > band) <= 0.01)
-    m = data.mask
-    speed = data.y if fit.spec.output != "position" else np.gradient(data.y, data.dt, axis=1)
-    velocity = np.gradient(speed, data.dt, axis=1) if fit.spec.output != "position" else speed
-    if fit.spec.output != "position":  # a speed loop: the sign of the speed itself
-        velocity = speed
-    every = bool(m.all())
+    # a speed loop: the sign of the speed itself; a position loop: of the position's derivative
+    velocity = data.y if fit.spec.output != "position" else np.gradient(data.y, data.dt, axis=1)
 
     def real(x: np.ndarray) -> np.ndarray:
         """The real samples of ``x``, record after record (a view of ``x`` when there is no padding)."""
