@@ -5,6 +5,8 @@ Data as in ``test_diagnose_fast``: closed-loop step experiments of DCMotor-v0 (2
 
 from __future__ import annotations
 
+import tracemalloc
+
 import numpy as np
 import pytest
 
@@ -112,6 +114,25 @@ def test_compressed_jacobian_fit_reaches_the_dense_fit(monkeypatch):
     compressed = linear_fit(data)
     assert compressed.rmse == pytest.approx(exact.rmse, rel=1e-4)
     np.testing.assert_allclose(compressed.theta[:3], exact.theta[:3], rtol=1e-3)
+
+
+def test_compressed_fit_holds_a_few_signals_not_a_jacobian(monkeypatch):
+    """Peak memory of a large fit: a few arrays of the size of one signal (main's LSMR path: 47 of them)."""
+    rng = np.random.default_rng(0)
+    gains = np.column_stack([rng.uniform(0.3, 1.0, 24), rng.uniform(1.0, 2.0, 24)])
+    data = GreyData.from_records(loop_records(None, gains=gains, duration=1.0, noise=0.1, seed=0))
+    base = linear_fit(data, refine=False)
+    problem = make_problem(data, base.spec, base.theta, base.y0, base.bias, np.arange(data.n_records))
+    monkeypatch.setattr(greybox, "DENSE_JACOBIAN_MAX_BYTES", 0)
+    monkeypatch.setattr(greybox, "JACOBIAN_PASS_SAMPLES", 7 * 3 * data.u.shape[1])  # 3 records per pass
+    tracemalloc.start()
+    try:
+        fit_problems(data, [problem], max_iter=10)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 12 * data.y.nbytes  # measured 7: the current and the trial output and residual, a simulation
+    assert problem.cost < 1.01 * 0.1**2 * data.y.size  # and it fits: RMSE at the sensor noise (0.1)
 
 
 def test_simulation_in_small_passes_equals_one_pass(monkeypatch):
