@@ -691,8 +691,9 @@ def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, sim
     n_shared = int(np.sum(free < g))
     positions = _record_positions(p, free, columns, n_shared)
     per_pass = max(1, JACOBIAN_PASS_SAMPLES // (n * (len(columns) + 1) * n_parallel))  # records per pass
-    # the current point (accepted: the lowest cost so far) and the last trial point: simulated output, residual
-    at = {"key": None, "y": p.y_sim, "residual": p.residual}
+    # the current point (accepted: the lowest cost so far) and the last trial point, with their residuals
+    # (their simulated outputs are not kept: the final one is simulated again, once)
+    at = {"key": None, "residual": p.residual}
     trial: dict = {"key": None}
 
     def full(x: np.ndarray) -> np.ndarray:
@@ -704,16 +705,15 @@ def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, sim
         return np.concatenate([theta[:g], theta[g : g + k][records], theta[g + k :][records]])
 
     def cost(x: np.ndarray) -> float:
-        trial.update(key=None, y=None, residual=None)  # a rejected trial point's arrays: freed first
-        y = simulate([(p.spec, full(x), p.rows)])[0]
-        res = residual(data, p.rows, y)
-        trial.update(key=x.tobytes(), y=y, residual=res)
+        trial.update(key=None, residual=None)  # a rejected trial point's residual: freed first
+        res = residual(data, p.rows, simulate([(p.spec, full(x), p.rows)])[0])
+        trial.update(key=x.tobytes(), residual=res)
         return 0.5 * float(np.einsum("kt,kt->", res, res))
 
     def system(x: np.ndarray):
         if x.tobytes() == trial["key"]:  # accepted: the trial point becomes the current one
             at.update(trial)
-        trial.update(key=None, y=None, residual=None)
+        trial.update(key=None, residual=None)
         theta = full(x)
         sets, steps = _difference_sets(p, theta, columns)
         compressed = RecordQR(k, positions.shape[1])
@@ -736,8 +736,9 @@ def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, sim
     scale = np.where(p.scale[free] > 0, p.scale[free], 1.0)
     lower, upper = p.lower[free], p.upper[free]
     x0 = make_strictly_feasible(np.clip(start[free], lower, upper), lower, upper)
+    p.y_sim = None  # freed meanwhile: simulated again at the end
     if not np.array_equal(x0, start[free]):  # the start moved inside the bounds: its residual is not p's
-        p.y_sim = p.residual = None  # p's arrays freed meanwhile (simulated again if nothing beats them)
+        p.residual = at["residual"] = None  # freed meanwhile (computed again if nothing beats it)
         cost(x0)
         at.update(trial)
     at["key"] = x0.tobytes()
@@ -749,9 +750,11 @@ def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, sim
     new_cost = float(np.einsum("kt,kt->", at["residual"], at["residual"]))
     if new_cost < p.cost:
         p.theta = full(x)
-        p.y_sim, p.residual, p.cost = at["y"], at["residual"], new_cost
-    elif p.y_sim is None:
-        p.y_sim = simulate([(p.spec, p.theta, p.rows)])[0]
+        p.residual, p.cost = at["residual"], new_cost
+    at.clear()
+    trial.clear()
+    p.y_sim = simulate([(p.spec, p.theta, p.rows)])[0]  # the output whose residual p has (deterministic)
+    if p.residual is None:
         p.residual = residual(data, p.rows, p.y_sim)
 
 
