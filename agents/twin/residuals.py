@@ -72,6 +72,7 @@ def residuals(data: GreyData, fit: GreyFit, max_lag: int | None = None, n_bins: 
     lag_max = int(max_lag if max_lag is not None else min(50, max(n_min // 4, 1)))
     means = np.sum(e, axis=1) / data.mask.sum(axis=1)
     ec = padded_zero(e - means[:, None])
+    del e  # computed again for the bins: fewer arrays of all samples at once
     u_mean = np.sum(padded_zero(data.u), axis=1) / data.mask.sum(axis=1)
     uc = padded_zero(data.u - u_mean[:, None])
     n_total = data.n_samples
@@ -83,6 +84,7 @@ def residuals(data: GreyData, fit: GreyFit, max_lag: int | None = None, n_bins: 
                     np.sum(ec[:, : ec.shape[1] + lag] * uc[:, -lag:]) for lag in lags])
     ccf = ccf / max(np.sqrt(ee * uu), 1e-300)
     del ec, uc  # memory for the bins below
+    e = padded_zero(data.y - fit.y_sim)
     band = Z99 / np.sqrt(n_total)
     white = bool(np.mean(np.abs(acf[1:]) > band) <= 0.01)
     independent = bool(np.mean(np.abs(ccf) > band) <= 0.01)
@@ -96,10 +98,10 @@ def residuals(data: GreyData, fit: GreyFit, max_lag: int | None = None, n_bins: 
     e_real = real(e)
     bins = {
         "time": _binned(real(data.t - data.t[:, :1]), e_real, n_bins),
-        "experiment": _grouped(real(np.broadcast_to(data.numbers[:, None], e.shape)), e_real),
+        "experiment": _grouped(*_by_record(data.numbers, data.mask.sum(axis=1)), e_real),
         "input": _binned(real(data.u), e_real, n_bins, quantiles=True),
         "output": _binned(real(data.y), e_real, n_bins, quantiles=True),
-        "velocity_sign": _grouped(np.sign(np.round(real(velocity), 12)), e_real),
+        "velocity_sign": _grouped(*_by_sign(np.sign(np.round(real(velocity), 12))), e_real),
     }
     return ResidualAnalysis(np.arange(lag_max + 1), acf, lags, ccf, float(band), white, independent, bins,
                             _worst_segments(data, e, n_worst))
@@ -119,11 +121,23 @@ def _binned(x: np.ndarray, e: np.ndarray, n_bins: int, quantiles: bool = False) 
         return {"centers": centers, "rms": np.sqrt(sq / count), "mean": total / count, "count": count}
 
 
-def _grouped(x: np.ndarray, e: np.ndarray) -> dict:
-    keys, which = np.unique(x, return_inverse=True)
+def _grouped(keys: np.ndarray, which: np.ndarray, e: np.ndarray) -> dict:
+    """Count, RMS and mean of ``e`` per key, sample ``i`` having ``keys[which[i]]`` (keys sorted, each present)."""
     count = np.bincount(which)
     return {"centers": keys.astype(float), "rms": np.sqrt(np.bincount(which, weights=e**2) / count),
             "mean": np.bincount(which, weights=e) / count, "count": count}
+
+
+def _by_record(numbers: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(keys, which)`` of the real samples by their record's number, without sorting every sample."""
+    keys, which = np.unique(numbers, return_inverse=True)
+    return keys, np.repeat(which, lengths)  # record after record, as the real samples
+
+
+def _by_sign(signs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(keys, which)`` of samples by their sign (-1, 0 or 1), as ``np.unique`` gives them, without sorting."""
+    keys = np.array([value for value in (-1.0, 0.0, 1.0) if np.any(signs == value)])
+    return keys, np.searchsorted(keys, signs)
 
 
 def _worst_segments(data: GreyData, e: np.ndarray, n_worst: int) -> list[dict]:
