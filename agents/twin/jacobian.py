@@ -55,7 +55,7 @@ def dense_jacobian(shared: np.ndarray, per_record, columns) -> np.ndarray:
     n_shared, n_records, n_steps = shared.shape
     record_columns = [np.asarray(c, dtype=int).reshape(-1, 2) for c in columns[1:]]
     out = np.zeros((n_records * n_steps, n_shared + sum(c.shape[0] for c in record_columns)), order="F")
-    out[:, np.asarray(columns[0], dtype=int)] = shared.reshape(n_shared, -1).T
+    out[:, np.asarray(columns[0], dtype=int)] = shared.reshape(n_shared, n_records * n_steps).T
     for block, cols in zip(per_record, record_columns):
         for position, record in cols:
             out[record * n_steps : (record + 1) * n_steps, position] = block[record]

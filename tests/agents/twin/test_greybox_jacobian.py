@@ -42,6 +42,14 @@ def test_dense_jacobian_places_each_block_in_its_column():
     np.testing.assert_array_equal(dense[28:, 10], bias[4])
 
 
+def test_dense_jacobian_without_shared_columns():
+    _, rest, bias, columns = _random_blocks(np.random.default_rng(2))
+    dense = dense_jacobian(np.empty((0, 5, 7)), [rest, bias], [np.empty(0, dtype=int), columns[1] - 3,
+                                                                columns[2] - 3])
+    assert dense.shape == (35, 8)
+    np.testing.assert_array_equal(dense[7:14, 1], rest[1])
+
+
 def test_compressed_jacobian_has_the_normal_equations_of_the_dense_one():
     rng = np.random.default_rng(1)
     shared, rest, bias, columns = _random_blocks(rng, n_steps=9)
