@@ -43,11 +43,13 @@ def test_dense_jacobian_places_each_block_in_its_column():
 
 
 def test_dense_jacobian_without_shared_columns():
-    _, rest, bias, columns = _random_blocks(np.random.default_rng(2))
-    dense = dense_jacobian(np.empty((0, 5, 7)), [rest, bias], [np.empty(0, dtype=int), columns[1] - 3,
-                                                                columns[2] - 3])
+    _, rest, bias, _ = _random_blocks(np.random.default_rng(2))
+    columns = [np.empty(0, dtype=int), np.column_stack([np.arange(5), np.arange(5)]),
+               np.array([[5, 0], [6, 2], [7, 4]])]
+    dense = dense_jacobian(np.empty((0, 5, 7)), [rest, bias], columns)
     assert dense.shape == (35, 8)
     np.testing.assert_array_equal(dense[7:14, 1], rest[1])
+    np.testing.assert_array_equal(dense[14:21, 6], bias[2])
 
 
 def test_compressed_jacobian_has_the_normal_equations_of_the_dense_one():
