@@ -79,7 +79,7 @@ DENSE_JACOBIAN_MAX_BYTES = 32 * 2**20
 #: each is compressed, however small.
 DENSE_JACOBIANS_TOTAL_BYTES = 256 * 2**20
 #: Most samples (records times steps, all trial points together) simulated in one pass of a compressed
-#: Jacobian (about 8 MB per signal).
+#: Jacobian (about 8 MB per signal); problems in lock-step share :data:`SIMULATION_BATCH_SAMPLES` per pass.
 JACOBIAN_PASS_SAMPLES = 2**20
 #: Most samples (records times steps) simulated in one vectorised pass (about 32 MB per signal).
 SIMULATION_BATCH_SAMPLES = 2**22
@@ -690,7 +690,10 @@ def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, sim
     start = p.theta.copy()
     n_shared = int(np.sum(free < g))
     positions = _record_positions(p, free, columns, n_shared)
-    per_pass = max(1, JACOBIAN_PASS_SAMPLES // (n * (len(columns) + 1) * n_parallel))  # records per pass
+    # records per pass: at most JACOBIAN_PASS_SAMPLES samples of this problem, and SIMULATION_BATCH_SAMPLES
+    # of all problems in lock-step (as many passes per Jacobian as it takes, each one round of the lock-step)
+    n_sets = len(columns) + 1
+    per_pass = max(1, min(JACOBIAN_PASS_SAMPLES // (n * n_sets), SIMULATION_BATCH_SAMPLES // (n * n_sets * n_parallel)))
     # the current point (accepted: the lowest cost so far) and the last trial point, with their residuals
     # (their simulated outputs are not kept: the final one is simulated again, once)
     at = {"key": None, "residual": p.residual}
