@@ -129,7 +129,8 @@ class Experiment:
     """One closed-loop step experiment on the plant or on its digital twin.
 
     Construction validates every field (:func:`validate_signals` for the
-    signals) and stores read-only copies, so an ``Experiment`` is always sound.
+    signals) and stores read-only copies (or the arrays themselves when they are
+    read-only already, see :func:`_frozen`), so an ``Experiment`` is always sound.
     The signals are optional as a group: a twin evaluation that only computed
     the cost, or a failed plant experiment, has none (:attr:`has_signals`).
 
@@ -277,9 +278,25 @@ class Experiment:
 
 
 def _frozen(array: np.ndarray) -> np.ndarray:
+    """``array`` as read-only float64: itself when it is read-only already, down to the array that owns its
+    memory (e.g. a row of :class:`agents.twin.greybox.GreyData`, a column that :func:`agents.twin.csvio.read_csv`
+    parsed), else a read-only copy. Records of much data then share it instead of copying it."""
+    if array.dtype == np.float64 and _read_only(array):
+        return array
     out = np.array(array, dtype=np.float64, copy=True)
     out.setflags(write=False)
     return out
+
+
+def _read_only(array: np.ndarray) -> bool:
+    """Whether ``array`` and every array it views are read-only, the last one owning its memory."""
+    while isinstance(array, np.ndarray):
+        if array.flags.writeable:
+            return False
+        if array.base is None:
+            return True
+        array = array.base
+    return False  # memory of another object (a buffer that may be writeable)
 
 
 def _gains(values) -> np.ndarray:

@@ -47,13 +47,23 @@ def compare(data: GreyData, fit: GreyFit, experiments: Sequence[int] | None = No
 
     ``experiments`` labels the records (default :attr:`GreyData.numbers`, counted from 1).
     """
-    err = np.where(data.mask, data.y - fit.y_sim, 0.0)
-    mean = np.sum(np.where(data.mask, data.y, 0.0), axis=1) / data.mask.sum(axis=1)
-    dev = np.where(data.mask, data.y - mean[:, None], 0.0)
-    norm_e = np.sqrt(np.sum(err**2, axis=1))
-    norm_d = np.sqrt(np.sum(dev**2, axis=1))
+    every = bool(data.mask.all())
+
+    def padded_zero(x: np.ndarray) -> np.ndarray:
+        """``x`` with 0 on the padding (``x`` itself when nothing is padded: no copy of all samples)."""
+        return x if every else np.where(data.mask, x, 0.0)
+
+    # one array of all samples at a time besides the error (the sums as before, so the same values)
+    err = padded_zero(data.y - fit.y_sim)
+    squares = err**2
+    norm_e, total_e = np.sqrt(np.sum(squares, axis=1)), np.sqrt(np.sum(squares))
+    mean = np.sum(padded_zero(data.y), axis=1) / data.mask.sum(axis=1)
+    squares = padded_zero(data.y - mean[:, None]) ** 2
+    norm_d, total_d = np.sqrt(np.sum(squares, axis=1)), np.sqrt(np.sum(squares))
+    del squares
     fitp = 100.0 * (1.0 - norm_e / np.where(norm_d > 0, norm_d, np.nan))
     per_record = np.array([rmse(err[k], mask=data.mask[k]) for k in range(data.n_records)])
-    all_fit = 100.0 * (1.0 - np.sqrt(np.sum(err**2)) / max(np.sqrt(np.sum(dev**2)), 1e-300))
+    all_fit = 100.0 * (1.0 - total_e / max(total_d, 1e-300))
     ids = np.asarray(experiments if experiments is not None else data.numbers, dtype=int)
-    return CompareResult(ids, fitp, per_record, float(all_fit), rmse(err, mask=data.mask), fit.spec.label)
+    return CompareResult(ids, fitp, per_record, float(all_fit), rmse(err, mask=None if every else data.mask),
+                         fit.spec.label)

@@ -110,29 +110,32 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
     if values["experiment"].size == 0:
         raise ValueError(f"{path}: no data rows after the header")
     costs = values.pop("cost", None)
-    exp = values["experiment"]
+    exp = values.pop("experiment")
     not_int = np.flatnonzero(exp != np.round(exp))
     if not_int.size:
         i = int(not_int[0])
         raise ValueError(f"{path}, row {i + 2}, column 'experiment': experiment id must be an integer, "
                          f"got {float(exp[i])!r}")
-    ids = exp.astype(int)
-    order = np.argsort(ids, kind="stable")  # the rows of each experiment, in file order
-    idents, first, counts = np.unique(ids[order], return_index=True, return_counts=True)
+    groups = _experiment_rows(exp.astype(int))
+    del exp
+    for name in SIGNALS:  # read-only down to their memory: the records share these columns, uncopied
+        for array in (values[name].base, values[name]):
+            if isinstance(array, np.ndarray):
+                array.setflags(write=False)
     records = []
-    for j in np.argsort(order[first]):  # experiments in order of first appearance
-        ident, rows = int(idents[j]), order[first[j] : first[j] + counts[j]]
+    for ident, rows in groups:
+        take = slice(rows[0], rows[-1] + 1) if rows[-1] - rows[0] + 1 == rows.size else rows  # a view if in one run
         try:
-            signals = validate_signals(*(values[name][rows] for name in SIGNALS), min_steps=_MIN_SAMPLES,
+            signals = validate_signals(*(values[name][take] for name in SIGNALS), min_steps=_MIN_SAMPLES,
                                        uniform_rtol=UNIFORM_RTOL_CSV)
         except RecordError as exc:
             column = "experiment" if exc.field == "t, r, u, y" else exc.field
             raise ValueError(f"{path}, row {rows[exc.sample or 0] + 2}, column {column!r}: experiment {ident}: "
                              f"{exc.rule}") from None
-        gains = [_constant(path, ident, rows, name, values[name][rows]) for name in gain_names]
-        cost = math.nan if costs is None else _constant(path, ident, rows, "cost", costs[rows])
+        gains = [_constant(path, ident, rows, name, values[name][take]) for name in gain_names]
+        cost = math.nan if costs is None else _constant(path, ident, rows, "cost", costs[take])
         source = "plant" if source_codes is None else \
-            _constant(path, ident, rows, "source", source_codes[rows], names=source_names)
+            _constant(path, ident, rows, "source", source_codes[take], names=source_names)
         if source not in SOURCES:
             raise ValueError(f"{path}, row {rows[0] + 2}, column 'source': must be one of {SOURCES}, got {source!r}")
         records.append(Experiment(gains=gains, **signals, cost=cost, source=source, index=ident - 1))
@@ -253,30 +256,81 @@ def _read_columns(path: Path, raw_names: dict, numeric: dict, with_source: bool,
     import pandas as pd
 
     usecols = [raw_names[c] for c in numeric] + ([raw_names["source"]] if with_source else [])
-    parts = {column: [] for column in numeric}
+    # each column filled in place (not pieces joined at the end, whose freed pieces would scatter the heap)
+    columns = _Columns({**dict.fromkeys(numeric, float), **({"source": np.int32} if with_source else {})},
+                       _count_lines(path))
     checked_as_text = []  # columns with a value that is not a finite number in a chunk: checked on the whole file
-    codes, names = [], {}
+    names: dict = {}
     for chunk in pd.read_csv(path, usecols=usecols, chunksize=CHUNK_ROWS, **options):
+        out = columns.append(len(chunk))
         for column, allow_missing in numeric.items():
             if column not in checked_as_text:
                 numbers = _finite_numbers(chunk[raw_names[column]], allow_missing)
                 if numbers is None:
                     checked_as_text.append(column)
-                    parts[column] = []
                 else:
-                    parts[column].append(numbers)
+                    out[column][:] = numbers
         if with_source:
             chunk_codes, chunk_names = pd.factorize(chunk[raw_names["source"]].astype(str).str.strip())
-            codes.append(np.array([names.setdefault(name, len(names)) for name in chunk_names], dtype=int)[chunk_codes])
-    values = {}
+            out["source"][:] = np.array([names.setdefault(name, len(names)) for name in chunk_names])[chunk_codes]
+    values = columns.values()
     for column, allow_missing in numeric.items():  # in order, so that the first bad column is the one named
         if column in checked_as_text:
             values[column] = _numbers(path, column, raw_names[column], allow_missing)
-        else:
-            values[column] = np.concatenate(parts.pop(column)) if parts[column] else np.empty(0)
     if not with_source:
         return values, None, None
-    return values, np.concatenate(codes) if codes else np.empty(0, dtype=int), list(names)
+    return values, values.pop("source"), list(names)
+
+
+def _experiment_rows(ids: np.ndarray):
+    """``(experiment id, its rows in file order)`` of each experiment, in order of first appearance.
+
+    A file that lists the experiments in increasing order (as :func:`write_csv` and ``gbo export``
+    write them) is cut where the id changes; other orders are grouped by one stable sort.
+    """
+    if bool(np.all(ids[1:] >= ids[:-1])):
+        starts = np.flatnonzero(np.concatenate([[True], ids[1:] != ids[:-1]]))
+        bounds = [(int(ids[a]), a, b) for a, b in zip(starts, [*starts[1:], ids.size])]
+        return ((ident, np.arange(a, b)) for ident, a, b in bounds)
+    order = np.argsort(ids, kind="stable")
+    idents, first, counts = np.unique(ids[order], return_index=True, return_counts=True)
+    return ((int(idents[j]), order[first[j] : first[j] + counts[j]]) for j in np.argsort(order[first]))
+
+
+def _count_lines(path: Path) -> int:
+    """Line breaks in the file: at least its rows after the header (every row ends with one)."""
+    with open(path, "rb") as handle:
+        return sum(block.count(b"\n") for block in iter(lambda: handle.read(1 << 20), b""))
+
+
+class _Columns:
+    """Columns filled chunk after chunk in arrays of a given capacity (grown if the rows exceed it).
+
+    Parameters
+    ----------
+    dtypes : dict
+        Column name to its dtype.
+    capacity : int
+        Rows expected at most.
+    """
+
+    def __init__(self, dtypes: dict, capacity: int) -> None:
+        self.arrays = {name: np.empty(max(capacity, 1), dtype=dtype) for name, dtype in dtypes.items()}
+        self.size = 0
+
+    def append(self, n: int) -> dict[str, np.ndarray]:
+        """Room for ``n`` more rows: each column's slice to write them into."""
+        capacity = next(iter(self.arrays.values())).size
+        if self.size + n > capacity:  # more rows than line breaks (e.g. a file with "\r" line ends)
+            for name, array in self.arrays.items():
+                self.arrays[name] = np.empty(max(2 * capacity, self.size + n), dtype=array.dtype)
+                self.arrays[name][: self.size] = array[: self.size]
+        first, self.size = self.size, self.size + n
+        return {name: array[first : self.size] for name, array in self.arrays.items()}
+
+    def values(self) -> dict[str, np.ndarray]:
+        """The filled part of each column."""
+        return {name: array[: self.size] for name, array in self.arrays.items()}
 
 
 def _finite_numbers(series, allow_missing: bool) -> np.ndarray | None:

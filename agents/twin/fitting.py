@@ -34,11 +34,11 @@ def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = Tru
         Polish the SRIVC estimate by least squares on the simulation error (:func:`fit_problems`).
     """
     spec = ModelSpec() if spec is None else ModelSpec(spec.n_poles, spec.n_zeros, spec.n_integrators, spec.output)
-    records = [{"t": data.t[k][data.mask[k]], "r": data.r[k][data.mask[k]], "u": data.u[k][data.mask[k]],
-                "y": data.y[k][data.mask[k]]} for k in range(data.n_records)]
+    lengths = data.mask.sum(axis=1)  # real samples lead each row, padding follows (GreyData.from_records)
+    records = [{"t": data.t[k, :m], "r": data.r[k, :m], "u": data.u[k, :m], "y": data.y[k, :m]}
+               for k, m in enumerate(lengths)]  # views of the rows: no copy of the data
     fit = identify_linear(records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
                           max_delay=data.dt, refine_delay=False)
-    del records  # copies of the data: not kept through the refinement
     theta = np.concatenate([fit.params, [fit.delay]])
     y0, u0 = fit.rest_levels[:, 0], fit.rest_levels[:, 1]
     v_rest = fit.plant(spec.output).discretize(data.dt).equilibrium(y0)[1]

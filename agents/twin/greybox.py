@@ -17,11 +17,13 @@ effect parameters. The starts of many problems (candidate models, starts,
 cross-validation folds) are simulated in vectorised passes of bounded size
 (:data:`SIMULATION_BATCH_SAMPLES`); the Jacobian is a forward difference, in
 which the per-record nuisance parameters are perturbed all at once (each only
-moves its own record). It is kept as its blocks
-(:class:`agents.twin.jacobian.RecordJacobian`: dense model columns, one block
-per record for the nuisances), so that memory and time grow linearly with the
-number of records; up to :data:`DENSE_JACOBIAN_BYTES` it is handed to the
-solver dense, whose trust-region steps are then exact.
+moves its own record). Up to :data:`DENSE_JACOBIAN_MAX_BYTES` it is handed to
+``least_squares`` dense, whose trust-region steps are then exact; a larger one is
+simulated and compressed a few records at a time to one small triangular block
+per record (:class:`agents.twin.jacobian.RecordQR`) with the same normal equations,
+and the same trust-region reflective iteration runs on it
+(:func:`agents.twin.trust_region.trf`), so that memory and time grow linearly with
+the number of records and the full Jacobian never exists.
 
 Parameters of effects whose simulation error is not differentiable (the
 quantization step) are not moved by the iteration; they are chosen from a
@@ -38,15 +40,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.optimize._lsq.common import make_strictly_feasible  # least_squares' own (private module)
 
 from agents.twin.fidelity import rmse
-from agents.twin.jacobian import RecordJacobian
+from agents.twin.jacobian import RecordQR, dense_jacobian
 from agents.twin.open_loop import simulate_open_loop
 from agents.twin.records import as_records
+from agents.twin.trust_region import trf
 from gbo_envs.physics.effects import EFFECTS, build_effect
 from gbo_envs.physics.lti import ContinuousPlant
 
-__all__ = ["DENSE_JACOBIANS_BYTES", "DENSE_JACOBIAN_BYTES", "FITTED_PARAMETERS", "SIMULATION_BATCH_SAMPLES",
+__all__ = ["DENSE_JACOBIANS_TOTAL_BYTES", "DENSE_JACOBIAN_MAX_BYTES", "FITTED_PARAMETERS", "JACOBIAN_PASS_SAMPLES",
+           "SIMULATION_BATCH_SAMPLES",
            "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "jacobian", "residual", "simulate_sets"]
 
 #: Effect parameters the grey-box fit estimates, and whether they are moved by the gradient
@@ -66,13 +71,16 @@ FITTED_PARAMETERS: dict[str, tuple[tuple[str, bool], ...]] = {
 }
 
 
-#: Largest Jacobian (bytes as a dense float64 matrix) whose trust-region steps are solved exactly (SVD);
-#: a larger one is kept as its blocks (:class:`agents.twin.jacobian.RecordJacobian`) and solved by LSMR,
+#: Largest Jacobian (bytes as a dense float64 matrix) handed to ``least_squares`` dense, whose trust-region
+#: steps are then exact (SVD); a larger one is compressed record by record (:class:`agents.twin.jacobian.RecordQR`),
 #: so that memory and time grow linearly with the number of records.
-DENSE_JACOBIAN_BYTES = 32 * 2**20
+DENSE_JACOBIAN_MAX_BYTES = 32 * 2**20
 #: Largest sum of the dense Jacobians of the problems solved together in lock-step (bytes); above it
-#: each is kept as its blocks, however small.
-DENSE_JACOBIANS_BYTES = 256 * 2**20
+#: each is compressed, however small.
+DENSE_JACOBIANS_TOTAL_BYTES = 256 * 2**20
+#: Most samples (records times steps, all trial points together) simulated in one pass of a compressed
+#: Jacobian (about 8 MB per signal); problems in lock-step share :data:`SIMULATION_BATCH_SAMPLES` per pass.
+JACOBIAN_PASS_SAMPLES = 2**20
 #: Most samples (records times steps) simulated in one vectorised pass (about 32 MB per signal).
 SIMULATION_BATCH_SAMPLES = 2**22
 
@@ -86,7 +94,7 @@ class GreyData:
     t, r, u, y : ndarray of shape (n_records, n_steps)
         Time (s), reference, commanded input and measured output; padded with the last value.
     mask : ndarray of bool, shape (n_records, n_steps)
-        True on real samples.
+        True on real samples, which lead each row (the padding follows them).
     dt : float
         Common sample time in s.
     index : ndarray of int, shape (n_records,)
@@ -108,7 +116,7 @@ class GreyData:
 
     @classmethod
     def from_records(cls, records, experiment_index: Sequence[int] | None = None) -> GreyData:
-        """Validate records (:func:`agents.twin.records.as_records`) and stack them.
+        """Validate records (:func:`agents.twin.records.as_records`) and stack them into read-only arrays.
 
         ``experiment_index`` defaults to the records' :attr:`~gbo_envs.Experiment.index`
         as :func:`~agents.twin.records.as_records` sets it.
@@ -134,6 +142,8 @@ class GreyData:
                 arrays[name][k, :m] = getattr(rec, name)
                 arrays[name][k, m:] = getattr(rec, name)[-1]
             arrays["t"][k] = rec.t[0] + np.arange(n) * rec.dt
+        for array in (*arrays.values(), mask):  # read-only: records of their rows share them, uncopied
+            array.setflags(write=False)
         return cls(**arrays, mask=mask, dt=float(dts[0]), index=index, first_index=first)
 
     @property
@@ -455,11 +465,12 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     simulations (:func:`simulate_sets`), with the per-record rest levels (and
     biases) perturbed all at once, since each only moves its own record; for a
     model with a quantized output it is taken on the plant output before the
-    sensor, which is smooth in the parameters. Up to :data:`DENSE_JACOBIAN_BYTES`
+    sensor, which is smooth in the parameters. Up to :data:`DENSE_JACOBIAN_MAX_BYTES`
     it is dense and the trust-region steps exact (``tr_solver="exact"``); above, it
-    is a :class:`~agents.twin.jacobian.RecordJacobian` and the steps come from LSMR
-    (``tr_solver="lsmr"``), so memory and time grow linearly with the records. ``benchmarks/bench_greybox_solver.py``
-    compares it with the hand-written Levenberg-Marquardt iteration it replaced.
+    is compressed record by record (:class:`~agents.twin.jacobian.RecordQR`) and the
+    same iteration takes its steps in the 2-D subspace of ``tr_solver="lsmr"``
+    (:func:`agents.twin.trust_region.trf`), so memory and time grow linearly with the records.
+    ``benchmarks/bench_greybox_solver.py`` compares it with the hand-written Levenberg-Marquardt iteration it replaced.
 
     Parameters
     ----------
@@ -571,34 +582,44 @@ def jacobian(data: GreyData, p: Problem, theta: np.ndarray, simulate=None) -> np
     diffs = [(residual(data, p.rows, y) - base) / h for y, h in zip(ys, steps)]
     n_shared = int(np.sum(free < p.n_global))
     shared = np.array(diffs[:n_shared]).reshape(n_shared, *base.shape)
-    return _record_jacobian(p, free, columns, shared, diffs[n_shared:]).toarray()
+    return _dense_jacobian(p, free, columns, shared, diffs[n_shared:])
 
 
-def _record_jacobian(p: Problem, free: np.ndarray, columns: list[list[int]], shared: np.ndarray,
-                     per_record: list[np.ndarray]) -> RecordJacobian:
-    """The :class:`RecordJacobian` of ``p`` from its difference quotients: ``shared`` (one per free global
+def _dense_jacobian(p: Problem, free: np.ndarray, columns: list[list[int]], shared: np.ndarray,
+                    per_record: list[np.ndarray]) -> np.ndarray:
+    """The dense Jacobian of ``p`` from its difference quotients: ``shared`` (one per free global
     parameter, the first groups of ``columns``) and ``per_record`` (one per later group of ``columns``)."""
     g, k = p.n_global, p.rows.size
     positions = [np.flatnonzero(free < g)]
     for cols in columns[shared.shape[0]:]:
         first = g if cols[0] < g + k else g + k
         positions.append(np.column_stack([np.searchsorted(free, cols), np.asarray(cols) - first]))
-    return RecordJacobian(shared, per_record, positions)
+    return dense_jacobian(shared, per_record, positions)
 
 
 def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None, n_parallel: int = 1) -> None:
-    """One :class:`Problem` by ``least_squares`` (trf) from its start; see :func:`fit_problems`.
+    """One :class:`Problem` by the trust-region reflective method from its start; see :func:`fit_problems`.
 
     ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``);
     ``n_parallel`` problems make their requests together (:class:`_Lockstep`), so each asks for
-    its share of :data:`SIMULATION_BATCH_SAMPLES` at a time.
+    its share of the samples of a pass at a time. A Jacobian of at most :data:`DENSE_JACOBIAN_MAX_BYTES`
+    (and :data:`DENSE_JACOBIANS_TOTAL_BYTES` for all parallel problems) goes to ``least_squares``
+    dense (:func:`_solve_dense`); a larger one is compressed record by record (:func:`_solve_compressed`).
     """
+    n_free = int(np.sum(p.free & (p.lower < p.upper)))
+    size = 8 * p.rows.size * data.u.shape[1] * n_free
+    if size <= DENSE_JACOBIAN_MAX_BYTES and size * n_parallel <= DENSE_JACOBIANS_TOTAL_BYTES:
+        _solve_dense(data, p, max_iter, tol, simulate, n_parallel)
+    else:
+        _solve_compressed(data, p, max_iter, tol, simulate, n_parallel)
+
+
+def _solve_dense(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None, n_parallel: int = 1) -> None:
+    """One :class:`Problem` by ``least_squares`` (trf, exact trust-region steps) with its dense Jacobian."""
     simulate, free, rough, columns = _difference_layout(data, p, simulate)
     g, k, n = p.n_global, p.rows.size, data.u.shape[1]
     start = p.theta.copy()
     n_shared = int(np.sum(free < g))  # the first columns: one simulation per global parameter
-    dense = 8 * k * n * free.size <= DENSE_JACOBIAN_BYTES and \
-        8 * k * n * free.size * n_parallel <= DENSE_JACOBIANS_BYTES
     sets_per_pass = max(1, SIMULATION_BATCH_SAMPLES // (k * n * n_parallel))
     # the lowest-cost point so far (least_squares' iterate), its simulated output and residual
     best: dict = {"key": None, "y": None, "residual": None, "cost": np.inf}
@@ -620,7 +641,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
             best.update(key=x.tobytes(), y=y, residual=res, cost=cost)
         return res
 
-    def jac(x: np.ndarray) -> RecordJacobian | np.ndarray:
+    def jac(x: np.ndarray) -> np.ndarray:
         theta = full(x)
         sets, steps = _difference_sets(p, theta, columns)
         if rough or x.tobytes() != best["key"]:  # the smooth output at x itself, simulated first
@@ -639,13 +660,11 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
                 out -= base
                 out /= steps[i]
                 i += 1
-        jacobian = _record_jacobian(p, free, columns, shared, per_record)
-        return jacobian.toarray() if dense else jacobian
+        return _dense_jacobian(p, free, columns, shared, per_record)
 
     scale = np.where(p.scale[free] > 0, p.scale[free], 1.0)
     sol = least_squares(fun, np.clip(start[free], p.lower[free], p.upper[free]), jac=jac,
-                        bounds=(p.lower[free], p.upper[free]), x_scale=scale, method="trf",
-                        tr_solver="exact" if dense else "lsmr",
+                        bounds=(p.lower[free], p.upper[free]), x_scale=scale, method="trf", tr_solver="exact",
                         ftol=tol, xtol=1e-12, gtol=1e-12, max_nfev=max_iter + 1)
     cost = float(np.sum(sol.fun**2))
     p.n_iter += int(sol.nfev) - 1
@@ -654,6 +673,111 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
         p.y_sim = best["y"] if sol.x.tobytes() == best["key"] else simulate([(p.spec, p.theta, p.rows)])[0]
         p.residual = residual(data, p.rows, p.y_sim)
         p.cost = float(np.sum(p.residual**2))
+
+
+def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
+                      n_parallel: int = 1) -> None:
+    """One :class:`Problem` by the trust-region reflective method on its Jacobian compressed record by record.
+
+    The iteration is ``least_squares``' (trf, 2-D subspace steps; :func:`agents.twin.trust_region.trf`),
+    with the forward-difference Jacobian of :func:`_solve_dense`, but simulated and factorised a
+    few records at a time (:data:`JACOBIAN_PASS_SAMPLES` samples per pass) into
+    :class:`~agents.twin.jacobian.RecordQR`: memory linear in the records, and beyond the simulated
+    output and residual at the current and the trial point, bounded.
+    """
+    simulate, free, rough, columns = _difference_layout(data, p, simulate)
+    g, k, n = p.n_global, p.rows.size, data.u.shape[1]
+    start = p.theta.copy()
+    n_shared = int(np.sum(free < g))
+    positions = _record_positions(p, free, columns, n_shared)
+    # records per pass: at most JACOBIAN_PASS_SAMPLES samples of this problem, and SIMULATION_BATCH_SAMPLES
+    # of all problems in lock-step (as many passes per Jacobian as it takes, each one round of the lock-step)
+    n_sets = len(columns) + 1
+    per_pass = max(1, min(JACOBIAN_PASS_SAMPLES // (n * n_sets), SIMULATION_BATCH_SAMPLES // (n * n_sets * n_parallel)))
+    # the current point (accepted: the lowest cost so far) and the last trial point, with their residuals
+    # (their simulated outputs are not kept: the final one is simulated again, once)
+    at = {"key": None, "residual": p.residual}
+    trial: dict = {"key": None}
+
+    def full(x: np.ndarray) -> np.ndarray:
+        theta = start.copy()
+        theta[free] = x
+        return theta
+
+    def part(theta: np.ndarray, records: slice) -> np.ndarray:
+        return np.concatenate([theta[:g], theta[g : g + k][records], theta[g + k :][records]])
+
+    def cost(x: np.ndarray) -> float:
+        trial.update(key=None, residual=None)  # a rejected trial point's residual: freed first
+        res = residual(data, p.rows, simulate([(p.spec, full(x), p.rows)])[0])
+        trial.update(key=x.tobytes(), residual=res)
+        return 0.5 * float(np.einsum("kt,kt->", res, res))
+
+    def system(x: np.ndarray):
+        if x.tobytes() == trial["key"]:  # accepted: the trial point becomes the current one
+            at.update(trial)
+        trial.update(key=None, residual=None)
+        theta = full(x)
+        sets, steps = _difference_sets(p, theta, columns)
+        compressed = RecordQR(k, positions.shape[1])
+        for first in range(0, k, per_pass):
+            records = slice(first, first + per_pass)
+            rows = p.rows[records]
+            passes = [(p.spec, part(one[1], records), rows) for one in sets]
+            if rough:  # the smooth output at x itself, first
+                passes.insert(0, (p.spec, part(theta, records), rows))
+            ys = simulate(passes, true_output=rough)
+            base = residual(data, rows, ys.pop(0)) if rough else at["residual"][records]
+            blocks = np.empty((len(ys), rows.size, n))
+            for block, y, h in zip(blocks, ys, steps):
+                residual(data, rows, y, out=block)
+                block -= base
+                block /= h
+            compressed.add(records, blocks, at["residual"][records])
+        return compressed.system(positions, free.size)
+
+    scale = np.where(p.scale[free] > 0, p.scale[free], 1.0)
+    lower, upper = p.lower[free], p.upper[free]
+    x0 = make_strictly_feasible(np.clip(start[free], lower, upper), lower, upper)
+    p.y_sim = None  # freed meanwhile: simulated again at the end
+    if not np.array_equal(x0, start[free]):  # the start moved inside the bounds: its residual is not p's
+        p.residual = at["residual"] = None  # freed meanwhile (computed again if nothing beats it)
+        cost(x0)
+        at.update(trial)
+    at["key"] = x0.tobytes()
+    cost0 = 0.5 * float(np.einsum("kt,kt->", at["residual"], at["residual"]))
+    x, _, nfev = trf(cost, system, x0, cost0, lower, upper, scale, ftol=tol, max_nfev=max_iter + 1)
+    p.n_iter += nfev - 1
+    if x.tobytes() != at["key"]:  # the last accepted step ended the iteration before its Jacobian
+        at.update(trial)
+    new_cost = float(np.einsum("kt,kt->", at["residual"], at["residual"]))
+    if new_cost < p.cost:
+        p.theta = full(x)
+        p.residual, p.cost = at["residual"], new_cost
+    at.clear()
+    trial.clear()
+    p.y_sim = simulate([(p.spec, p.theta, p.rows)])[0]  # the output whose residual p has (deterministic)
+    if p.residual is None:
+        p.residual = residual(data, p.rows, p.y_sim)
+
+
+def _record_positions(p: Problem, free: np.ndarray, columns: list[list[int]], n_shared: int) -> np.ndarray:
+    """Position among the free parameters of each column of each record's block, -1 where fixed.
+
+    Returns
+    -------
+    ndarray of int, shape (len(p.rows), len(columns))
+        The free global parameters first (the same for every record), then the record's own
+        parameter of each per-record group of ``columns`` (rest level, bias).
+    """
+    g, k = p.n_global, p.rows.size
+    out = np.full((k, len(columns)), -1)
+    out[:, :n_shared] = np.arange(n_shared)
+    for j, cols in enumerate(columns[n_shared:], start=n_shared):
+        cols = np.asarray(cols)
+        first = g if cols[0] < g + k else g + k
+        out[cols - first, j] = np.searchsorted(free, cols)
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -690,9 +814,9 @@ class GreyFit:
     def from_problem(cls, data: GreyData, p: Problem) -> GreyFit:
         """Collect a solved :class:`Problem` (its records must be ``data``'s)."""
         g, k = p.n_global, p.rows.size
+        y, mask = (data.y, data.mask) if data.is_all(p.rows) else (data.y[p.rows], data.mask[p.rows])  # no copies
         return cls(p.spec, p.theta[:g].copy(), p.spec.plant(p.theta[:g]), p.spec.blocks(p.theta[:g]),
-                   p.theta[g : g + k].copy(), p.theta[g + k :].copy(), p.y_sim,
-                   rmse(data.y[p.rows] - p.y_sim, mask=data.mask[p.rows]))
+                   p.theta[g : g + k].copy(), p.theta[g + k :].copy(), p.y_sim, rmse(y - p.y_sim, mask=mask))
 
     @property
     def effect_params(self) -> dict[str, dict]:

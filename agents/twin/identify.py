@@ -193,18 +193,19 @@ def simulation_error(orders: srivc.Orders, theta: np.ndarray, delay: float, sign
     rest_levels : ndarray of shape (n_records, 2)
         ``(y0, u0)`` of each record, batch after batch.
     """
-    errors, heights, levels = [], [], []
+    squares, counts, levels = [], [], []  # per batch: mean squares (normalised, in units of y), samples
     for sig in signals:
         y_sim, y0, u0 = srivc.simulate(orders, theta, delay, sig, offset)
-        errors.append((sig.y + sig.y_ref[:, None]) - y_sim)
-        heights.append(np.abs(sig.r2 - y0))
+        error = (sig.y + sig.y_ref[:, None]) - y_sim
+        if len(signals) == 1:
+            return rmse(error, height=np.abs(sig.r2 - y0)), rmse(error), np.column_stack([y0, u0])
+        squares.append([rmse(error, height=np.abs(sig.r2 - y0)) ** 2, rmse(error) ** 2])
+        counts.append(error.size)
         levels.append(np.column_stack([y0, u0]))
-    if len(errors) == 1:
-        error, height = errors[0], heights[0]
-    else:  # records of different lengths: all samples in one vector, each with its record's height
-        error = np.concatenate([e.ravel() for e in errors])
-        height = np.concatenate([np.repeat(h, e.shape[1]) for e, h in zip(errors, heights)])
-    return rmse(error, height=height), rmse(error), np.concatenate(levels)
+    # several batches (more records than one holds, or records of different lengths): eq. (RMSE) over all samples,
+    # from each batch's mean squares, without the errors of all batches at once
+    total = np.sqrt(np.average(squares, axis=0, weights=counts))
+    return float(total[0]), float(total[1]), np.concatenate(levels)
 
 
 @validate_params({"records": "no_validation", "start": [None, tuple], **LINEAR_CONSTRAINTS},
@@ -298,6 +299,8 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
     """
     orders = check_orders(n_poles, n_zeros, n_integrators)
     data, batches, signals = prepare_signals(records, orders, n_samples, hold, oversample, offset)
+    batch_index = np.concatenate([b.index for b in batches])  # record of each row of the signals, batch after batch
+    del batches  # stacked copies of u and y: the signals hold what SRIVC needs
     dt = min(rec.dt for rec in data)
     horizon = min(rec.t[-1] - rec.t[0] for rec in data)
 
@@ -349,7 +352,7 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
         theta, tau_best = _polish(orders, theta, tau_best, signals, score, bounds, offset)
     fit_rmse, fit_rmse_abs, levels = simulation_error(orders, theta, tau_best, signals, offset)
     rest = np.empty((len(data), 2))
-    rest[np.concatenate([b.index for b in batches])] = levels
+    rest[batch_index] = levels
     order = np.argsort(list(cache))
     return LinearIdentification(
         orders=orders, theta=theta, delay=float(tau_best), rmse=float(fit_rmse), rmse_abs=float(fit_rmse_abs),

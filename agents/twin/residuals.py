@@ -60,13 +60,21 @@ class ResidualAnalysis:
 def residuals(data: GreyData, fit: GreyFit, max_lag: int | None = None, n_bins: int = 10,
               n_worst: int = 5) -> ResidualAnalysis:
     """Residual whiteness, residual-input correlation and the residual's distribution over the operating range."""
-    e = np.where(data.mask, data.y - fit.y_sim, 0.0)
+    m = data.mask
+    every = bool(m.all())
+
+    def padded_zero(x: np.ndarray) -> np.ndarray:
+        """``x`` with 0 on the padding (``x`` itself when nothing is padded: no copy of all samples)."""
+        return x if every else np.where(m, x, 0.0)
+
+    e = padded_zero(data.y - fit.y_sim)
     n_min = int(data.mask.sum(axis=1).min())
     lag_max = int(max_lag if max_lag is not None else min(50, max(n_min // 4, 1)))
     means = np.sum(e, axis=1) / data.mask.sum(axis=1)
-    ec = np.where(data.mask, e - means[:, None], 0.0)
-    u_mean = np.sum(np.where(data.mask, data.u, 0.0), axis=1) / data.mask.sum(axis=1)
-    uc = np.where(data.mask, data.u - u_mean[:, None], 0.0)
+    ec = padded_zero(e - means[:, None])
+    del e  # computed again for the bins: fewer arrays of all samples at once
+    u_mean = np.sum(padded_zero(data.u), axis=1) / data.mask.sum(axis=1)
+    uc = padded_zero(data.u - u_mean[:, None])
     n_total = data.n_samples
     ee, uu = float(np.sum(ec**2)), float(np.sum(uc**2))
     acf = np.array([np.sum(ec[:, lag:] * ec[:, : ec.shape[1] - lag]) for lag in range(lag_max + 1)])
@@ -75,21 +83,25 @@ def residuals(data: GreyData, fit: GreyFit, max_lag: int | None = None, n_bins: 
     ccf = np.array([np.sum(ec[:, lag:] * uc[:, : uc.shape[1] - lag]) if lag >= 0 else
                     np.sum(ec[:, : ec.shape[1] + lag] * uc[:, -lag:]) for lag in lags])
     ccf = ccf / max(np.sqrt(ee * uu), 1e-300)
+    del ec, uc  # memory for the bins below
+    e = padded_zero(data.y - fit.y_sim)
     band = Z99 / np.sqrt(n_total)
     white = bool(np.mean(np.abs(acf[1:]) > band) <= 0.01)
     independent = bool(np.mean(np.abs(ccf) > band) <= 0.01)
-    m = data.mask
-    speed = data.y if fit.spec.output != "position" else np.gradient(data.y, data.dt, axis=1)
-    velocity = np.gradient(speed, data.dt, axis=1) if fit.spec.output != "position" else speed
-    if fit.spec.output != "position":  # a speed loop: the sign of the speed itself
-        velocity = speed
-    t_rel = data.t - data.t[:, :1]
+    # a speed loop: the sign of the speed itself; a position loop: of the position's derivative
+    velocity = data.y if fit.spec.output != "position" else np.gradient(data.y, data.dt, axis=1)
+
+    def real(x: np.ndarray) -> np.ndarray:
+        """The real samples of ``x``, record after record (a view of ``x`` when there is no padding)."""
+        return x.reshape(-1) if every else x[m]
+
+    e_real = real(e)
     bins = {
-        "time": _binned(t_rel[m], e[m], n_bins),
-        "experiment": _grouped(np.broadcast_to(data.numbers[:, None], e.shape)[m], e[m]),
-        "input": _binned(data.u[m], e[m], n_bins, quantiles=True),
-        "output": _binned(data.y[m], e[m], n_bins, quantiles=True),
-        "velocity_sign": _grouped(np.sign(np.round(velocity[m], 12)), e[m]),
+        "time": _binned(real(data.t - data.t[:, :1]), e_real, n_bins),
+        "experiment": _grouped(*_by_record(data.numbers, data.mask.sum(axis=1)), e_real),
+        "input": _binned(real(data.u), e_real, n_bins, quantiles=True),
+        "output": _binned(real(data.y), e_real, n_bins, quantiles=True),
+        "velocity_sign": _grouped(*_by_sign(np.sign(np.round(real(velocity), 12))), e_real),
     }
     return ResidualAnalysis(np.arange(lag_max + 1), acf, lags, ccf, float(band), white, independent, bins,
                             _worst_segments(data, e, n_worst))
@@ -109,11 +121,23 @@ def _binned(x: np.ndarray, e: np.ndarray, n_bins: int, quantiles: bool = False) 
         return {"centers": centers, "rms": np.sqrt(sq / count), "mean": total / count, "count": count}
 
 
-def _grouped(x: np.ndarray, e: np.ndarray) -> dict:
-    keys, which = np.unique(x, return_inverse=True)
+def _grouped(keys: np.ndarray, which: np.ndarray, e: np.ndarray) -> dict:
+    """Count, RMS and mean of ``e`` per key, sample ``i`` having ``keys[which[i]]`` (keys sorted, each present)."""
     count = np.bincount(which)
     return {"centers": keys.astype(float), "rms": np.sqrt(np.bincount(which, weights=e**2) / count),
             "mean": np.bincount(which, weights=e) / count, "count": count}
+
+
+def _by_record(numbers: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(keys, which)`` of the real samples by their record's number, without sorting every sample."""
+    keys, which = np.unique(numbers, return_inverse=True)
+    return keys, np.repeat(which, lengths)  # record after record, as the real samples
+
+
+def _by_sign(signs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(keys, which)`` of samples by their sign (-1, 0 or 1), as ``np.unique`` gives them, without sorting."""
+    keys = np.array([value for value in (-1.0, 0.0, 1.0) if np.any(signs == value)])
+    return keys, np.searchsorted(keys, signs)
 
 
 def _worst_segments(data: GreyData, e: np.ndarray, n_worst: int) -> list[dict]:

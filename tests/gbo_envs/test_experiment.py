@@ -241,3 +241,17 @@ def test_a_step_on_the_twin_is_a_twin_record():
     twin.reset(seed=0)
     record = twin.step(np.array([0.5, 1.2]))[4]["experiment"]
     assert record.source == "twin" and record.has_signals and record.index == 0
+
+
+def test_read_only_signals_are_kept_and_writeable_ones_copied():
+    t = np.arange(4) * 0.01
+    signals = np.stack([t, np.full(4, 306.0), np.arange(4.0), np.arange(4.0) + 245])
+    writeable = Experiment(gains=(), t=signals[0], r=signals[1], u=signals[2], y=signals[3])
+    view = signals[2]
+    view.setflags(write=False)  # read-only, but its memory can still change through ``signals``
+    of_view = Experiment(gains=(), t=signals[0], r=signals[1], u=view, y=signals[3])
+    assert not np.shares_memory(writeable.u, signals) and not np.shares_memory(of_view.u, signals)
+    signals.setflags(write=False)  # now nothing can change it: records share it, uncopied
+    shared = Experiment(gains=(), t=signals[0], r=signals[1], u=signals[2], y=signals[3])
+    assert shared.u.base is signals and not shared.u.flags.writeable
+    np.testing.assert_array_equal(shared.u, writeable.u)

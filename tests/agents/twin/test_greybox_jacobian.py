@@ -1,9 +1,11 @@
-"""The grey-box Jacobian kept as its blocks: the same matrix, memory linear in the records, the same fits.
+"""The grey-box Jacobian: dense for small problems, compressed record by record for large ones, the same fits.
 
 Data as in ``test_diagnose_fast``: closed-loop step experiments of DCMotor-v0 (2 s, 1001 samples).
 """
 
 from __future__ import annotations
+
+import tracemalloc
 
 import numpy as np
 import pytest
@@ -12,7 +14,7 @@ import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin import greybox
 from agents.twin.fitting import linear_fit, make_problem
 from agents.twin.greybox import GreyData, fit_problems, simulate_sets
-from agents.twin.jacobian import RecordJacobian
+from agents.twin.jacobian import RecordQR, dense_jacobian
 from tests.support import loop_records
 
 GAINS = np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2], [1.05, 2.0], [0.5, 1.9], [0.7, 1.1]])
@@ -22,26 +24,51 @@ def _data(n=4) -> GreyData:
     return GreyData.from_records(loop_records(None, gains=GAINS[:n], step=(245.0, 306.0), noise=0.1, seed=0))
 
 
-def _random_jacobian(rng, n_records=5, n_steps=7):
+def _random_blocks(rng, n_records=5, n_steps=7):
     shared = rng.normal(size=(3, n_records, n_steps))
     rest, bias = rng.normal(size=(n_records, n_steps)), rng.normal(size=(n_records, n_steps))
     columns = [np.array([0, 2, 4]), np.column_stack([[1, 3, 5, 6, 7], np.arange(5)]),
                np.array([[8, 0], [9, 2], [10, 4]])]  # bias of records 1 and 3 fixed
-    return RecordJacobian(shared, [rest, bias], columns), shared, rest, bias
+    return shared, rest, bias, columns
 
 
-def test_record_jacobian_products_are_those_of_its_dense_matrix():
-    rng = np.random.default_rng(0)
-    jac, shared, rest, bias = _random_jacobian(rng)
-    dense = jac.toarray()
+def test_dense_jacobian_places_each_block_in_its_column():
+    shared, rest, bias, columns = _random_blocks(np.random.default_rng(0))
+    dense = dense_jacobian(shared, [rest, bias], columns)
     assert dense.shape == (35, 11)
     np.testing.assert_array_equal(dense[:, 0], shared[0].ravel())
     np.testing.assert_array_equal(dense[7:14, 3], rest[1])  # record 1's rest level moves only its rows
     assert not dense[:7, 3].any() and not dense[14:, 3].any()
     np.testing.assert_array_equal(dense[28:, 10], bias[4])
-    v, w = rng.normal(size=11), rng.normal(size=35)
-    np.testing.assert_allclose(jac.matvec(v), dense @ v, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(jac.rmatvec(w), dense.T @ w, rtol=1e-12, atol=1e-12)
+
+
+def test_dense_jacobian_without_shared_columns():
+    _, rest, bias, _ = _random_blocks(np.random.default_rng(2))
+    columns = [np.empty(0, dtype=int), np.column_stack([np.arange(5), np.arange(5)]),
+               np.array([[5, 0], [6, 2], [7, 4]])]
+    dense = dense_jacobian(np.empty((0, 5, 7)), [rest, bias], columns)
+    assert dense.shape == (35, 8)
+    np.testing.assert_array_equal(dense[7:14, 1], rest[1])
+    np.testing.assert_array_equal(dense[14:21, 6], bias[2])
+
+
+def test_compressed_jacobian_has_the_normal_equations_of_the_dense_one():
+    rng = np.random.default_rng(1)
+    shared, rest, bias, columns = _random_blocks(rng, n_steps=9)
+    dense = dense_jacobian(shared, [rest, bias], columns)
+    f = rng.normal(size=(5, 9))
+    positions = np.full((5, 5), -1)  # per record: 3 shared columns, its rest level, its bias
+    positions[:, :3] = columns[0]
+    positions[columns[1][:, 1], 3] = columns[1][:, 0]
+    positions[columns[2][:, 1], 4] = columns[2][:, 0]
+    blocks = np.stack([*shared, rest, bias])
+    compressed = RecordQR(5, 5)
+    compressed.add(slice(0, 2), blocks[:, :2], f[:2])  # a few records at a time
+    compressed.add(slice(2, 5), blocks[:, 2:], f[2:])
+    jac, rhs = compressed.system(positions, 11)
+    assert jac.shape == (25, 11)
+    np.testing.assert_allclose(jac.T @ jac.toarray(), dense.T @ dense, atol=1e-12)
+    np.testing.assert_allclose(jac.T @ rhs, dense.T @ f.ravel(), atol=1e-12)
 
 
 def _capture_jacobian(monkeypatch):
@@ -57,23 +84,6 @@ def _capture_jacobian(monkeypatch):
     return seen
 
 
-def test_jacobian_above_the_dense_limit_is_kept_as_blocks(monkeypatch):
-    data = _data(n=6)
-    base = linear_fit(data, refine=False)
-    problem = make_problem(data, base.spec, base.theta, base.y0, base.bias, np.arange(data.n_records))
-    monkeypatch.setattr(greybox, "DENSE_JACOBIAN_BYTES", 0)
-    seen = _capture_jacobian(monkeypatch)
-    with pytest.raises(StopIteration):
-        fit_problems(data, [problem], max_iter=5)
-    jac = seen["jac"]
-    assert isinstance(jac, RecordJacobian) and seen["tr_solver"] == "lsmr"
-    n_samples = data.u.size
-    n_global = int(problem.free[: problem.n_global].sum())
-    assert jac.shape == (n_samples, n_global + 2 * data.n_records)
-    stored = jac.shared.nbytes + sum(block.nbytes for block in jac.per_record)
-    assert stored == 8 * n_samples * (n_global + 2)  # linear in the data, not n_samples * n_records
-
-
 def test_jacobian_below_the_dense_limit_is_dense(monkeypatch):
     data = _data(n=2)
     base = linear_fit(data, refine=False)
@@ -84,14 +94,55 @@ def test_jacobian_below_the_dense_limit_is_dense(monkeypatch):
     assert isinstance(seen["jac"], np.ndarray) and seen["tr_solver"] == "exact"
 
 
-def test_block_jacobian_fit_reaches_the_dense_fit(monkeypatch):
+def test_jacobian_above_the_dense_limit_is_compressed_per_record(monkeypatch):
+    data = _data(n=6)
+    base = linear_fit(data, refine=False)
+    problem = make_problem(data, base.spec, base.theta, base.y0, base.bias, np.arange(data.n_records))
+    monkeypatch.setattr(greybox, "DENSE_JACOBIAN_MAX_BYTES", 0)
+    seen = {}
+
+    def first_system(cost, system, x0, *args, **kwargs):
+        seen["system"] = system(x0)
+        raise StopIteration
+
+    monkeypatch.setattr(greybox, "trf", first_system)
+    with pytest.raises(StopIteration):
+        fit_problems(data, [problem], max_iter=5)
+    jac, rhs = seen["system"]
+    n_global = int(problem.free[: problem.n_global].sum())
+    per_record = n_global + 2  # its rows: the free globals, its rest level and its bias
+    assert jac.shape == (per_record * data.n_records, n_global + 2 * data.n_records)
+    assert jac.nnz <= per_record**2 * data.n_records  # linear in the records, not in their samples
+    assert rhs.shape == (jac.shape[0],)
+
+
+def test_compressed_jacobian_fit_reaches_the_dense_fit(monkeypatch):
     data = _data(n=6)
     exact = linear_fit(data)
-    monkeypatch.setattr(greybox, "DENSE_JACOBIAN_BYTES", 0)
-    monkeypatch.setattr(greybox, "SIMULATION_BATCH_SAMPLES", data.u.shape[1])  # one record per pass
-    blocks = linear_fit(data)
-    assert blocks.rmse == pytest.approx(exact.rmse, rel=1e-3)
-    np.testing.assert_allclose(blocks.theta[:3], exact.theta[:3], rtol=1e-2)
+    monkeypatch.setattr(greybox, "DENSE_JACOBIAN_MAX_BYTES", 0)
+    monkeypatch.setattr(greybox, "JACOBIAN_PASS_SAMPLES", 3 * data.u.shape[1])  # one record per pass
+    compressed = linear_fit(data)
+    assert compressed.rmse == pytest.approx(exact.rmse, rel=1e-4)
+    np.testing.assert_allclose(compressed.theta[:3], exact.theta[:3], rtol=1e-3)
+
+
+def test_compressed_fit_holds_a_few_signals_not_a_jacobian(monkeypatch):
+    """Peak memory of a large fit: a few arrays of the size of one signal (main's LSMR path: 47 of them)."""
+    rng = np.random.default_rng(0)
+    gains = np.column_stack([rng.uniform(0.3, 1.0, 24), rng.uniform(1.0, 2.0, 24)])
+    data = GreyData.from_records(loop_records(None, gains=gains, duration=1.0, noise=0.1, seed=0))
+    base = linear_fit(data, refine=False)
+    problem = make_problem(data, base.spec, base.theta, base.y0, base.bias, np.arange(data.n_records))
+    monkeypatch.setattr(greybox, "DENSE_JACOBIAN_MAX_BYTES", 0)
+    monkeypatch.setattr(greybox, "JACOBIAN_PASS_SAMPLES", 7 * 3 * data.u.shape[1])  # 3 records per pass
+    tracemalloc.start()
+    try:
+        fit_problems(data, [problem], max_iter=10)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 12 * data.y.nbytes  # measured 7: the current and the trial output and residual, a simulation
+    assert problem.cost < 1.01 * 0.1**2 * data.y.size  # and it fits: RMSE at the sensor noise (0.1)
 
 
 def test_simulation_in_small_passes_equals_one_pass(monkeypatch):

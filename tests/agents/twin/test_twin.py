@@ -185,3 +185,23 @@ def test_empty_and_malformed_input_raise(clean):
     with pytest.raises(ValueError, match="hold"):
         LinearTwin(hold="spline").fit(clean[1])
 
+
+
+def test_simulation_error_over_several_batches_is_that_of_all_samples():
+    from agents.twin import srivc
+    from agents.twin.fidelity import rmse
+    from agents.twin.identify import check_orders, simulation_error
+    from agents.twin.records import as_records, make_batches
+    from tests.support import loop_records
+
+    records = as_records(loop_records(None, gains=[[0.3, 1.0], [0.6, 1.5], [0.9, 1.2]], duration=0.5))
+    orders, theta = check_orders(2, 0, 0), np.array([4.0, 4.0, 9.5])
+    signals = [srivc.prepare(b.dt, b.u, b.y, b.r2, True, "zoh") for b in make_batches(records, max_samples=260)]
+    assert len(signals) == 3  # one record per batch
+    score, score_abs, levels = simulation_error(orders, theta, 0.002, signals)
+    y_sim = [srivc.simulate(orders, theta, 0.002, sig, True) for sig in signals]
+    errors = np.concatenate([(sig.y + sig.y_ref[:, None]) - out[0] for sig, out in zip(signals, y_sim)])
+    heights = np.concatenate([np.abs(sig.r2 - out[1]) for sig, out in zip(signals, y_sim)])
+    assert score == pytest.approx(rmse(errors, height=heights), rel=1e-12)
+    assert score_abs == pytest.approx(rmse(errors), rel=1e-12)
+    np.testing.assert_array_equal(levels[:, 0], np.concatenate([out[1] for out in y_sim]))

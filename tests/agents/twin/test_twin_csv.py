@@ -153,3 +153,25 @@ def test_chunked_reading_matches_one_chunk_and_names_rows_in_later_chunks(tmp_pa
     path = _write(tmp_path, "\n".join(lines) + "\n")
     with pytest.raises(ValueError, match=r"row 21, column 'r': non-numeric value 'abc'"):
         read_csv(path)
+
+
+def test_records_share_the_parsed_columns_instead_of_copying_them(tmp_path):
+    """Memory linear in the data with a small constant: one float array per signal for all experiments."""
+    rows = [row for exp in (1, 2, 3) for row in _good_rows(exp, n=5)]
+    records = read_csv(_write(tmp_path, "\n".join([HEADER, *rows])))
+    assert [rec.n_steps for rec in records] == [5, 5, 5]
+    for name in ("t", "r", "u", "y"):
+        first, second = getattr(records[0], name), getattr(records[1], name)
+        assert first.base is not None and first.base is second.base and not first.flags.writeable  # one column
+    np.testing.assert_array_equal(records[2].u, [100, 101, 102, 103, 104])
+
+
+def test_experiments_listed_out_of_order_and_interleaved_read_alike(tmp_path):
+    ordered = read_csv(_write(tmp_path, "\n".join([HEADER, *_good_rows(1), *_good_rows(2)])))
+    rows_1, rows_2 = _good_rows(1), _good_rows(2)
+    mixed = [rows_2[0], rows_1[0], rows_2[1], rows_1[1], *rows_2[2:], *rows_1[2:]]  # experiment 2 first
+    shuffled = read_csv(_write(tmp_path, "\n".join([HEADER, *mixed])))
+    assert [rec.index for rec in shuffled] == [1, 0]
+    for a, b in zip(ordered, shuffled[::-1]):
+        for name in ("t", "r", "u", "y"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
