@@ -29,9 +29,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from data_efficiency import experiments_to_reach
-from effect_aware_guided_bo import PLANTS, interval, optimum, thresholds
-from run_log import load_runs, run_missing
+from effect_aware_guided_bo import PLANTS, count_cell, effects_column, study_arguments, study_runs, thresholds
 from sklearn.base import BaseEstimator
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -117,35 +115,21 @@ def summarise(runs: list[dict]) -> str:
                               key=lambda r: r["seed"])
                 if not mine:
                     continue
-                counts = np.array([experiments_to_reach(r["ratios"], threshold) for r in mine])
-                misses = int(np.sum(counts > len(mine[0]["ratios"])))
-                mean, low, high = interval(counts) if len(mine) > 1 else (float(counts[0]),) * 3
-                found: dict[str, int] = {}
-                for r in mine:
-                    last = r["twin_changes"][-1]["effects"] if r["twin_changes"] else {}
-                    key = "+".join(sorted(last)) or "linear"
-                    found[key] = found.get(key, 0) + 1
-                lines.append(f"| {label} | {threshold} | {twin} | {len(mine)} | {mean:.1f} [{low:.1f}, {high:.1f}] "
-                             f"({misses} misses) | {np.mean([r['activations'] for r in mine]):.1f} | "
+                _, cell = count_cell(mine, threshold)
+                found = effects_column("+".join(sorted(r["twin_changes"][-1]["effects"] if r["twin_changes"] else {}))
+                                       or "linear" for r in mine)
+                lines.append(f"| {label} | {threshold} | {twin} | {len(mine)} | {cell} | "
+                             f"{np.mean([r['activations'] for r in mine]):.1f} | "
                              f"{np.mean([r['repeats'] for r in mine]):.1f} | "
-                             f"{', '.join(f'{k} ({v})' for k, v in sorted(found.items(), key=lambda kv: -kv[1]))} | "
+                             f"{found} | "
                              f"{np.mean([r['cpu_seconds'] for r in mine]):.1f} |")
     return "\n".join(lines)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--plants", nargs="+", default=["DC+saturation"], choices=list(PLANTS))
-    parser.add_argument("--twins", nargs="+", default=list(TWINS), choices=list(TWINS))
-    parser.add_argument("--seeds", type=int, default=5, help="seeds 0..N-1 (default 5)")
-    parser.add_argument("--workers", type=int, default=1)
-    parser.add_argument("--summary", action="store_true", help="only write the table of the runs so far")
-    args = parser.parse_args()
-    if args.summary:
-        runs = load_runs(RUNS)
-    else:
-        optima = {label: optimum(label)["cost"] for label in args.plants}
-        runs = run_missing(RUNS, run_one, args.plants, args.twins, args.seeds, optima, args.workers)
+    study_arguments(parser, TWINS, ["DC+saturation"], seeds=5, workers=1)
+    runs = study_runs(RUNS, run_one, parser.parse_args())
     table = summarise(runs)
     (RESULTS / "guided_bo_oracle.md").write_text(
         "Default guided BO with the diagnosed (auto), the true (oracle) and the linear twin: real experiments to "
