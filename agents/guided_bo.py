@@ -110,7 +110,9 @@ class GuidedBO(BayesianOptimization):
     (:func:`agents.twin.selection.diagnosed_twin`, the error ladder of ``gbo twin
     diagnose``), and the twin becomes the linear model plus every effect they
     evidence, at most two, as a :class:`~agents.twin.GreyBoxTwin`, if that fits
-    better. A diagnosis is repeated only when the records have doubled since the
+    better. Each diagnosis starts from the linear model, not from the current effects
+    (the ladder only adds effects), so an effect that fewer records evidenced is
+    dropped when more records show another. A diagnosis is repeated only when the records have doubled since the
     last one, up to :data:`MAX_DIAGNOSED_RECORDS` (1, 2, 4, 8 records); after that the
     effects are settled and the twin is only refitted.
     ``twin="linear"`` is the paper's Algorithm 1 unchanged: the SRIVC
@@ -657,7 +659,9 @@ class GuidedBO(BayesianOptimization):
                 spec = ModelSpec(n_poles=self.twin_poles, n_integrators=self._integrators(),
                                  output=self._plant_env.loop.plant.output)
                 self._diagnosed_on = n
-                diagnosed = diagnosed_twin(self._twin_records, spec, effects=effects, max_effects=MAX_TWIN_EFFECTS,
+                # from the linear model, not from the current effects: the ladder only adds effects, and one that
+                # fewer records evidenced (a wrong one, when the true effect showed in only one of them) is dropped
+                diagnosed = diagnosed_twin(self._twin_records, spec, max_effects=MAX_TWIN_EFFECTS,
                                            n_samples=self.n_samples)[0]
                 if diagnosed.rmse_ < twin.rmse_:
                     twin = diagnosed

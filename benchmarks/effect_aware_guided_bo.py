@@ -73,6 +73,46 @@ def optimum(label: str) -> dict:
     return known[label]
 
 
+def count_cell(runs: list[dict], level: float) -> tuple[float, str]:
+    """Mean real experiments of ``runs`` to ratio ``level`` and the cell ``"mean [low, high] (k misses)"``.
+
+    A run that never reaches ``level`` counts as its budget + 1 and as a miss; one run has no interval.
+    """
+    from data_efficiency import experiments_to_reach
+
+    counts = np.array([experiments_to_reach(r["ratios"], level) for r in runs])
+    misses = int(np.sum(counts > len(runs[0]["ratios"])))
+    mean, low, high = interval(counts) if counts.size > 1 else (float(counts[0]),) * 3
+    return mean, f"{mean:.1f} [{low:.1f}, {high:.1f}] ({misses} misses)"
+
+
+def effects_column(keys) -> str:
+    """``"saturation (16), linear (3)"``: each key with its count, most frequent first."""
+    counts: dict[str, int] = {}
+    for key in keys:
+        counts[key] = counts.get(key, 0) + 1
+    return ", ".join(f"{k} ({v})" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
+
+
+def study_arguments(parser, variants, default_plants, seeds: int, workers: int) -> None:
+    """The options of a resumable study over :data:`PLANTS`: plants, variants, seeds, workers, summary."""
+    parser.add_argument("--plants", nargs="+", default=list(default_plants), choices=list(PLANTS))
+    parser.add_argument("--variants", nargs="+", default=list(variants), choices=list(variants))
+    parser.add_argument("--seeds", type=int, default=seeds, help=f"seeds 0..N-1 (default {seeds})")
+    parser.add_argument("--workers", type=int, default=workers)
+    parser.add_argument("--summary", action="store_true", help="only write the table of the runs so far")
+
+
+def study_runs(path: Path, run, args) -> list[dict]:
+    """The runs logged in ``path`` (``--summary``), or those plus the missing ones of ``args``, run now."""
+    from run_log import run_missing
+
+    if args.summary:
+        return load_runs(path)
+    optima = {label: optimum(label)["cost"] for label in args.plants}
+    return run_missing(path, run, args.plants, args.variants, args.seeds, optima, args.workers)
+
+
 def run_one(label: str, tuner: str, seed: int, best: float) -> dict:
     """One tuning run; its minimum-observed optimality-ratio curve and the tuner's summary."""
     import agents
@@ -99,8 +139,6 @@ def interval(counts: np.ndarray) -> tuple[float, float, float]:
 
 
 def summarise(runs: list[dict]) -> str:
-    from data_efficiency import experiments_to_reach
-
     known = json.loads((RESULTS / "ground_truth.json").read_text())
     base = known.get("DCMotor-v0", {}).get("cell"), known.get("LinearMotor-v0", {}).get("cell")
     lines = ["| plant | optimum shift (cells) | ratio | seeds | bo | guided-bo | guided / bo | activations | "
@@ -114,24 +152,18 @@ def summarise(runs: list[dict]) -> str:
         cell = known[label]["cell"]
         shift = max(abs(a - b) for a, b in zip(cell, ref)) if ref else None
         guided = [mine["guided-bo"][s] for s in seeds]
-        found: dict[str, int] = {}
-        for r in guided:
-            key = "+".join(r["effects"]) or "linear"
-            found[key] = found.get(key, 0) + 1
+        found = effects_column("+".join(r["effects"]) or "linear" for r in guided)
         for threshold in thresholds(label):
             cells = []
             means = {}
             for tuner in TUNERS:
-                counts = np.array([experiments_to_reach(mine[tuner][s]["ratios"], threshold) for s in seeds])
-                misses = int(np.sum(counts > len(mine[tuner][seeds[0]]["ratios"])))
-                mean, low, high = interval(counts)
-                means[tuner] = mean
-                cells.append(f"{mean:.1f} [{low:.1f}, {high:.1f}] ({misses} misses)")
+                means[tuner], cell = count_cell([mine[tuner][s] for s in seeds], threshold)
+                cells.append(cell)
             lines.append(f"| {label} | {shift} | {threshold} | {len(seeds)} | {cells[0]} | {cells[1]} | "
                          f"{means['guided-bo'] / means['bo']:.2f} | "
                          f"{np.mean([r['activations'] for r in guided]):.1f} | "
                          f"{np.mean([r['distrusts'] for r in guided]):.1f} | "
-                         f"{', '.join(f'{k} ({v})' for k, v in sorted(found.items(), key=lambda kv: -kv[1]))} | "
+                         f"{found} | "
                          f"{np.mean([r['seconds'] for r in guided]):.1f} |")
     return "\n".join(lines)
 

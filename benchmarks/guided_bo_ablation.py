@@ -39,9 +39,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from data_efficiency import experiments_to_reach
-from effect_aware_guided_bo import PLANTS, interval, optimum, thresholds
-from run_log import load_runs, run_missing
+from effect_aware_guided_bo import PLANTS, count_cell, optimum, study_arguments, study_runs, thresholds
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNS = RESULTS / "guided_bo_ablation_runs.jsonl"
@@ -110,10 +108,8 @@ def summarise(runs: list[dict]) -> str:
                     continue
                 cells, means = [], []
                 for runs_of in (mine[variant], mine["bo"]):
-                    counts = np.array([experiments_to_reach(runs_of[s]["ratios"], level) for s in seeds])
-                    mean, low, high = interval(counts)
-                    misses = int(np.sum(counts > len(runs_of[seeds[0]]["ratios"])))
-                    cells.append(f"{mean:.1f} [{low:.1f}, {high:.1f}] ({misses} misses)")
+                    mean, cell = count_cell([runs_of[s] for s in seeds], level)
+                    cells.append(cell)
                     means.append(mean)
                 seconds = np.mean([mine[variant][s]["seconds"] for s in seeds])
                 lines.append(f"| {label} | {name} | {variant} | {len(seeds)} | {cells[0]} | {cells[1]} | "
@@ -152,19 +148,11 @@ def plot_traces(runs: list[dict], before: str, after: str, level: float = 1.05) 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--plants", nargs="+", default=["DCMotor-v0"], choices=list(PLANTS))
-    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
-    parser.add_argument("--seeds", type=int, default=30, help="seeds 0..N-1 (default 30)")
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--summary", action="store_true", help="only write the table of the runs so far")
+    study_arguments(parser, VARIANTS, ["DCMotor-v0"], seeds=30, workers=2)
     parser.add_argument("--traces", nargs=2, metavar=("BEFORE", "AFTER"), choices=list(VARIANTS),
                         help="plot the runs BEFORE missed at ratio 1.05 next to AFTER's on the same seeds")
     args = parser.parse_args()
-    if args.summary:
-        runs = load_runs(RUNS)
-    else:
-        optima = {label: optimum(label)["cost"] for label in args.plants}
-        runs = run_missing(RUNS, run_one, args.plants, args.variants, args.seeds, optima, args.workers)
+    runs = study_runs(RUNS, run_one, args)
     table = summarise(runs)
     (RESULTS / "guided_bo_ablation.md").write_text(
         "Real experiments to each optimality ratio, mean [95 % CI] (misses; a miss counts as budget + 1), "

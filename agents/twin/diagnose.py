@@ -149,7 +149,9 @@ def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_i
 
     Each fold's experiments are left out, every model is refitted on the others
     (from its full-data fit), and its global parameters are then applied to the
-    left-out experiments with only their rest levels and biases fitted.
+    left-out experiments with only their rest levels and biases fitted. An effect
+    parameter that the fold's experiments do not determine keeps its full-data value
+    (:func:`_keep_undetermined`).
 
     Returns
     -------
@@ -162,6 +164,7 @@ def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_i
             rows = np.setdiff1d(np.arange(data.n_records), test)
             train.append(_refit_problem(data, fit, rows, True, tag=(m, f)))
     fit_problems(data, train, max_iter=max_iter)
+    _keep_undetermined(data, train, fits)
     tests = []
     for p in train:
         m, f = p.tag
@@ -478,6 +481,40 @@ def _as_step(rung: dict, before: dict, added: str, intervals: dict, units, outpu
             "added_params": intervals}
     rung["text"] = rung_text(rung, units, output)
     return rung
+
+
+def _keep_undetermined(data: GreyData, train: list[Problem], fits: Sequence[GreyFit]) -> None:
+    """Put back the full-data value of every effect parameter that a fold's refit moved without cause.
+
+    A parameter the fold's experiments do not excite (a drive limit that no command of
+    theirs reaches) has no gradient there, yet the refit may move it along its flat
+    direction (the forward-difference steps); the left-out experiment that does show it
+    would then be predicted with an arbitrary value (on DCMotor-v0 with a 138-unit limit
+    reached in one of five experiments, the fold without it moved the limit to 134.9, just
+    above its largest command: a held-out error 700 times the fit's, and a wrong effect
+    credited instead). A parameter is put back when its full-data value leaves the fold's
+    training cost unchanged (relative ``1e-9``): the fold's data cannot tell the two values
+    apart. Changes ``train`` in place (``theta`` and ``cost``).
+    """
+    trials, owners = [], []
+    for i, p in enumerate(train):
+        full = fits[p.tag[0]].theta
+        for j in range(p.spec.n_linear + 1, p.n_global):
+            if p.theta[j] != full[j]:
+                theta = p.theta.copy()
+                theta[j] = full[j]
+                trials.append(replace(p, theta=theta))
+                owners.append((i, j))
+    if not trials:
+        return
+    fit_problems(data, trials, max_iter=0)
+    changed = set()
+    for trial, (i, j) in zip(trials, owners):
+        if trial.cost <= train[i].cost * (1.0 + 1e-9):
+            train[i].theta[j] = trial.theta[j]
+            changed.add(i)
+    if changed:
+        fit_problems(data, [train[i] for i in sorted(changed)], max_iter=0)  # their costs at the kept values
 
 
 def error_ladder(data: GreyData, effects=None, spec: ModelSpec | None = None, max_steps: int = 3,

@@ -90,8 +90,14 @@ def excitation_notes(data: GreyData, output: str) -> dict[str, str]:
     reversal = np.any((np.max(np.where(data.mask, speed, -np.inf), axis=1) > 0)
                       & (np.min(np.where(data.mask, speed, np.inf), axis=1) < 0))
     if not reversal:
-        for name in ("coulomb_friction", "stiction", "backlash"):
+        for name in ("coulomb_friction", "stiction"):
             notes[name] = "no speed reversal in the data: acts as a constant load, absorbed by the rest levels"
+    # the play acts on the input path: it shows wherever the input turns back (after an overshoot of the
+    # command, as in most PI step responses), whatever the sign of the speed
+    step = np.diff(np.where(data.mask, data.u, np.nan), axis=1)
+    if not np.any((np.nanmax(step, axis=1, initial=0.0) > 0) & (np.nanmin(step, axis=1, initial=0.0) < 0)):
+        notes["backlash"] = "the input never turns back in the data: the play stays closed on one side, " \
+                            "absorbed by the rest levels"
     crossing = np.any((np.max(np.where(data.mask, data.u, -np.inf), axis=1) > 0)
                       & (np.min(np.where(data.mask, data.u, np.inf), axis=1) < 0))
     if not crossing:

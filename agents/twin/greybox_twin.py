@@ -62,7 +62,8 @@ class GreyBoxTwin(BaseEstimator):
     output : {"speed", "position"}, default "speed"
         What ``y`` measures (friction acts on ``y`` or on ``dy/dt``).
     n_samples : int, optional
-        Keep this many uniformly spaced samples per record (>= 2); default the whole record.
+        Keep this many uniformly spaced samples per record (>= 2), each with the mean input
+        over its hold interval (:func:`agents.twin.records.decimate`); default the whole record.
     max_iter : int, default 25
         Trial points of each least-squares fit of the effects (:func:`agents.twin.greybox.fit_problems`), >= 0.
 
@@ -208,7 +209,8 @@ class GreyBoxTwin(BaseEstimator):
             if self.n_samples is not None:
                 raise ValueError("n_samples: must be None when the records are given as GreyData (already stacked)")
             return records
-        return GreyData.from_records([decimate(rec, self.n_samples) for rec in as_records(records, min_steps=3)])
+        kept = [decimate(rec, self.n_samples, mean_input=True) for rec in as_records(records, min_steps=3)]
+        return GreyData.from_records(kept)
 
     def _fit_from_given_values(self, data: GreyData, spec: ModelSpec, items, base: GreyFit) -> GreyFit:
         """All effect values given: the linear part profiled at them, then everything refitted from there."""

@@ -149,19 +149,41 @@ def _validated(item, min_steps: int) -> tuple[Experiment, bool]:
     return Experiment(gains=(), **arrays), False
 
 
-def decimate(record: Experiment, n_samples: int | None) -> Experiment:
+def decimate(record: Experiment, n_samples: int | None, mean_input: bool = False) -> Experiment:
     """Keep ``n_samples`` uniformly spaced samples of a record, starting at the step.
 
     The paper's twin data set keeps ``n_tilde`` samples per experiment, eq. (Ds).
     With ``N`` samples the stride is ``(N - 1) // (n_samples - 1)``, so the kept
     samples are exact measurements on a uniform grid that ends at most one stride
     before the end of the record. ``None`` or ``n_samples >= N`` keeps the record.
+
+    Parameters
+    ----------
+    record : Experiment
+    n_samples : int or None
+        Samples to keep, ``>= 2``.
+    mean_input : bool, default False
+        Give each kept sample the mean of ``u`` over its hold interval (from it to the
+        next kept sample) instead of ``u`` at that instant. A zero-order-hold simulation
+        at the decimated sample time (the grey-box twin's replay) then applies the same
+        input impulse to the plant as the record did; the point sample lags by half a
+        stride wherever ``u`` moves, and a model fitted to it makes up for that lag with
+        wrong parameters (on DCMotor-v0 with a 138-unit drive limit, 100 of 2,500
+        samples: a 4 % lower gain and a 5-unit input offset, and a twin optimum at 3 times
+        the plant's optimal cost; with the mean, the true values within 0.05 %).
+        The SRIVC fit of :class:`~agents.twin.LinearTwin` interpolates point samples
+        (first-order hold) and keeps them.
     """
     if n_samples is None or n_samples >= record.n_steps:
         return record
     stride = (record.n_steps - 1) // (n_samples - 1)
     idx = np.arange(n_samples) * stride
-    return dataclasses.replace(record, t=record.t[idx], r=record.r[idx], u=record.u[idx], y=record.y[idx])
+    u = record.u[idx]
+    if mean_input:
+        total = np.concatenate([[0.0], np.cumsum(record.u)])
+        end = np.minimum(idx + stride, record.n_steps)
+        u = (total[end] - total[idx]) / (end - idx)
+    return dataclasses.replace(record, t=record.t[idx], r=record.r[idx], u=u, y=record.y[idx])
 
 
 def make_batches(records: list[Experiment], max_samples: int = BATCH_SAMPLES) -> list[Batch]:

@@ -58,7 +58,8 @@ def diagnosed_twin(records: Sequence, spec: ModelSpec, effects: Mapping | None =
     rungs : list of dict
         The ladder: ``{"model", "added", "rmse", "fit_percent", "heldout_rmse", "params"}`` per rung.
     """
-    data = GreyData.from_records([decimate(rec, n_samples) for rec in as_records(records, min_steps=3)])
+    kept = [decimate(rec, n_samples, mean_input=True) for rec in as_records(records, min_steps=3)]
+    data = GreyData.from_records(kept)
     steps = max(int(max_effects) - len(effects or {}), 0)
     rungs, diagnoses = error_ladder(data, effects=dict(effects or {}), spec=spec, max_steps=steps,
                                     candidates=TWIN_CANDIDATES)

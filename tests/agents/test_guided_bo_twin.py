@@ -229,3 +229,22 @@ def test_a_diverging_experiment_keeps_the_twin_prior_and_the_metric_gps():
     assert tuner.model_in_use == "metrics" and tuner.metric_prior() is not None
     unstable = tuner.metric_training_set()[1][-1]
     assert tuner.metric_surrogate.reconstruct(unstable[None, :])[0] == pytest.approx(env.unwrapped.unstable_cost)
+
+
+@pytest.mark.slow
+def test_a_diagnosis_drops_a_wrong_effect_that_fewer_records_evidenced():
+    """The ladder only adds effects: a re-diagnosis that started from the current twin's effects kept a wrong one
+    (backlash, when the 138-unit drive limit showed in one record of two) forever."""
+    from agents.twin import GreyBoxTwin
+
+    env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 138.0}})
+    tuner = _setup(GuidedBO(**FAST), env)
+    records = _records(gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 138.0}}),
+                       [[0.17, 1.7], [0.52, 1.22], [0.4, 1.5], [0.9, 2.0]])
+    for info in records:
+        tuner.tell(info["gains"], info["cost"], info)
+    wrong = GreyBoxTwin(effects={"backlash": {"width": 9.3}}, n_samples=tuner.n_samples).fit(records[:2])
+    tuner._diagnosed_on = 2  # diagnosed on two records; four are a doubling, so the next fit diagnoses again
+    twin = tuner._fit_twin(wrong)
+    assert set(twin.effect_params_) == {"saturation"}, twin.effect_params_
+    assert twin.effect_params_["saturation"]["limit"] == pytest.approx(138.0, abs=0.1)

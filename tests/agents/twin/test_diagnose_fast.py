@@ -79,12 +79,13 @@ def _copy(p):
 
 @pytest.mark.slow
 def test_unexcited_effects_are_listed_with_their_note_and_not_fitted():
-    data = _data({"saturation": {"limit": 150.0}})  # 245 -> 306 rad/s: no speed reversal, no zero crossing
+    # 245 -> 306 rad/s: no speed reversal, no zero crossing (the command turns back, which shows a play)
+    data = _data({"saturation": {"limit": 150.0}})
     result = diagnose(data)
     out = result.to_dict()
     assert out["best"] == "saturation"
     skipped = {c["effect"]: c for c in out["candidates"] if not c["fitted"]}
-    assert set(skipped) == {"coulomb_friction", "stiction", "backlash", "dead_zone", "offset"}
+    assert set(skipped) == {"coulomb_friction", "stiction", "dead_zone", "offset"}
     for name, c in skipped.items():
         assert name not in result.fits
         assert c["note"] and c["evidence"].startswith("not fitted")
@@ -105,3 +106,22 @@ def test_noise_free_linear_data_evidence_no_effect():
     out = diagnose(data, skip_unexcited=False).to_dict()
     assert out["best"] is None
     assert min(c["delta_bic"] for c in out["candidates"]) < -10.0
+
+
+def test_an_effect_shown_by_one_record_is_credited_by_cross_validation():
+    """Two records, one reaching the 138-unit drive limit: the fold without it cannot tell where the limit is and
+    must keep the full-data value for predicting the record that shows it (its refit moved the limit to just above
+    its own largest command, and backlash, which both records show, was credited instead)."""
+    import gymnasium as gym
+
+    from agents.twin.records import as_records, decimate
+
+    env = gym.make("gbo_envs/DCMotor-v0", noise=False, effects={"saturation": {"limit": 138.0}})
+    env.reset(seed=0)
+    records = [env.step(np.array(g))[4] for g in ([0.1665, 1.6972], [0.52, 1.2244])]
+    assert np.max(records[0]["u"]) < 138.0 < np.max(records[1]["u"])
+    data = GreyData.from_records([decimate(r, 100, mean_input=True) for r in as_records(records)])
+    result = diagnose(data, candidates=["saturation", "backlash"])
+    assert result.best == "saturation"
+    heldout = {c["effect"]: c["rmse"] for c in result.candidates}
+    assert heldout["saturation"] < 0.1 * heldout["backlash"]

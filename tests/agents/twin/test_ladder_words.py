@@ -18,8 +18,8 @@ from tests.support import loop_records
 
 GAINS = np.array([[0.3, 1.0], [0.9, 1.2], [1.05, 2.0]])
 LIMIT = 150.0
-# the three experiments do not reverse the speed: friction, stiction and backlash are a constant load there
-NO_REVERSAL = ["saturation", "coulomb_friction", "stiction", "backlash"]
+# the three experiments do not reverse the speed: friction and stiction are a constant load there
+NO_REVERSAL = ["saturation", "coulomb_friction", "stiction"]
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +61,7 @@ def test_diagnose_lists_what_the_data_cannot_show_and_the_ladder_in_numbers(satu
     assert "diagnose linear(2p0z)" in capsys.readouterr().err  # the bar, on stderr
     assert result.best == "saturation"
     blind = {u["effect"]: u for u in result.unobservable}
-    assert set(blind) == {"coulomb_friction", "stiction", "backlash"}
+    assert set(blind) == {"coulomb_friction", "stiction"}
     assert all(u["reason"].startswith("no speed reversal") and u["experiment"] for u in blind.values())
     assert ["coulomb_friction", "stiction"] in result.indistinguishable  # the same constant load
     payload = result.to_dict()
