@@ -23,6 +23,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
+from gbo_envs.atomic_write import atomic_write
 from gbo_envs.gain_grid import grid_axes
 
 __all__ = ["TABLE_DIR", "IGNORED_KWARGS", "fingerprint", "load_table", "save_table", "table_path"]
@@ -103,7 +104,7 @@ def load_table(env: gym.Env, resolution: int) -> tuple[tuple[np.ndarray, ...], n
         if not np.allclose(data["normalizers"], env.unwrapped.normalizers, rtol=NORMALIZER_RTOL, atol=0.0):
             return None
         axes = tuple(data[f"axis_{i}"] for i in range(int(data["n_gains"])))
-        costs = data["costs"].copy()
+        costs = data["costs"]
     box = env.unwrapped.action_space
     if not all(np.array_equal(a, b) for a, b in zip(axes, grid_axes(box.low, box.high, resolution), strict=True)):
         return None
@@ -123,8 +124,8 @@ def save_table(env: gym.Env, axes: tuple[np.ndarray, ...], costs: np.ndarray, pa
     if stamp is None:
         raise ValueError("env: a table needs an env made by gym.make from a registered id")
     path = Path(path) if path is not None else table_path(stamp["env_id"])
-    path.parent.mkdir(parents=True, exist_ok=True)
     arrays = {f"axis_{i}": np.asarray(axis, dtype=float) for i, axis in enumerate(axes)}
-    np.savez_compressed(path, fingerprint=np.array(json.dumps(stamp, sort_keys=True)), n_gains=len(axes),
-                        costs=np.asarray(costs, dtype=float), normalizers=env.unwrapped.normalizers, **arrays)
+    with atomic_write(path, "wb", encoding=None) as handle:  # a reader sees the whole old or the whole new table
+        np.savez_compressed(handle, fingerprint=np.array(json.dumps(stamp, sort_keys=True)), n_gains=len(axes),
+                            costs=np.asarray(costs, dtype=float), normalizers=env.unwrapped.normalizers, **arrays)
     return path
