@@ -361,7 +361,8 @@ def expected_outcome(loop: ClosedLoop, gains: np.ndarray, draws: int, seed: int,
         metrics.append(row_metrics.reshape(part.shape[0], k, -1).mean(axis=1))
         if cost is not None:
             costs.append(cost(row_metrics, response.unstable).reshape(part.shape[0], k).mean(axis=1))
-        first_draws.append((response.u[::k], response.y[::k], response.unstable[::k]))
+        # copies: a strided view would keep the whole chunk's k draws alive (GBs for a rig grid)
+        first_draws.append((response.u[::k].copy(), response.y[::k].copy(), response.unstable[::k].copy()))
     u, y, unstable = (np.concatenate(parts) for parts in zip(*first_draws))
     record = StepResponse(t=response.t, r=response.r, u=u, y=y, unstable=unstable)
     return np.concatenate(metrics), (np.concatenate(costs) if cost is not None else None), record

@@ -172,3 +172,22 @@ def test_rig_arguments():
 def test_rig_bad_arguments_name_the_parameter(rig_id, kwargs, parameter):
     with pytest.raises(ValueError, match=parameter):
         gym.make(rig_id, **kwargs)
+
+
+def test_expectation_holds_one_chunk_of_draws_at_a_time():
+    """The K-draw expectation keeps one chunk's responses alive, not every chunk's (a rig grid took GBs)."""
+    import tracemalloc
+
+    from gbo_envs.envs.base import expected_outcome
+
+    loop = gym.make("gbo_envs/DCMotorRig-v0", expectation_draws=16).unwrapped.loop
+    gains = np.tile([[0.5, 1.2]], (12, 1))
+
+    def peak(n_gains: int) -> int:
+        tracemalloc.start()
+        expected_outcome(loop, gains[:n_gains], 16, 0, cost=None, max_rows=16)  # one gain per chunk
+        used = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        return used
+
+    assert peak(12) < 2.0 * peak(1)
