@@ -248,3 +248,38 @@ def test_a_diagnosis_drops_a_wrong_effect_that_fewer_records_evidenced():
     twin = tuner._fit_twin(wrong)
     assert set(twin.effect_params_) == {"saturation"}, twin.effect_params_
     assert twin.effect_params_["saturation"]["limit"] == pytest.approx(138.0, abs=0.1)
+
+
+def test_effects_that_mispredict_the_recorded_costs_give_way_to_the_linear_twin(monkeypatch):
+    """A diagnosed twin whose replay error is lowest but whose closed loop mispredicts the measured costs
+    (the stiction twin of LinearMotorRig-v0) must not guide BO: the linear twin predicts them better."""
+    import agents.twin.selection as selection
+
+    env = gym.make("gbo_envs/DCMotor-v0")
+    tuner = _setup(GuidedBO(**FAST), env)
+    for info in _records(gym.make("gbo_envs/DCMotor-v0"), [[0.3, 1.2], [0.6, 1.6], [0.9, 1.0]]):
+        tuner.tell(info["gains"], info["cost"], info)
+    wrong = _wrong_twin()  # another plant's model, dressed as a diagnosed twin that replays the records exactly
+    wrong.effect_params_, wrong.rmse_ = {"time_delay": {"delay": 0.06}}, 0.0
+    monkeypatch.setattr(selection, "diagnosed_twin", lambda *args, **kwargs: (wrong, []))
+    assert tuner._cost_error(wrong) > 0.2 > tuner._cost_error(tuner._linear_twin())
+    twin = tuner._fit_twin(None)
+    assert twin is not wrong and not getattr(twin, "effect_params_", None)
+
+
+def test_a_cost_miss_resets_the_twin_data_only_if_the_twin_had_replayed_its_records():
+    """eq. (reinit_DTdataset) reads a cost miss as a plant change; with twin="auto" only when the twin was right
+    before (a wrong twin's miss says nothing about the plant, and the reset threw its records away)."""
+    from types import SimpleNamespace
+
+    env = gym.make("gbo_envs/DCMotor-v0")
+    tuner = _setup(GuidedBO(**FAST), env)
+    records = _records(gym.make("gbo_envs/DCMotor-v0"), [[0.3, 1.2], [0.6, 1.6], [0.9, 1.0]])
+    tuner.tell(records[0]["gains"], records[0]["cost"], records[0])
+    far = SimpleNamespace(evaluate=lambda gains: (None, np.full(len(gains), 10.0 * records[0]["cost"])))
+    tuner._twin_env, tuner.twin_ = far, SimpleNamespace(rmse_=0.05)  # replayed its records 25x worse than the noise
+    tuner.tell(records[1]["gains"], records[1]["cost"], records[1])
+    assert tuner.reinitializations_ == 0 and len(tuner._twin_records) == 2
+    tuner._twin_env, tuner.twin_ = far, SimpleNamespace(rmse_=0.0)  # a twin that was right: the plant changed
+    tuner.tell(records[2]["gains"], records[2]["cost"], records[2])
+    assert tuner.reinitializations_ == 1 and len(tuner._twin_records) == 1
