@@ -113,20 +113,41 @@ def study_runs(path: Path, run, args) -> list[dict]:
     return run_missing(path, run, args.plants, args.variants, args.seeds, optima, args.workers)
 
 
+class StepClock(gym.Wrapper):
+    """Counts the CPU seconds spent in the plant's ``step`` (the simulated experiment and its ground truth)."""
+
+    def __init__(self, env) -> None:
+        super().__init__(env)
+        self.cpu_seconds = 0.0
+
+    def step(self, action):
+        start = time.process_time()
+        try:
+            return self.env.step(action)
+        finally:
+            self.cpu_seconds += time.process_time() - start
+
+
 def run_one(label: str, tuner: str, seed: int, best: float) -> dict:
-    """One tuning run; its minimum-observed optimality-ratio curve and the tuner's summary."""
+    """One tuning run; its minimum-observed optimality-ratio curve and the tuner's summary.
+
+    ``seconds`` is the run's wall time, ``cpu_seconds`` its CPU time on one thread, and
+    ``plant_cpu_seconds`` the part of it the plant env's ``step`` took (on hardware, the
+    experiments themselves): the tuner's compute is the difference.
+    """
     import agents
     import gbo_envs  # noqa: F401  (registers the envs in a fresh worker)
     from agents.thread_limits import single_thread
 
     env_id, kwargs = PLANTS[label]
-    env = gym.make(env_id, **kwargs)
-    start = time.perf_counter()
+    env = StepClock(gym.make(env_id, **kwargs))
+    start, cpu_start = time.perf_counter(), time.process_time()
     with single_thread(user_api=None):
         result = agents.make(tuner).run(env, budget=env.spec.max_episode_steps, seed=seed)
     info = result.info
     return {"plant": label, "tuner": tuner, "seed": seed, "ratios": (result.min_true_cost_curve() / best).tolist(),
-            "seconds": round(time.perf_counter() - start, 2), "activations": info.get("activations"),
+            "seconds": round(time.perf_counter() - start, 2), "cpu_seconds": round(time.process_time() - cpu_start, 2),
+            "plant_cpu_seconds": round(env.cpu_seconds, 2), "activations": info.get("activations"),
             "distrusts": info.get("distrusts"), "effects": sorted(info.get("twin_effects") or {}),
             "twin_changes": len(info.get("twin_changes") or [])}
 

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from effect_aware_guided_bo import PLANTS, count_cell, optimum, study_arguments, study_runs, thresholds
+from effect_aware_guided_bo import PLANTS, StepClock, count_cell, optimum, study_arguments, study_runs, thresholds
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNS = RESULTS / "guided_bo_ablation_runs.jsonl"
@@ -76,14 +76,17 @@ def run_one(label: str, variant: str, seed: int, best: float) -> dict:
     from agents.thread_limits import single_thread
 
     env_id, kwargs = PLANTS[label]
-    env = gym.make(env_id, **kwargs)
+    env = StepClock(gym.make(env_id, **kwargs))
     name, tuner_kwargs = VARIANTS[variant]
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     with single_thread(user_api=None):
         result = agents.make(name, **tuner_kwargs).run(env, budget=env.spec.max_episode_steps, seed=seed,
                                                         progress=False)
+    info = result.info
     return {"plant": label, "variant": variant, "seed": seed, "ratios": (result.min_true_cost_curve() / best).tolist(),
-            "seconds": round(time.perf_counter() - start, 2), "activations": result.info.get("activations")}
+            "seconds": round(time.perf_counter() - start, 2), "cpu_seconds": round(time.process_time() - cpu_start, 2),
+            "plant_cpu_seconds": round(env.cpu_seconds, 2), "activations": info.get("activations"),
+            "effects": sorted(info.get("twin_effects") or {}), "twin_changes": len(info.get("twin_changes") or [])}
 
 
 def summarise(runs: list[dict]) -> str:
