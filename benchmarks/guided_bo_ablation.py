@@ -39,7 +39,16 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from effect_aware_guided_bo import PLANTS, StepClock, count_cell, optimum, study_arguments, study_runs, thresholds
+from effect_aware_guided_bo import (
+    PLANTS,
+    StepClock,
+    count_cell,
+    effects_column,
+    optimum,
+    study_arguments,
+    study_runs,
+    thresholds,
+)
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNS = RESULTS / "guided_bo_ablation_runs.jsonl"
@@ -92,7 +101,8 @@ def run_one(label: str, variant: str, seed: int, best: float) -> dict:
 def summarise(runs: list[dict]) -> str:
     """The Markdown table: per plant, threshold and variant, its runs and BO's on the same seeds."""
     lines = ["| plant | threshold | variant | seeds | variant: real experiments | bo, same seeds | variant / bo | "
-             "s/run |", "|---|---|---|---|---|---|---|---|"]
+             "s/run | tuner CPU s/run | activations | twin effects at the end (runs) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for label in PLANTS:
         mine = {v: {r["seed"]: r for r in runs if r["plant"] == label and r["variant"] == v} for v in VARIANTS}
         if not mine["bo"]:
@@ -114,10 +124,32 @@ def summarise(runs: list[dict]) -> str:
                     mean, cell = count_cell([runs_of[s] for s in seeds], level)
                     cells.append(cell)
                     means.append(mean)
-                seconds = np.mean([mine[variant][s]["seconds"] for s in seeds])
+                ran = [mine[variant][s] for s in seeds]
                 lines.append(f"| {label} | {name} | {variant} | {len(seeds)} | {cells[0]} | {cells[1]} | "
-                             f"{means[0] / means[1]:.2f} | {seconds:.1f} |")
+                             f"{means[0] / means[1]:.2f} | {np.mean([r['seconds'] for r in ran]):.1f} | "
+                             f"{tuner_cpu(ran)} | {mean_of(ran, 'activations')} | {twin_effects(ran)} |")
     return "\n".join(lines)
+
+
+def tuner_cpu(runs: list[dict]) -> str:
+    """``"mean [min, max]"`` of the tuner's CPU seconds per run (the run's minus the plant steps'), if logged."""
+    if not all("cpu_seconds" in r for r in runs):
+        return "-"
+    cpu = np.array([r["cpu_seconds"] - r["plant_cpu_seconds"] for r in runs])
+    return f"{cpu.mean():.1f} [{cpu.min():.1f}, {cpu.max():.1f}]"
+
+
+def mean_of(runs: list[dict], key: str) -> str:
+    """Mean of a logged count over the runs, ``"-"`` where a run has none."""
+    values = [r.get(key) for r in runs]
+    return "-" if any(v is None for v in values) else f"{np.mean(values):.1f}"
+
+
+def twin_effects(runs: list[dict]) -> str:
+    """The twin's effects at the end of each run (``linear`` for none), with their counts, if logged."""
+    if not all("effects" in r for r in runs):
+        return "-"
+    return effects_column("+".join(r["effects"]) or "linear" for r in runs)
 
 
 def plot_traces(runs: list[dict], before: str, after: str, level: float = 1.05) -> Path | None:
