@@ -9,7 +9,9 @@ budget:
 * ``prior, linear twin``: the same with the paper's linear SRIVC twin;
 * ``iterations, auto twin``: the paper's twin iterations (Algorithm 1) on one cost GP,
   with the diagnosed twin (the guided BO of issue 15);
-* ``iterations, linear twin``: the paper's Algorithm 1 as published.
+* ``iterations, linear twin``: the paper's Algorithm 1 as published;
+* ``wrong user twin``: the default given a deliberately wrong fitted twin
+  (:func:`wrong_twin`), which must not make it worse than BO (issue 15).
 
 Per plant and variant: the mean real experiments until the best evaluated gains
 reach each optimality ratio ``J / J*`` (``J``: the env's expected cost; ``J*``:
@@ -60,10 +62,22 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "prior, linear twin": ("guided-bo", {"twin": "linear"}),
     "iterations, auto twin": ("guided-bo", {"guidance": "iterations"}),
     "iterations, linear twin": ("guided-bo", {"guidance": "iterations", "twin": "linear"}),
+    "wrong user twin": ("guided-bo", {"twin": "wrong"}),
 }
 
 #: Phase margins (deg) of the paper's nominal PGM controllers (Table nominal_ctl_specs), used on the DC motors.
 NOMINAL_PHASE_MARGINS = (60.0, 75.0)
+
+
+def wrong_twin():
+    """A fitted :class:`~agents.twin.LinearTwin` of another plant: DCMotor-v0 behind a 60 ms dead time and a
+    120-unit drive limit, identified from two experiments (its optimum costs DCMotor-v0 over 1.5 J*)."""
+    from agents.twin import LinearTwin
+
+    other = gym.make("gbo_envs/DCMotor-v0", effects={"time_delay": {"delay": 0.06}, "saturation": {"limit": 120.0}})
+    other.reset(seed=0)
+    records = [other.step(np.array(gains))[4] for gains in ([0.5, 1.2], [0.9, 1.6])]
+    return LinearTwin(n_samples=100).fit(records)
 
 
 def nominal_ratio(label: str, best: float, phase_margin_deg: float) -> float | None:
@@ -87,6 +101,8 @@ def run_one(label: str, variant: str, seed: int, best: float) -> dict:
     env_id, kwargs = PLANTS[label]
     env = StepClock(gym.make(env_id, **kwargs))
     name, tuner_kwargs = VARIANTS[variant]
+    if tuner_kwargs.get("twin") == "wrong":
+        tuner_kwargs = {**tuner_kwargs, "twin": wrong_twin()}
     start, cpu_start = time.perf_counter(), time.process_time()
     with single_thread(user_api=None):
         result = agents.make(name, **tuner_kwargs).run(env, budget=env.spec.max_episode_steps, seed=seed,
