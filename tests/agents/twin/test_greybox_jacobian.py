@@ -97,10 +97,16 @@ def test_jacobian_below_the_dense_limit_gets_exact_steps(monkeypatch):
 
 
 def test_exact_steps_on_the_compressed_jacobian_are_least_squares_steps():
-    """A small fit takes the steps of least_squares(tr_solver="exact") on the dense Jacobian (same iterates)."""
+    """A small fit takes the steps of least_squares(tr_solver="exact") on the dense Jacobian.
+
+    The same steps in exact arithmetic; in floating point the SVD of the compressed system rounds
+    differently, and the fit's condition number (about 1e10: rest levels against the delay) turns
+    that into relative differences of about 1e-6 after a few steps (measured: at most 6e-6).
+    """
     data = _data(n=2)
     base = linear_fit(data, refine=False)
-    problem = make_problem(data, base.spec, base.theta, base.y0, base.bias, np.arange(data.n_records))
+    theta = base.theta * np.array([1.1, 0.9, 1.2, 1.0])  # away from the minimum: steps that matter
+    problem = make_problem(data, base.spec, theta, base.y0, base.bias, np.arange(data.n_records))
     free = np.flatnonzero(problem.free & (problem.lower < problem.upper))
     start = problem.theta.copy()
 
@@ -114,16 +120,16 @@ def test_exact_steps_on_the_compressed_jacobian_are_least_squares_steps():
 
     scale = np.where(problem.scale[free] > 0, problem.scale[free], 1.0)
     lower, upper = problem.lower[free], problem.upper[free]
-    for budget in (1, 2, 8):
+    for budget, rtol in ((1, 1e-9), (3, 1e-4), (8, 1e-4)):
         ref = least_squares(fun, start[free], jac=lambda x: jacobian(data, problem, full(x)), bounds=(lower, upper),
                             x_scale=scale, method="trf", tr_solver="exact", ftol=1e-7, xtol=1e-12, gtol=1e-12,
                             max_nfev=budget + 1)
         fitted = replace(problem, theta=start.copy())
         fit_problems(data, [fitted], max_iter=budget)
-        assert 2.0 * ref.cost < 0.9999 * problem.cost  # the steps do move
-        assert fitted.cost == pytest.approx(2.0 * ref.cost, rel=1e-9)
-        if budget <= 2:  # the same iterates; near the minimum roundoff steers the steps along its flat directions
-            np.testing.assert_allclose(fitted.theta[free], ref.x, rtol=1e-9)
+        np.testing.assert_allclose(fitted.theta[free], ref.x, rtol=rtol)
+        assert fitted.cost == pytest.approx(2.0 * ref.cost, rel=rtol)
+    start_residual = fun(start[free])
+    assert 2.0 * ref.cost < 0.01 * float(start_residual @ start_residual)  # the steps went far: the cost fell 100-fold
 
 
 def test_jacobian_above_the_dense_limit_is_compressed_per_record(monkeypatch):
