@@ -143,4 +143,4 @@ class Stiction(EffectBlock):
 
     def actuate(self, u, speed):
         at_rest = np.abs(speed) <= self.threshold
-        return u - np.where(at_rest, np.minimum(np.maximum(u, -self.breakaway), self.breakaway), 0.0)
+        return u - np.where(at_rest, np.clip(u, -self.breakaway, self.breakaway), 0.0)
