@@ -11,19 +11,19 @@ linear model it is SRIVC's rest input ``u0_k`` in disguise,
 
 .. math:: V(\\theta) = \\sum_k \\sum_t (y_k(t) - \\hat y_k(t; \\theta))^2
 
-with ``scipy.optimize.least_squares`` (trust-region reflective, within bounds),
-started from the SRIVC fit of the linear part and data-based guesses of the
-effect parameters. The starts of many problems (candidate models, starts,
-cross-validation folds) are simulated in vectorised passes of bounded size
-(:data:`SIMULATION_BATCH_SAMPLES`); the Jacobian is a forward difference, in
+with the trust-region reflective method of ``scipy.optimize.least_squares`` (within
+bounds; :func:`agents.twin.trust_region.trf`), started from the SRIVC fit of the
+linear part and data-based guesses of the effect parameters. The starts of many
+problems (candidate models, starts, cross-validation folds) are simulated in
+vectorised passes of bounded size (:data:`SIMULATION_BATCH_SAMPLES`); the Jacobian is a forward difference, in
 which the per-record nuisance parameters are perturbed all at once (each only
-moves its own record). Up to :data:`DENSE_JACOBIAN_MAX_BYTES` it is handed to
-``least_squares`` dense, whose trust-region steps are then exact; a larger one is
-simulated and compressed a few records at a time to one small triangular block
-per record (:class:`agents.twin.jacobian.RecordQR`) with the same normal equations,
-and the same trust-region reflective iteration runs on it
-(:func:`agents.twin.trust_region.trf`), so that memory and time grow linearly with
-the number of records and the full Jacobian never exists.
+moves its own record). It is simulated and compressed a few records at a time to
+one small triangular block per record (:class:`agents.twin.jacobian.RecordQR`) with
+the same normal equations, so that memory and time grow linearly with the number of
+records and the full Jacobian never exists. Up to :data:`DENSE_JACOBIAN_MAX_BYTES`
+(as a dense matrix) the iteration takes ``least_squares``' exact trust-region steps
+(``tr_solver="exact"``, from the SVD of the compressed system: the same steps in exact
+arithmetic); a larger one takes its LSMR steps (``tr_solver="lsmr"``).
 
 Parameters of effects whose simulation error is not differentiable (the
 quantization step) are not moved by the iteration; they are chosen from a
@@ -70,12 +70,12 @@ FITTED_PARAMETERS: dict[str, tuple[tuple[str, bool], ...]] = {
 }
 
 
-#: Largest Jacobian (bytes as a dense float64 matrix) handed to ``least_squares`` dense, whose trust-region
-#: steps are then exact (SVD); a larger one is compressed record by record (:class:`agents.twin.jacobian.RecordQR`),
-#: so that memory and time grow linearly with the number of records.
+#: Largest Jacobian (bytes as a dense float64 matrix) whose fit takes ``least_squares``' exact trust-region
+#: steps (the SVD of its compression record by record, :class:`agents.twin.jacobian.RecordQR`); a larger one
+#: takes the LSMR steps, and keeps fewer signals in memory.
 DENSE_JACOBIAN_MAX_BYTES = 32 * 2**20
 #: Largest sum of the dense Jacobians of the problems solved together in lock-step (bytes); above it
-#: each is compressed, however small.
+#: each takes the LSMR steps, however small.
 DENSE_JACOBIANS_TOTAL_BYTES = 256 * 2**20
 #: Most samples (records times steps, all trial points together) simulated in one pass of a compressed
 #: Jacobian (about 8 MB per signal); problems in lock-step share :data:`SIMULATION_BATCH_SAMPLES` per pass.
@@ -372,7 +372,7 @@ def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, 
 class _Lockstep:
     """Simulation requests of problems solved in parallel threads, run together in one vectorised pass.
 
-    Each thread runs one ``least_squares``; its residual and Jacobian evaluations
+    Each thread runs one trust-region fit; its residual and Jacobian evaluations
     call :meth:`simulate`, which waits until every thread still solving has made
     its request, then simulates all requests at once (:func:`_simulate_both`).
     The rows of a batch do not interact, so every problem sees the values it
@@ -464,11 +464,11 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     simulations (:func:`simulate_sets`), with the per-record rest levels (and
     biases) perturbed all at once, since each only moves its own record; for a
     model with a quantized output it is taken on the plant output before the
-    sensor, which is smooth in the parameters. Up to :data:`DENSE_JACOBIAN_MAX_BYTES`
-    it is dense and the trust-region steps exact (``tr_solver="exact"``); above, it
-    is compressed record by record (:class:`~agents.twin.jacobian.RecordQR`) and the
-    same iteration takes its steps in the 2-D subspace of ``tr_solver="lsmr"``
-    (:func:`agents.twin.trust_region.trf`), so memory and time grow linearly with the records.
+    sensor, which is smooth in the parameters. It is compressed record by record
+    (:class:`~agents.twin.jacobian.RecordQR`), so memory and time grow linearly with the
+    records; up to :data:`DENSE_JACOBIAN_MAX_BYTES` the trust-region steps are exact
+    (``tr_solver="exact"``), above they are in the 2-D subspace of ``tr_solver="lsmr"``
+    (:func:`agents.twin.trust_region.trf`).
     ``benchmarks/bench_greybox_solver.py`` compares it with the hand-written Levenberg-Marquardt iteration it replaced.
 
     Parameters
