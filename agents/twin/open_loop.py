@@ -466,7 +466,7 @@ def _stepping(continuous, discrete, chains, u, dt, y0, bias) -> OpenLoopResult:
     u_delayed = np.ascontiguousarray(rest.u_delayed.T)  # (n, batch)
 
     # batch-last layout: every operation of a step is elementwise over the rows (a batched matmul of
-    # tiny matrices costs 3.5x as much per step with 360 rows)
+    # tiny matrices costs 17 us with 360 rows, the elementwise products and sum 4.5 us)
     transition = np.empty((order, order + 2, batch))
     c_rows = np.empty((order, batch))
     speed_rows = np.empty((order, batch))
