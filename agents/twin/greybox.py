@@ -11,19 +11,19 @@ linear model it is SRIVC's rest input ``u0_k`` in disguise,
 
 .. math:: V(\\theta) = \\sum_k \\sum_t (y_k(t) - \\hat y_k(t; \\theta))^2
 
-with ``scipy.optimize.least_squares`` (trust-region reflective, within bounds),
-started from the SRIVC fit of the linear part and data-based guesses of the
-effect parameters. The starts of many problems (candidate models, starts,
-cross-validation folds) are simulated in vectorised passes of bounded size
-(:data:`SIMULATION_BATCH_SAMPLES`); the Jacobian is a forward difference, in
+with the trust-region reflective method of ``scipy.optimize.least_squares`` (within
+bounds; :func:`agents.twin.trust_region.trf`), started from the SRIVC fit of the
+linear part and data-based guesses of the effect parameters. The starts of many
+problems (candidate models, starts, cross-validation folds) are simulated in
+vectorised passes of bounded size (:data:`SIMULATION_BATCH_SAMPLES`); the Jacobian is a forward difference, in
 which the per-record nuisance parameters are perturbed all at once (each only
-moves its own record). Up to :data:`DENSE_JACOBIAN_MAX_BYTES` it is handed to
-``least_squares`` dense, whose trust-region steps are then exact; a larger one is
-simulated and compressed a few records at a time to one small triangular block
-per record (:class:`agents.twin.jacobian.RecordQR`) with the same normal equations,
-and the same trust-region reflective iteration runs on it
-(:func:`agents.twin.trust_region.trf`), so that memory and time grow linearly with
-the number of records and the full Jacobian never exists.
+moves its own record). It is simulated and compressed a few records at a time to
+one small triangular block per record (:class:`agents.twin.jacobian.RecordQR`) with
+the same normal equations, so that memory and time grow linearly with the number of
+records and the full Jacobian never exists. Up to :data:`DENSE_JACOBIAN_MAX_BYTES`
+(as a dense matrix) the iteration takes ``least_squares``' exact trust-region steps
+(``tr_solver="exact"``, from the SVD of the compressed system: the same steps in exact
+arithmetic); a larger one takes its LSMR steps (``tr_solver="lsmr"``).
 
 Parameters of effects whose simulation error is not differentiable (the
 quantization step) are not moved by the iteration; they are chosen from a
@@ -39,7 +39,6 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.optimize._lsq.common import make_strictly_feasible  # least_squares' own (private module)
 
 from agents.twin.fidelity import rmse
@@ -71,12 +70,12 @@ FITTED_PARAMETERS: dict[str, tuple[tuple[str, bool], ...]] = {
 }
 
 
-#: Largest Jacobian (bytes as a dense float64 matrix) handed to ``least_squares`` dense, whose trust-region
-#: steps are then exact (SVD); a larger one is compressed record by record (:class:`agents.twin.jacobian.RecordQR`),
-#: so that memory and time grow linearly with the number of records.
+#: Largest Jacobian (bytes as a dense float64 matrix) whose fit takes ``least_squares``' exact trust-region
+#: steps (the SVD of its compression record by record, :class:`agents.twin.jacobian.RecordQR`); a larger one
+#: takes the LSMR steps, and keeps fewer signals in memory.
 DENSE_JACOBIAN_MAX_BYTES = 32 * 2**20
 #: Largest sum of the dense Jacobians of the problems solved together in lock-step (bytes); above it
-#: each is compressed, however small.
+#: each takes the LSMR steps, however small.
 DENSE_JACOBIANS_TOTAL_BYTES = 256 * 2**20
 #: Most samples (records times steps, all trial points together) simulated in one pass of a compressed
 #: Jacobian (about 8 MB per signal); problems in lock-step share :data:`SIMULATION_BATCH_SAMPLES` per pass.
@@ -373,7 +372,7 @@ def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, 
 class _Lockstep:
     """Simulation requests of problems solved in parallel threads, run together in one vectorised pass.
 
-    Each thread runs one ``least_squares``; its residual and Jacobian evaluations
+    Each thread runs one trust-region fit; its residual and Jacobian evaluations
     call :meth:`simulate`, which waits until every thread still solving has made
     its request, then simulates all requests at once (:func:`_simulate_both`).
     The rows of a batch do not interact, so every problem sees the values it
@@ -465,11 +464,11 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     simulations (:func:`simulate_sets`), with the per-record rest levels (and
     biases) perturbed all at once, since each only moves its own record; for a
     model with a quantized output it is taken on the plant output before the
-    sensor, which is smooth in the parameters. Up to :data:`DENSE_JACOBIAN_MAX_BYTES`
-    it is dense and the trust-region steps exact (``tr_solver="exact"``); above, it
-    is compressed record by record (:class:`~agents.twin.jacobian.RecordQR`) and the
-    same iteration takes its steps in the 2-D subspace of ``tr_solver="lsmr"``
-    (:func:`agents.twin.trust_region.trf`), so memory and time grow linearly with the records.
+    sensor, which is smooth in the parameters. It is compressed record by record
+    (:class:`~agents.twin.jacobian.RecordQR`), so memory and time grow linearly with the
+    records; up to :data:`DENSE_JACOBIAN_MAX_BYTES` the trust-region steps are exact
+    (``tr_solver="exact"``), above they are in the 2-D subspace of ``tr_solver="lsmr"``
+    (:func:`agents.twin.trust_region.trf`).
     ``benchmarks/bench_greybox_solver.py`` compares it with the hand-written Levenberg-Marquardt iteration it replaced.
 
     Parameters
@@ -602,88 +601,29 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
 
     ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``);
     ``n_parallel`` problems make their requests together (:class:`_Lockstep`), so each asks for
-    its share of the samples of a pass at a time. A Jacobian of at most :data:`DENSE_JACOBIAN_MAX_BYTES`
-    (and :data:`DENSE_JACOBIANS_TOTAL_BYTES` for all parallel problems) goes to ``least_squares``
-    dense (:func:`_solve_dense`); a larger one is compressed record by record (:func:`_solve_compressed`).
+    its share of the samples of a pass at a time. The Jacobian is compressed record by record
+    (:func:`_solve_compressed`); one of at most :data:`DENSE_JACOBIAN_MAX_BYTES` as a dense matrix
+    (and :data:`DENSE_JACOBIANS_TOTAL_BYTES` for all parallel problems) gets ``least_squares``' exact
+    trust-region steps, a larger one its LSMR steps.
     """
     n_free = int(np.sum(p.free & (p.lower < p.upper)))
     size = 8 * p.rows.size * data.u.shape[1] * n_free
-    if size <= DENSE_JACOBIAN_MAX_BYTES and size * n_parallel <= DENSE_JACOBIANS_TOTAL_BYTES:
-        _solve_dense(data, p, max_iter, tol, simulate, n_parallel)
-    else:
-        _solve_compressed(data, p, max_iter, tol, simulate, n_parallel)
-
-
-def _solve_dense(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None, n_parallel: int = 1) -> None:
-    """One :class:`Problem` by ``least_squares`` (trf, exact trust-region steps) with its dense Jacobian."""
-    simulate, free, rough, columns = _difference_layout(data, p, simulate)
-    g, k, n = p.n_global, p.rows.size, data.u.shape[1]
-    start = p.theta.copy()
-    n_shared = int(np.sum(free < g))  # the first columns: one simulation per global parameter
-    sets_per_pass = max(1, SIMULATION_BATCH_SAMPLES // (k * n * n_parallel))
-    # the lowest-cost point so far (least_squares' iterate), its simulated output and residual
-    best: dict = {"key": None, "y": None, "residual": None, "cost": np.inf}
-    # the Jacobian's arrays, written again at each evaluation: least_squares (trf) does not use the previous
-    # Jacobian once it asks for the next, so one set of arrays serves them all
-    shared = np.empty((n_shared, k, n))
-    per_record = [np.empty((k, n)) for _ in columns[n_shared:]]
-
-    def full(x: np.ndarray) -> np.ndarray:
-        theta = start.copy()
-        theta[free] = x
-        return theta
-
-    def fun(x: np.ndarray) -> np.ndarray:
-        y = simulate([(p.spec, full(x), p.rows)])[0]
-        res = residual(data, p.rows, y).ravel()
-        cost = float(res @ res)
-        if cost < best["cost"]:
-            best.update(key=x.tobytes(), y=y, residual=res, cost=cost)
-        return res
-
-    def jac(x: np.ndarray) -> np.ndarray:
-        theta = full(x)
-        sets, steps = _difference_sets(p, theta, columns)
-        if rough or x.tobytes() != best["key"]:  # the smooth output at x itself, simulated first
-            sets.insert(0, (p.spec, theta, p.rows))
-            base = None
-        else:
-            base = best["residual"].reshape(k, n)  # residual(data, p.rows, best["y"]), already computed
-        i = 0
-        for first_set in range(0, len(sets), sets_per_pass):  # each pass's outputs freed once used
-            for y in simulate(sets[first_set : first_set + sets_per_pass], true_output=rough):
-                if base is None:
-                    base = residual(data, p.rows, y)
-                    continue
-                out = shared[i] if i < n_shared else per_record[i - n_shared]
-                residual(data, p.rows, y, out=out)
-                out -= base
-                out /= steps[i]
-                i += 1
-        return _dense_jacobian(p, free, columns, shared, per_record)
-
-    scale = np.where(p.scale[free] > 0, p.scale[free], 1.0)
-    sol = least_squares(fun, np.clip(start[free], p.lower[free], p.upper[free]), jac=jac,
-                        bounds=(p.lower[free], p.upper[free]), x_scale=scale, method="trf", tr_solver="exact",
-                        ftol=tol, xtol=1e-12, gtol=1e-12, max_nfev=max_iter + 1)
-    cost = float(np.sum(sol.fun**2))
-    p.n_iter += int(sol.nfev) - 1
-    if cost < p.cost:
-        p.theta = full(sol.x)
-        p.y_sim = best["y"] if sol.x.tobytes() == best["key"] else simulate([(p.spec, p.theta, p.rows)])[0]
-        p.residual = residual(data, p.rows, p.y_sim)
-        p.cost = float(np.sum(p.residual**2))
+    exact = size <= DENSE_JACOBIAN_MAX_BYTES and size * n_parallel <= DENSE_JACOBIANS_TOTAL_BYTES
+    _solve_compressed(data, p, max_iter, tol, simulate, n_parallel, exact=exact)
 
 
 def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
-                      n_parallel: int = 1) -> None:
+                      n_parallel: int = 1, *, exact: bool = False) -> None:
     """One :class:`Problem` by the trust-region reflective method on its Jacobian compressed record by record.
 
-    The iteration is ``least_squares``' (trf, 2-D subspace steps; :func:`agents.twin.trust_region.trf`),
-    with the forward-difference Jacobian of :func:`_solve_dense`, but simulated and factorised a
-    few records at a time (:data:`JACOBIAN_PASS_SAMPLES` samples per pass) into
-    :class:`~agents.twin.jacobian.RecordQR`: memory linear in the records, and beyond the simulated
-    output and residual at the current and the trial point, bounded.
+    The iteration is ``least_squares``' (trf; :func:`agents.twin.trust_region.trf`) with a
+    forward-difference Jacobian (:func:`jacobian`), simulated and factorised a few records at a
+    time (:data:`JACOBIAN_PASS_SAMPLES` samples per pass) into :class:`~agents.twin.jacobian.RecordQR`.
+    ``exact``: the exact trust-region steps of ``tr_solver="exact"`` (the same steps as
+    ``least_squares`` on the dense Jacobian, whose SVD took most of the time of a small fit), and
+    the simulated outputs of the current and the trial point kept; else the 2-D subspace steps of
+    ``tr_solver="lsmr"``, and memory linear in the records: beyond the simulated output and
+    residual at the current and the trial point, bounded (the final output is simulated again, once).
     """
     simulate, free, rough, columns = _difference_layout(data, p, simulate)
     g, k, n = p.n_global, p.rows.size, data.u.shape[1]
@@ -695,8 +635,8 @@ def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, sim
     n_sets = len(columns) + 1
     per_pass = max(1, min(JACOBIAN_PASS_SAMPLES // (n * n_sets), SIMULATION_BATCH_SAMPLES // (n * n_sets * n_parallel)))
     # the current point (accepted: the lowest cost so far) and the last trial point, with their residuals
-    # (their simulated outputs are not kept: the final one is simulated again, once)
-    at = {"key": None, "residual": p.residual}
+    # (and, with exact steps, their simulated outputs)
+    at = {"key": None, "residual": p.residual, "y": p.y_sim}
     trial: dict = {"key": None}
 
     def full(x: np.ndarray) -> np.ndarray:
@@ -708,15 +648,16 @@ def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, sim
         return np.concatenate([theta[:g], theta[g : g + k][records], theta[g + k :][records]])
 
     def cost(x: np.ndarray) -> float:
-        trial.update(key=None, residual=None)  # a rejected trial point's residual: freed first
-        res = residual(data, p.rows, simulate([(p.spec, full(x), p.rows)])[0])
-        trial.update(key=x.tobytes(), residual=res)
+        trial.update(key=None, residual=None, y=None)  # a rejected trial point's residual: freed first
+        y = simulate([(p.spec, full(x), p.rows)])[0]
+        res = residual(data, p.rows, y)
+        trial.update(key=x.tobytes(), residual=res, y=y if exact else None)
         return 0.5 * float(np.einsum("kt,kt->", res, res))
 
     def system(x: np.ndarray):
         if x.tobytes() == trial["key"]:  # accepted: the trial point becomes the current one
             at.update(trial)
-        trial.update(key=None, residual=None)
+        trial.update(key=None, residual=None, y=None)
         theta = full(x)
         sets, steps = _difference_sets(p, theta, columns)
         compressed = RecordQR(k, positions.shape[1])
@@ -739,23 +680,31 @@ def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, sim
     scale = np.where(p.scale[free] > 0, p.scale[free], 1.0)
     lower, upper = p.lower[free], p.upper[free]
     x0 = make_strictly_feasible(np.clip(start[free], lower, upper), lower, upper)
-    p.y_sim = None  # freed meanwhile: simulated again at the end
+    y_start = p.y_sim
+    if not exact:
+        p.y_sim = at["y"] = None  # freed meanwhile: simulated again at the end
     if not np.array_equal(x0, start[free]):  # the start moved inside the bounds: its residual is not p's
-        p.residual = at["residual"] = None  # freed meanwhile (computed again if nothing beats it)
+        at["residual"] = at["y"] = None
+        if not exact:
+            p.residual = None  # freed meanwhile (computed again if nothing beats it)
         cost(x0)
         at.update(trial)
     at["key"] = x0.tobytes()
     cost0 = 0.5 * float(np.einsum("kt,kt->", at["residual"], at["residual"]))
-    x, _, nfev = trf(cost, system, x0, cost0, lower, upper, scale, ftol=tol, max_nfev=max_iter + 1)
+    x, _, nfev = trf(cost, system, x0, cost0, lower, upper, scale, ftol=tol, max_nfev=max_iter + 1,
+                     tr_solver="exact" if exact else "lsmr", n_rows=k * n)
     p.n_iter += nfev - 1
     if x.tobytes() != at["key"]:  # the last accepted step ended the iteration before its Jacobian
         at.update(trial)
     new_cost = float(np.einsum("kt,kt->", at["residual"], at["residual"]))
     if new_cost < p.cost:
         p.theta = full(x)
-        p.residual, p.cost = at["residual"], new_cost
+        p.residual, p.cost, y_start = at["residual"], new_cost, at["y"]
     at.clear()
     trial.clear()
+    if exact:
+        p.y_sim = y_start  # the output whose residual p has
+        return
     p.y_sim = simulate([(p.spec, p.theta, p.rows)])[0]  # the output whose residual p has (deterministic)
     if p.residual is None:
         p.residual = residual(data, p.rows, p.y_sim)

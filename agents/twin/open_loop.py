@@ -465,30 +465,35 @@ def _stepping(continuous, discrete, chains, u, dt, y0, bias) -> OpenLoopResult:
     x, v_rest, inverse = rest.x0, rest.v_rest, rest.inverse
     u_delayed = np.ascontiguousarray(rest.u_delayed.T)  # (n, batch)
 
-    transition = np.empty((batch, order, order + 2))
-    c_rows = np.empty((batch, order))
-    speed_rows = np.empty((batch, order))
+    # batch-last layout: every operation of a step is elementwise over the rows (a batched matmul of
+    # tiny matrices costs 17 us with 360 rows, the elementwise products and sum 4.5 us)
+    transition = np.empty((order, order + 2, batch))
+    c_rows = np.empty((order, batch))
+    speed_rows = np.empty((order, batch))
     for row, (d, p) in enumerate(zip(discrete, continuous)):
-        transition[row, :, :order] = d.phi
-        transition[row, :, order] = d.gamma0
-        transition[row, :, order + 1] = d.gamma1
-        c_rows[row] = d.c
-        speed_rows[row] = d.c if p.output != "position" else d.velocity_row()
+        transition[:, :order, row] = d.phi
+        transition[:, order, row] = d.gamma0
+        transition[:, order + 1, row] = d.gamma1
+        c_rows[:, row] = d.c
+        speed_rows[:, row] = d.c if p.output != "position" else d.velocity_row()
     same_speed = bool(np.array_equal(speed_rows, c_rows))
-    stacked = np.empty((batch, order + 2, 1))
-    stacked[:, :order, 0] = x
-    stacked[:, order + 1, 0] = v_rest
+    stacked = np.empty((order + 2, batch))  # [state, v[k], v[k-1]]
+    stacked[:order] = x.T
+    stacked[order + 1] = v_rest
+    state = stacked[:order]
+    products = np.empty((order, order + 2, batch))
+    weighted = np.empty((order, batch))
     y_rec = np.empty((n, batch))
     yt_rec = np.empty((n, batch))
     v_rec = np.empty((n, batch))
-    state = stacked[:, :order, 0]
     sensor_ops = [(block.measure, _global(sl, part)) for sl, sensors, _ in groups for stage in sensors
                   for block, part in stage.parts]
     actuator_ops = [(block.actuate, _global(sl, part)) for sl, _, actuators in groups for stage in actuators
                     for block, part in stage.parts]
     for step in range(n):
-        y_true = np.einsum("bi,bi->b", c_rows, state)
-        yt_rec[step] = y_true
+        y_true = yt_rec[step]
+        np.multiply(c_rows, state, out=weighted)
+        np.add.reduce(weighted, axis=0, out=y_true)
         if sensor_ops:
             y_meas = y_true.copy()
             for measure, idx in sensor_ops:
@@ -497,14 +502,18 @@ def _stepping(continuous, discrete, chains, u, dt, y0, bias) -> OpenLoopResult:
         v = v_rec[step]
         v[:] = u_delayed[step]
         if actuator_ops:
-            speed = y_true if same_speed else np.einsum("bi,bi->b", speed_rows, state)
+            if same_speed:
+                speed = y_true
+            else:
+                np.multiply(speed_rows, state, out=weighted)
+                speed = weighted.sum(axis=0)
             for actuate, idx in actuator_ops:
                 v[idx] = actuate(v[idx], speed[idx])
         v += bias
-        stacked[:, order, 0] = v
-        state = np.matmul(transition, stacked)[:, :, 0]
-        stacked[:, order + 1, 0] = v
-        stacked[:, :order, 0] = state
+        stacked[order] = v
+        np.multiply(transition, stacked, out=products)  # x[k+1] = Phi x[k] + Gamma0 v[k] + Gamma1 v[k-1]
+        np.add.reduce(products, axis=1, out=state)
+        stacked[order + 1] = v
     if not sensor_ops:
         y_rec = yt_rec
     return OpenLoopResult(y=y_rec.T[inverse], y_true=yt_rec.T[inverse], v=v_rec.T[inverse],

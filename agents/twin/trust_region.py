@@ -1,9 +1,11 @@
 """Bounded trust-region reflective least squares whose Jacobian is given compressed (``J~, f~``).
 
-This is the iteration of ``scipy.optimize.least_squares(method="trf", tr_solver="lsmr")``
-(Branch, Coleman and Li's trust-region reflective method, steps in the 2-D subspace of
-the scaled gradient and the regularised Gauss-Newton direction found by LSMR), built
-from scipy's own step functions. The one difference: ``least_squares`` needs the
+This is the iteration of ``scipy.optimize.least_squares(method="trf")`` (Branch, Coleman
+and Li's trust-region reflective method), built from scipy's own step functions, with
+either of its step solvers: ``tr_solver="exact"`` (the trust-region subproblem solved
+exactly from the SVD of the scaled, regularised Jacobian, Moré's iteration) or
+``tr_solver="lsmr"`` (steps in the 2-D subspace of the scaled gradient and the
+regularised Gauss-Newton direction found by LSMR). The one difference: ``least_squares`` needs the
 residual ``f`` with its Jacobian ``J`` (``n_samples`` rows each), while every step of
 the iteration only uses ``J^T J``, ``J^T f`` and the cost ``||f||^2 / 2``. Here the
 cost comes from ``cost(x)`` and the linear algebra from a compressed system
@@ -11,9 +13,13 @@ cost comes from ``cost(x)`` and the linear algebra from a compressed system
 a few rows per record, so that neither the Jacobian nor ``least_squares``' copies of
 the residual (its augmented right-hand side, the LSMR work vectors, ``J`` times the
 subspace) exist at full size. In exact arithmetic the steps are those of
-``least_squares`` on ``(J, f)``; LSMR's stopping test sees ``||f~||`` instead of
-``||f||`` (the part of ``f`` outside the columns of ``J`` is left out), so the
-Gauss-Newton direction may differ within LSMR's tolerance.
+``least_squares`` on ``(J, f)``: with ``J = Q R`` the SVD of ``[J D; diag]`` is that of
+``[R D; diag]`` with the left factor multiplied by ``Q``, so its singular values, right
+vectors and ``U^T [f; 0]`` are the same (and the SVD of a few rows per record costs a
+fraction of the full one's: on 12 records of 2,501 samples 0.2 ms instead of 12 ms);
+LSMR's stopping test sees ``||f~||`` instead of ``||f||`` (the part of ``f`` outside
+the columns of ``J`` is left out), so the Gauss-Newton direction may differ within
+LSMR's tolerance.
 """
 
 from __future__ import annotations
@@ -22,7 +28,8 @@ from collections.abc import Callable
 
 import numpy as np
 from numpy.linalg import norm
-from scipy.linalg import qr
+from scipy import sparse
+from scipy.linalg import qr, svd
 
 # the step functions of least_squares' trf; private modules of scipy, stable since scipy 0.17
 from scipy.optimize._lsq.common import (
@@ -33,6 +40,7 @@ from scipy.optimize._lsq.common import (
     minimize_quadratic_1d,
     regularized_lsq_operator,
     right_multiplied_operator,
+    solve_lsq_trust_region,
     solve_trust_region_2d,
     update_tr_radius,
 )
@@ -44,7 +52,8 @@ __all__ = ["trf"]
 
 def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tuple], x0: np.ndarray, cost0: float,
         lower: np.ndarray, upper: np.ndarray, x_scale: np.ndarray, *, ftol: float, xtol: float = 1e-12,
-        gtol: float = 1e-12, max_nfev: int) -> tuple[np.ndarray, float, int]:
+        gtol: float = 1e-12, max_nfev: int, tr_solver: str = "lsmr",
+        n_rows: int | None = None) -> tuple[np.ndarray, float, int]:
     """Minimise ``cost(x)`` within bounds by trust-region reflective steps on a compressed Jacobian.
 
     Parameters
@@ -65,6 +74,12 @@ def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tupl
         ``least_squares``' tolerances: relative cost decrease, relative step, scaled gradient.
     max_nfev : int
         Cost evaluations at most, the start included.
+    tr_solver : {"lsmr", "exact"}, default "lsmr"
+        ``least_squares``' step solver: the 2-D subspace of LSMR's Gauss-Newton direction, or
+        the exact solution of the trust-region subproblem (from the SVD of ``J~``).
+    n_rows : int, optional
+        Rows of the uncompressed Jacobian ``J`` (default: those of ``J~``); ``"exact"``
+        uses it, as ``least_squares`` does, in its rank test ``s_min > eps n_rows s_max``.
 
     Returns
     -------
@@ -73,9 +88,14 @@ def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tupl
     nfev : int
         Cost evaluations, the start included.
     """
+    if tr_solver not in ("lsmr", "exact"):
+        raise ValueError(f"tr_solver: must be 'lsmr' or 'exact', got {tr_solver!r}")
+    exact = tr_solver == "exact"
     x, cost_x, nfev = x0.copy(), float(cost0), 1
-    jac, f = system(x)
+    jac, f = _system(system, x, exact)
     m, n = jac.shape
+    n_rows = m if n_rows is None else int(n_rows)
+    alpha = 0.0  # the Levenberg-Marquardt parameter of the exact steps, carried from step to step
     g = jac.T @ f
     scale, scale_inv = x_scale, 1.0 / x_scale
     v, dv = CL_scaling_vector(x, g, lower, upper)
@@ -92,18 +112,28 @@ def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tupl
         diag_h = g * dv * scale
         g_h = d * g  # gradient in the scaled ("hat") variables
         f_augmented[:m] = f
-        jac_h = right_multiplied_operator(jac, d)
-        a, b = build_quadratic_1d(jac_h, g_h, -g_h, diag=diag_h)
-        reg_term = -minimize_quadratic_1d(a, b, 0, delta / norm(g_h))[1] / delta**2
-        gauss_newton = lsmr(regularized_lsq_operator(jac_h, (diag_h + reg_term) ** 0.5), f_augmented)[0]
-        basis = qr(np.vstack((g_h, gauss_newton)).T, mode="economic")[0]
-        jac_basis = jac_h.dot(basis)
-        b_s = jac_basis.T @ jac_basis + (basis.T * diag_h) @ basis
-        g_s = basis.T @ g_h
+        if exact:  # least_squares' tr_solver="exact": the SVD of the scaled Jacobian over diag(diag_h)^(1/2)
+            jac_augmented = np.vstack((jac * d, np.diag(diag_h**0.5)))
+            jac_h = jac_augmented[:m]
+            u_svd, s_svd, vt_svd = svd(jac_augmented, full_matrices=False)
+            v_svd = vt_svd.T
+            uf = u_svd.T @ f_augmented
+        else:
+            jac_h = right_multiplied_operator(jac, d)
+            a, b = build_quadratic_1d(jac_h, g_h, -g_h, diag=diag_h)
+            reg_term = -minimize_quadratic_1d(a, b, 0, delta / norm(g_h))[1] / delta**2
+            gauss_newton = lsmr(regularized_lsq_operator(jac_h, (diag_h + reg_term) ** 0.5), f_augmented)[0]
+            basis = qr(np.vstack((g_h, gauss_newton)).T, mode="economic")[0]
+            jac_basis = jac_h.dot(basis)
+            b_s = jac_basis.T @ jac_basis + (basis.T * diag_h) @ basis
+            g_s = basis.T @ g_h
         theta = max(0.995, 1.0 - g_norm)  # how far a step stays from the bounds
         reduction, done = -1.0, False
         while reduction <= 0 and nfev < max_nfev:
-            p_h = basis @ solve_trust_region_2d(b_s, g_s, delta)[0]
+            if exact:
+                p_h, alpha, _ = solve_lsq_trust_region(n, n_rows, uf, s_svd, v_svd, delta, initial_alpha=alpha)
+            else:
+                p_h = basis @ solve_trust_region_2d(b_s, g_s, delta)[0]
             step, step_h, predicted = select_step(x, jac_h, diag_h, g_h, d * p_h, p_h, d, delta, lower, upper, theta)
             x_new = make_strictly_feasible(x + step, lower, upper, rstep=0)
             cost_new = float(cost(x_new))
@@ -117,13 +147,22 @@ def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tupl
             if check_termination(reduction, cost_x, norm(step), norm(x), ratio, ftol, xtol) is not None:
                 done = True
                 break
+            alpha *= delta / delta_new
             delta = delta_new
         if reduction > 0:
             x, cost_x = x_new, cost_new
             if done:
                 break
-            jac, f = system(x)
+            jac, f = _system(system, x, exact)
             g = jac.T @ f
         elif done:
             break
     return x, cost_x, nfev
+
+
+def _system(system: Callable[[np.ndarray], tuple], x: np.ndarray, dense: bool) -> tuple:
+    """``system(x)``, its matrix made dense for the exact steps (their SVD)."""
+    jac, f = system(x)
+    if dense and sparse.issparse(jac):
+        jac = jac.toarray()
+    return jac, f
