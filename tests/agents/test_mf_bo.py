@@ -229,4 +229,5 @@ def test_benchmark_resumes_and_compares_with_the_logged_bo_and_guided_bo_runs(mo
     bench.main()
     assert ran == [1]  # seed 0 was logged: the study resumed
     assert "| DCMotor-v0 | 1.05 | 2 | mf-bo | 3.5 [-15.6, 22.6] (1 misses) | 3.5 [-2.9, 9.9] (0 misses) | " \
-           "1.5 [-4.9, 7.9] (0 misses) | 1.00 | 2.33 | 1.50 | 40.0 | 0.90 |" in capsys.readouterr().out
+           "1.5 [-4.9, 7.9] (0 misses) | 1.00 | 2.33 | +2.0 [-10.7, +14.7] | 1.50 | 40.0 | 0.90 |" \
+           in capsys.readouterr().out  # mf-bo minus guided-bo, seed by seed: 1 and 3
