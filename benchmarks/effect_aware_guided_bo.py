@@ -128,14 +128,14 @@ class StepClock(gym.Wrapper):
             self.cpu_seconds += time.process_time() - start
 
 
-def run_one(label: str, tuner: str, seed: int, best: float) -> dict:
-    """One tuning run; its minimum-observed optimality-ratio curve and the tuner's summary.
+def timed_run(label: str, tuner, seed: int, best: float) -> dict:
+    """Run ``tuner`` on plant ``label`` single-threaded, with the env's episode length as budget.
 
+    Returns the minimum-observed optimality-ratio curve (``ratios``) and the tuner's summary:
     ``seconds`` is the run's wall time, ``cpu_seconds`` its CPU time on one thread, and
     ``plant_cpu_seconds`` the part of it the plant env's ``step`` took (on hardware, the
     experiments themselves): the tuner's compute is the difference.
     """
-    import agents
     import gbo_envs  # noqa: F401  (registers the envs in a fresh worker)
     from agents.thread_limits import single_thread
 
@@ -143,13 +143,19 @@ def run_one(label: str, tuner: str, seed: int, best: float) -> dict:
     env = StepClock(gym.make(env_id, **kwargs))
     start, cpu_start = time.perf_counter(), time.process_time()
     with single_thread(user_api=None):
-        result = agents.make(tuner).run(env, budget=env.spec.max_episode_steps, seed=seed)
+        result = tuner.run(env, budget=env.spec.max_episode_steps, seed=seed, progress=False)
     info = result.info
-    return {"plant": label, "tuner": tuner, "seed": seed, "ratios": (result.min_true_cost_curve() / best).tolist(),
-            "seconds": round(time.perf_counter() - start, 2), "cpu_seconds": round(time.process_time() - cpu_start, 2),
-            "plant_cpu_seconds": round(env.cpu_seconds, 2), "activations": info.get("activations"),
-            "distrusts": info.get("distrusts"), "effects": sorted(info.get("twin_effects") or {}),
-            "twin_changes": len(info.get("twin_changes") or [])}
+    return {"ratios": (result.min_true_cost_curve() / best).tolist(), "seconds": round(time.perf_counter() - start, 2),
+            "cpu_seconds": round(time.process_time() - cpu_start, 2), "plant_cpu_seconds": round(env.cpu_seconds, 2),
+            "activations": info.get("activations"), "distrusts": info.get("distrusts"),
+            "effects": sorted(info.get("twin_effects") or {}), "twin_changes": len(info.get("twin_changes") or [])}
+
+
+def run_one(label: str, tuner: str, seed: int, best: float) -> dict:
+    """One tuning run of the registered ``tuner`` (:func:`timed_run`)."""
+    import agents
+
+    return {"plant": label, "tuner": tuner, "seed": seed, **timed_run(label, agents.make(tuner), seed, best)}
 
 
 def interval(counts: np.ndarray) -> tuple[float, float, float]:

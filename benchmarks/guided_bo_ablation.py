@@ -36,37 +36,23 @@ same seeds (``guided_bo_misses.png``)::
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 from effect_aware_guided_bo import (
     PLANTS,
-    StepClock,
     count_cell,
     effects_column,
     optimum,
     study_arguments,
     study_runs,
     thresholds,
+    timed_run,
 )
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNS = RESULTS / "guided_bo_ablation_runs.jsonl"
-
-#: label -> (registered tuner, keyword arguments)
-VARIANTS: dict[str, tuple[str, dict]] = {
-    "bo": ("bo", {}),
-    "guided-bo": ("guided-bo", {}),
-    "prior, linear twin": ("guided-bo", {"twin": "linear"}),
-    "iterations, auto twin": ("guided-bo", {"guidance": "iterations"}),
-    "iterations, linear twin": ("guided-bo", {"guidance": "iterations", "twin": "linear"}),
-    "wrong user twin": ("guided-bo", {"twin": "wrong"}),
-}
-
-#: Phase margins (deg) of the paper's nominal PGM controllers (Table nominal_ctl_specs), used on the DC motors.
-NOMINAL_PHASE_MARGINS = (60.0, 75.0)
 
 
 def wrong_twin():
@@ -78,6 +64,20 @@ def wrong_twin():
     other.reset(seed=0)
     records = [other.step(np.array(gains))[4] for gains in ([0.5, 1.2], [0.9, 1.6])]
     return LinearTwin(n_samples=100).fit(records)
+
+
+#: label -> (registered tuner, keyword arguments; a callable value is called in the run, e.g. the wrong twin)
+VARIANTS: dict[str, tuple[str, dict]] = {
+    "bo": ("bo", {}),
+    "guided-bo": ("guided-bo", {}),
+    "prior, linear twin": ("guided-bo", {"twin": "linear"}),
+    "iterations, auto twin": ("guided-bo", {"guidance": "iterations"}),
+    "iterations, linear twin": ("guided-bo", {"guidance": "iterations", "twin": "linear"}),
+    "wrong user twin": ("guided-bo", {"twin": wrong_twin}),
+}
+
+#: Phase margins (deg) of the paper's nominal PGM controllers (Table nominal_ctl_specs), used on the DC motors.
+NOMINAL_PHASE_MARGINS = (60.0, 75.0)
 
 
 def nominal_ratio(label: str, best: float, phase_margin_deg: float) -> float | None:
@@ -93,25 +93,13 @@ def nominal_ratio(label: str, best: float, phase_margin_deg: float) -> float | N
 
 
 def run_one(label: str, variant: str, seed: int, best: float) -> dict:
-    """One tuning run: its minimum-observed optimality-ratio curve and the tuner's summary."""
+    """One tuning run of ``variant`` (:func:`effect_aware_guided_bo.timed_run`)."""
     import agents
-    import gbo_envs  # noqa: F401  (registers the envs in a fresh worker)
-    from agents.thread_limits import single_thread
 
-    env_id, kwargs = PLANTS[label]
-    env = StepClock(gym.make(env_id, **kwargs))
     name, tuner_kwargs = VARIANTS[variant]
-    if tuner_kwargs.get("twin") == "wrong":
-        tuner_kwargs = {**tuner_kwargs, "twin": wrong_twin()}
-    start, cpu_start = time.perf_counter(), time.process_time()
-    with single_thread(user_api=None):
-        result = agents.make(name, **tuner_kwargs).run(env, budget=env.spec.max_episode_steps, seed=seed,
-                                                        progress=False)
-    info = result.info
-    return {"plant": label, "variant": variant, "seed": seed, "ratios": (result.min_true_cost_curve() / best).tolist(),
-            "seconds": round(time.perf_counter() - start, 2), "cpu_seconds": round(time.process_time() - cpu_start, 2),
-            "plant_cpu_seconds": round(env.cpu_seconds, 2), "activations": info.get("activations"),
-            "effects": sorted(info.get("twin_effects") or {}), "twin_changes": len(info.get("twin_changes") or [])}
+    tuner_kwargs = {key: value() if callable(value) else value for key, value in tuner_kwargs.items()}
+    return {"plant": label, "variant": variant, "seed": seed,
+            **timed_run(label, agents.make(name, **tuner_kwargs), seed, best)}
 
 
 def summarise(runs: list[dict]) -> str:

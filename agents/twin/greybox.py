@@ -601,32 +601,22 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
 
     ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``);
     ``n_parallel`` problems make their requests together (:class:`_Lockstep`), so each asks for
-    its share of the samples of a pass at a time. The Jacobian is compressed record by record
-    (:func:`_solve_compressed`); one of at most :data:`DENSE_JACOBIAN_MAX_BYTES` as a dense matrix
-    (and :data:`DENSE_JACOBIANS_TOTAL_BYTES` for all parallel problems) gets ``least_squares``' exact
-    trust-region steps, a larger one its LSMR steps.
-    """
-    n_free = int(np.sum(p.free & (p.lower < p.upper)))
-    size = 8 * p.rows.size * data.u.shape[1] * n_free
-    exact = size <= DENSE_JACOBIAN_MAX_BYTES and size * n_parallel <= DENSE_JACOBIANS_TOTAL_BYTES
-    _solve_compressed(data, p, max_iter, tol, simulate, n_parallel, exact=exact)
-
-
-def _solve_compressed(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
-                      n_parallel: int = 1, *, exact: bool = False) -> None:
-    """One :class:`Problem` by the trust-region reflective method on its Jacobian compressed record by record.
-
-    The iteration is ``least_squares``' (trf; :func:`agents.twin.trust_region.trf`) with a
-    forward-difference Jacobian (:func:`jacobian`), simulated and factorised a few records at a
-    time (:data:`JACOBIAN_PASS_SAMPLES` samples per pass) into :class:`~agents.twin.jacobian.RecordQR`.
-    ``exact``: the exact trust-region steps of ``tr_solver="exact"`` (the same steps as
-    ``least_squares`` on the dense Jacobian, whose SVD took most of the time of a small fit), and
-    the simulated outputs of the current and the trial point kept; else the 2-D subspace steps of
-    ``tr_solver="lsmr"``, and memory linear in the records: beyond the simulated output and
-    residual at the current and the trial point, bounded (the final output is simulated again, once).
+    its share of the samples of a pass at a time. The iteration is ``least_squares``' (trf;
+    :func:`agents.twin.trust_region.trf`) with a forward-difference Jacobian (:func:`jacobian`),
+    simulated and factorised a few records at a time (:data:`JACOBIAN_PASS_SAMPLES` samples per
+    pass) into :class:`~agents.twin.jacobian.RecordQR`. A Jacobian of at most
+    :data:`DENSE_JACOBIAN_MAX_BYTES` as a dense matrix (and :data:`DENSE_JACOBIANS_TOTAL_BYTES` for
+    all parallel problems) gets the exact trust-region steps of ``tr_solver="exact"`` (the same
+    steps as ``least_squares`` on the dense Jacobian, whose SVD took most of the time of a small
+    fit), and the simulated outputs of the current and the trial point are kept; a larger one gets
+    the 2-D subspace steps of ``tr_solver="lsmr"``, and memory linear in the records: beyond the
+    simulated output and residual at the current and the trial point, bounded (the final output is
+    simulated again, once).
     """
     simulate, free, rough, columns = _difference_layout(data, p, simulate)
     g, k, n = p.n_global, p.rows.size, data.u.shape[1]
+    size = 8 * k * n * free.size  # bytes of the Jacobian as a dense matrix
+    exact = size <= DENSE_JACOBIAN_MAX_BYTES and size * n_parallel <= DENSE_JACOBIANS_TOTAL_BYTES
     start = p.theta.copy()
     n_shared = int(np.sum(free < g))
     positions = _record_positions(p, free, columns, n_shared)

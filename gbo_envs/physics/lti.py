@@ -23,8 +23,8 @@ __all__ = ["ContinuousPlant", "DiscretePlant"]
 def _floats(values) -> tuple[float, ...]:
     """``values`` as a tuple of floats (at least one); a tuple of floats as it is (a plant is built for
     every parameter set a fit simulates, so the common case skips numpy)."""
-    if isinstance(values, tuple) and values and all(isinstance(c, float) for c in values):
-        return tuple(map(float, values))
+    if isinstance(values, tuple) and values and all(type(c) is float for c in values):
+        return values
     return tuple(float(c) for c in np.atleast_1d(values))
 
 
