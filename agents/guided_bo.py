@@ -218,7 +218,9 @@ class GuidedBO(BayesianOptimization):
         Cap of eq. (DT_stop_b) on twin iterations per activation.
     n_samples : int, default 100
         Samples per experiment kept for identification, the paper's ``n~`` of eq. (Ds);
-        ``None`` keeps every sample.
+        ``None`` keeps every sample. Records whose command moves within the hold
+        intervals (a near bang-bang move) keep more, or all
+        (:func:`agents.twin.records.decimate_records`).
     activation : {"uncertainty", "periodic"}, default "uncertainty"
         ``"periodic"`` activates the twin every ``period`` plant experiments for
         exactly ``n_ei`` iterations, subject only to ``eta2`` (Sec. V-A).

@@ -24,7 +24,7 @@ from agents.twin.fitting import (
 from agents.twin.greybox import FITTED_PARAMETERS, GreyData, GreyFit, ModelSpec, fit_problems
 from agents.twin.guesses import rest_command
 from agents.twin.identify import LINEAR_CONSTRAINTS, check_orders
-from agents.twin.records import as_records, decimate
+from agents.twin.records import as_records, decimate_records
 from gbo_envs.physics.effects import build_effect
 
 __all__ = ["GreyBoxTwin"]
@@ -63,7 +63,8 @@ class GreyBoxTwin(BaseEstimator):
         What ``y`` measures (friction acts on ``y`` or on ``dy/dt``).
     n_samples : int, optional
         Keep this many uniformly spaced samples per record (>= 2), each with the mean input
-        over its hold interval (:func:`agents.twin.records.decimate`); default the whole record.
+        over its hold interval, more where the command moves within a hold
+        (:func:`agents.twin.records.decimate_records`); default the whole record.
     max_iter : int, default 25
         Trial points of each least-squares fit of the effects (:func:`agents.twin.greybox.fit_problems`), >= 0.
 
@@ -209,7 +210,7 @@ class GreyBoxTwin(BaseEstimator):
             if self.n_samples is not None:
                 raise ValueError("n_samples: must be None when the records are given as GreyData (already stacked)")
             return records
-        kept = [decimate(rec, self.n_samples, mean_input=True) for rec in as_records(records, min_steps=3)]
+        kept = decimate_records(as_records(records, min_steps=3), self.n_samples, mean_input=True)
         return GreyData.from_records(kept)
 
     def _fit_from_given_values(self, data: GreyData, spec: ModelSpec, items, base: GreyFit) -> GreyFit:

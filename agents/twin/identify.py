@@ -18,7 +18,7 @@ from sklearn.utils._param_validation import Interval, StrOptions, validate_param
 
 from agents.twin import srivc
 from agents.twin.fidelity import rmse
-from agents.twin.records import as_records, decimate, make_batches
+from agents.twin.records import as_records, decimate_records, make_batches
 from gbo_envs import ContinuousPlant
 
 __all__ = ["LINEAR_CONSTRAINTS", "LinearIdentification", "check_orders", "identify_linear", "prepare_signals",
@@ -155,7 +155,7 @@ def prepare_signals(records, orders: srivc.Orders, n_samples: int | None = None,
     """
     raw = as_records(records, min_steps=3)
     _check_excitation(raw)
-    data = [decimate(rec, n_samples) for rec in raw]
+    data = decimate_records(raw, n_samples)
     total = sum(rec.n_steps for rec in data)
     if total < orders.n_params + 3:
         raise ValueError(f"records: {total} samples in all are too few for {orders.n_params} parameters")
@@ -251,7 +251,9 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
         Keep this many uniformly spaced samples per record, the paper's sampling
         length ``n_tilde`` of eq. (Ds) (paper: 100). Default ``None`` uses the
         whole record: the loop's input is held between samples, so at the full
-        rate the filters are exact and the fit is best.
+        rate the filters are exact and the fit is best. Where the command moves
+        within the hold intervals, more samples are kept, or all
+        (:func:`agents.twin.records.decimate_records`).
     hold : {"auto", "zoh", "foh"}, default "auto"
         Intersample behaviour of ``u`` and ``y`` in the prefilters: zero-order
         hold (exact for a digital loop sampled at the record rate) or

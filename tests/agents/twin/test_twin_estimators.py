@@ -179,3 +179,34 @@ def test_greybox_twin_on_decimated_records_finds_the_true_plant():
     assert twin.effect_params_["saturation"]["limit"] == pytest.approx(138.0, abs=0.05)
     offset = [b.value for b in twin.effects_ if b.name == "offset"]
     assert abs(offset[0]) < 0.1  # input units; the plant has no input offset
+
+
+def test_decimation_keeps_every_sample_where_the_command_switches_within_a_hold():
+    from agents.twin.records import as_records, decimate_records, hold_spread
+
+    t = np.arange(301) * 1e-3
+    smooth = as_records([{"t": t, "r": np.full(301, 1.0), "u": np.exp(-t / 0.05), "y": 1.0 - np.exp(-t / 0.05)}])
+    kept = decimate_records(smooth, 100, mean_input=True)
+    assert kept[0].n_steps == 100 and kept[0].dt == pytest.approx(3e-3)
+    bang = np.where(t < 0.015, 300.0, np.where(t < 0.03, -300.0, 0.0)) * (-1.0) ** np.arange(301)
+    switching = as_records([{"t": t, "r": np.full(301, 1.0), "u": bang, "y": t.copy()}])
+    assert hold_spread(switching[0], 3) > 0.5
+    assert decimate_records(switching, 100, mean_input=True)[0] is switching[0]
+    # one stride for records of different lengths, so that they keep one sample time
+    both = decimate_records([smooth[0], as_records([{"t": t[:201], "r": np.ones(201), "u": np.exp(-t[:201] / 0.05),
+                                                    "y": t[:201].copy()}])[0]], 100)
+    assert both[0].dt == both[1].dt == pytest.approx(2e-3)
+
+
+def test_greybox_twin_finds_the_linear_motors_drive_limit_on_decimated_records():
+    """The linear motor's step is a near bang-bang move at its 7 A limit (commands of hundreds of A switching
+    within 3 ms): a hold's mean command is not its saturated mean, so its records must not be decimated (on
+    100 of 301 samples the fitted limit was 38 A)."""
+    env = gym.make("gbo_envs/LinearMotor-v0")
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    records = [env.step(rng.uniform(env.action_space.low, env.action_space.high))[4] for _ in range(3)]
+    twin = GreyBoxTwin(effects=["saturation"], n_poles=2, n_integrators=1, output="position", n_samples=100)
+    twin.fit(records)
+    assert twin.effect_params_["saturation"]["limit"] == pytest.approx(7.0, rel=0.01)
+    np.testing.assert_allclose(twin.params_, [0.44262 / 0.070983, 0.8 / 0.070983], rtol=0.01)
