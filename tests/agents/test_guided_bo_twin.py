@@ -40,6 +40,18 @@ def test_auto_twin_picks_up_a_known_effect_within_ten_experiments():
     assert abs(found[0]["effects"]["saturation"]["limit"] - 138.0) < 3.0
 
 
+@pytest.mark.slow
+def test_auto_twin_finds_the_linear_motors_drive_limit_and_is_used():
+    """LinearMotor-v0's step is a near bang-bang move at its 7 A limit: the diagnosed twin must have the limit
+    (decimated records put it at 38 A, and the twin was activated 0.4 times per run) and be activated."""
+    tuner = GuidedBO(**FAST)
+    tuner.run(gym.make("gbo_envs/LinearMotor-v0"), budget=4, seed=0)
+    found = [c for c in tuner.twin_changes_ if "saturation" in c["effects"]]
+    assert found, [c["text"] for c in tuner.twin_changes_]
+    assert found[-1]["effects"]["saturation"]["limit"] == pytest.approx(7.0, rel=0.01)
+    assert tuner.activations_ >= 1
+
+
 def test_auto_twin_stays_linear_on_a_linear_plant():
     tuner = GuidedBO(**FAST)
     tuner.run(gym.make("gbo_envs/DCMotor-v0"), budget=4, seed=1)
