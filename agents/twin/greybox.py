@@ -51,7 +51,7 @@ from gbo_envs.physics.lti import ContinuousPlant
 
 __all__ = ["DENSE_JACOBIANS_TOTAL_BYTES", "DENSE_JACOBIAN_MAX_BYTES", "FITTED_PARAMETERS", "JACOBIAN_PASS_SAMPLES",
            "SIMULATION_BATCH_SAMPLES",
-           "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "jacobian", "residual", "simulate_sets"]
+           "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "jacobian", "residual", "residual_in_increments", "simulate_sets"]
 
 #: Effect parameters the grey-box fit estimates, and whether they are moved by the gradient
 #: iteration (``True``) or chosen on a grid (``False``). Other parameters keep their defaults.
@@ -418,12 +418,23 @@ class _Lockstep:
         self.cond.notify_all()
 
 
-def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """Simulation error ``y_sim - y`` of the records ``rows``, the residual :func:`fit_problems` minimises.
+def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarray | None = None,
+             increments: bool = False) -> np.ndarray:
+    r"""Simulation error ``y_sim - y`` of the records ``rows``, the residual :func:`fit_problems` minimises.
 
     Padding samples give 0; a non-finite or huge simulated value (a diverged model) gives a large
     finite penalty, ``1e6 (1 + max |y|)``, so that the cost stays comparable and its sum of squares
     cannot overflow inside the solver.
+
+    With ``increments`` (a position output, :func:`residual_in_increments`) the error is taken on the
+    increments of the output after the first sample,
+
+    .. math:: \epsilon_k(0) = e_k(0), \qquad \epsilon_k(t) = e_k(t) - e_k(t-1),
+
+    an invertible map of ``e``: the same minimum for a model that replays the record, but an
+    error that does not persist. A replayed slider that sticks a moment earlier than the
+    plant's stays off by the difference for the rest of the record; on the increments the
+    difference counts once, so the error is smooth in the friction and the drive limit.
 
     Parameters
     ----------
@@ -448,7 +459,15 @@ def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarra
     diverged = ~np.isfinite(err)
     np.clip(err, -penalty, penalty, out=err)
     err[diverged] = penalty
+    if increments:
+        err[:, 1:] -= err[:, :-1].copy()
+        err[~mask] = 0.0
     return err
+
+
+def residual_in_increments(spec: ModelSpec) -> bool:
+    """Whether the fit of ``spec`` takes the simulation error on the output's increments: a position output."""
+    return spec.output == "position"
 
 
 def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7, *,
@@ -490,7 +509,7 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     """
     sims = simulate_sets(data, [(p.spec, p.theta, p.rows) for p in problems])
     for p, y in zip(problems, sims):
-        p.y_sim, p.residual = y, residual(data, p.rows, y)
+        p.y_sim, p.residual = y, residual(data, p.rows, y, increments=residual_in_increments(p.spec))
         p.cost = float(np.sum(p.residual**2))
     budgets = [int(max_iter)] * len(problems) if budgets is None else [int(b) for b in budgets]
     if len(budgets) != len(problems):
@@ -577,8 +596,9 @@ def jacobian(data: GreyData, p: Problem, theta: np.ndarray, simulate=None) -> np
     simulate, free, rough, columns = _difference_layout(data, p, simulate)
     sets, steps = _difference_sets(p, theta, columns)
     ys = simulate([*sets, (p.spec, theta, p.rows)], true_output=rough)  # last the output at theta itself
-    base = residual(data, p.rows, ys[-1])
-    diffs = [(residual(data, p.rows, y) - base) / h for y, h in zip(ys, steps)]
+    inc = residual_in_increments(p.spec)
+    base = residual(data, p.rows, ys[-1], increments=inc)
+    diffs = [(residual(data, p.rows, y, increments=inc) - base) / h for y, h in zip(ys, steps)]
     n_shared = int(np.sum(free < p.n_global))
     shared = np.array(diffs[:n_shared]).reshape(n_shared, *base.shape)
     return _dense_jacobian(p, free, columns, shared, diffs[n_shared:])
@@ -615,6 +635,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
     """
     simulate, free, rough, columns = _difference_layout(data, p, simulate)
     g, k, n = p.n_global, p.rows.size, data.u.shape[1]
+    inc = residual_in_increments(p.spec)
     size = 8 * k * n * free.size  # bytes of the Jacobian as a dense matrix
     exact = size <= DENSE_JACOBIAN_MAX_BYTES and size * n_parallel <= DENSE_JACOBIANS_TOTAL_BYTES
     start = p.theta.copy()
@@ -640,7 +661,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
     def cost(x: np.ndarray) -> float:
         trial.update(key=None, residual=None, y=None)  # a rejected trial point's residual: freed first
         y = simulate([(p.spec, full(x), p.rows)])[0]
-        res = residual(data, p.rows, y)
+        res = residual(data, p.rows, y, increments=inc)
         trial.update(key=x.tobytes(), residual=res, y=y if exact else None)
         return 0.5 * float(np.einsum("kt,kt->", res, res))
 
@@ -658,10 +679,10 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
             if rough:  # the smooth output at x itself, first
                 passes.insert(0, (p.spec, part(theta, records), rows))
             ys = simulate(passes, true_output=rough)
-            base = residual(data, rows, ys.pop(0)) if rough else at["residual"][records]
+            base = residual(data, rows, ys.pop(0), increments=inc) if rough else at["residual"][records]
             blocks = np.empty((len(ys), rows.size, n))
             for block, y, h in zip(blocks, ys, steps):
-                residual(data, rows, y, out=block)
+                residual(data, rows, y, out=block, increments=inc)
                 block -= base
                 block /= h
             compressed.add(records, blocks, at["residual"][records])
@@ -697,7 +718,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
         return
     p.y_sim = simulate([(p.spec, p.theta, p.rows)])[0]  # the output whose residual p has (deterministic)
     if p.residual is None:
-        p.residual = residual(data, p.rows, p.y_sim)
+        p.residual = residual(data, p.rows, p.y_sim, increments=inc)
 
 
 def _record_positions(p: Problem, free: np.ndarray, columns: list[list[int]], n_shared: int) -> np.ndarray:
