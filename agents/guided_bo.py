@@ -110,7 +110,10 @@ class GuidedBO(BayesianOptimization):
     (:func:`agents.twin.selection.diagnosed_twin`, the error ladder of ``gbo twin
     diagnose``), and the twin becomes the linear model plus every effect they
     evidence, at most two, as a :class:`~agents.twin.GreyBoxTwin`, if that fits
-    better. A twin with effects is kept only while its closed loop predicts the costs
+    better. For a position output a grey-box twin's RMSE is that of the increments of
+    its error (:func:`agents.twin.greybox.output_error`): a replayed slider that sticks
+    a moment off the plant's stays off in open loop, not in the twin's closed loop.
+    A twin with effects is kept only while its closed loop predicts the costs
     measured at the recorded gains better than the linear twin's does (RMS relative
     error ``sqrt(mean_i ((J~(theta_i) - J_i) / J_i)^2)``): the fit replays the recorded
     inputs, and effects that replay them well can still mispredict the closed loop

@@ -32,7 +32,16 @@ from agents.twin.fitting import (
     make_problem,
     refine_grid_parameters,
 )
-from agents.twin.greybox import FITTED_PARAMETERS, GreyData, GreyFit, ModelSpec, Problem, fit_problems, simulate_sets
+from agents.twin.greybox import (
+    FITTED_PARAMETERS,
+    GreyData,
+    GreyFit,
+    ModelSpec,
+    Problem,
+    fit_problems,
+    output_error,
+    simulate_sets,
+)
 from agents.twin.greybox_twin import GreyBoxTwin
 from agents.twin.ladder_text import rung_text
 from agents.twin.noise_floor import NOISE_FLOOR_LABELS, noise_floor_estimate
@@ -428,7 +437,7 @@ def _effect_size(data: GreyData, fit: GreyFit) -> float:
     rows = np.arange(data.n_records)
     sims = simulate_sets(data, [(fit.spec, np.concatenate([th, fit.y0, fit.bias]), rows) for th in (fit.theta, theta0)],
                          true_output=cls.side != "sensor")  # a sensor effect only shows in the measurement
-    size = rmse(sims[0] - sims[1], mask=data.mask)
+    size = rmse(output_error(sims[0], sims[1], data.mask, fit.spec), mask=data.mask)  # in the fit's error
     return size if np.isfinite(size) else 0.0
 
 

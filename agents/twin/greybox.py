@@ -51,7 +51,8 @@ from gbo_envs.physics.lti import ContinuousPlant
 
 __all__ = ["DENSE_JACOBIANS_TOTAL_BYTES", "DENSE_JACOBIAN_MAX_BYTES", "FITTED_PARAMETERS", "JACOBIAN_PASS_SAMPLES",
            "SIMULATION_BATCH_SAMPLES",
-           "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "jacobian", "residual", "residual_in_increments", "simulate_sets"]
+           "GreyData", "GreyFit", "ModelSpec", "Problem", "fit_problems", "jacobian", "output_error", "residual",
+           "residual_in_increments", "simulate_sets", "to_increments"]
 
 #: Effect parameters the grey-box fit estimates, and whether they are moved by the gradient
 #: iteration (``True``) or chosen on a grid (``False``). Other parameters keep their defaults.
@@ -459,15 +460,26 @@ def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarra
     diverged = ~np.isfinite(err)
     np.clip(err, -penalty, penalty, out=err)
     err[diverged] = penalty
-    if increments:
-        err[:, 1:] -= err[:, :-1].copy()
-        err[~mask] = 0.0
-    return err
+    return to_increments(err, mask) if increments else err
 
 
 def residual_in_increments(spec: ModelSpec) -> bool:
     """Whether the fit of ``spec`` takes the simulation error on the output's increments: a position output."""
     return spec.output == "position"
+
+
+def to_increments(err: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``err`` (records by samples, 0 on padding) replaced in place by its first sample and its increments."""
+    err[:, 1:] -= err[:, :-1].copy()
+    err[~mask] = 0.0
+    return err
+
+
+def output_error(y: np.ndarray, y_sim: np.ndarray, mask: np.ndarray, spec: ModelSpec) -> np.ndarray:
+    """Measured minus simulated output, 0 on padding; on the increments for a position output
+    (:func:`residual_in_increments`): the error every RMSE of a grey-box fit is taken on."""
+    err = np.where(mask, y - y_sim, 0.0)
+    return to_increments(err, mask) if residual_in_increments(spec) else err
 
 
 def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7, *,
@@ -758,7 +770,8 @@ class GreyFit:
     y_sim : ndarray of shape (n_records, n_steps)
         Simulated measurement.
     rmse : float
-        Root-mean-square simulation error over all real samples, units of ``y``.
+        Root-mean-square simulation error over all real samples, units of ``y``; for a position
+        output, of its increments (:func:`output_error`).
     """
 
     spec: ModelSpec
@@ -776,7 +789,8 @@ class GreyFit:
         g, k = p.n_global, p.rows.size
         y, mask = (data.y, data.mask) if data.is_all(p.rows) else (data.y[p.rows], data.mask[p.rows])  # no copies
         return cls(p.spec, p.theta[:g].copy(), p.spec.plant(p.theta[:g]), p.spec.blocks(p.theta[:g]),
-                   p.theta[g : g + k].copy(), p.theta[g + k :].copy(), p.y_sim, rmse(y - p.y_sim, mask=mask))
+                   p.theta[g : g + k].copy(), p.theta[g + k :].copy(), p.y_sim,
+                   rmse(output_error(y, p.y_sim, mask, p.spec), mask=mask))
 
     @property
     def effect_params(self) -> dict[str, dict]:

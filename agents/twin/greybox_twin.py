@@ -21,7 +21,7 @@ from agents.twin.fitting import (
     profile,
     refine_grid_parameters,
 )
-from agents.twin.greybox import FITTED_PARAMETERS, GreyData, GreyFit, ModelSpec, fit_problems
+from agents.twin.greybox import FITTED_PARAMETERS, GreyData, GreyFit, ModelSpec, fit_problems, output_error
 from agents.twin.guesses import rest_command
 from agents.twin.identify import LINEAR_CONSTRAINTS, check_orders
 from agents.twin.records import as_records, decimate_records
@@ -84,6 +84,10 @@ class GreyBoxTwin(BaseEstimator):
         Linear part as in :class:`agents.twin.LinearTwin`.
     rmse_ : float
         Eq. (RMSE) on the fitted data, normalised by each record's step height ``|r2 - y0|``.
+        For a position output it is taken on the increments of the error
+        (:func:`agents.twin.greybox.output_error`), as the fit is: a replayed slider that
+        sticks a moment earlier than the plant's stays off for the rest of the record, an
+        offset the twin's closed loop, whose controller sees it, does not keep.
     rmse_abs_ : float
         The same in the units of ``y``.
     rest_levels_ : ndarray of shape (n_records, 2)
@@ -278,4 +282,4 @@ class GreyBoxTwin(BaseEstimator):
 def _normalised_rmse(data: GreyData, fit: GreyFit) -> float:
     """Eq. (RMSE) of ``fit`` on ``data`` normalised by each record's step height ``|r2 - y0|``."""
     height = np.abs(data.r[np.arange(data.n_records), data.mask.sum(axis=1) - 1] - fit.y0)
-    return rmse(data.y - fit.y_sim, mask=data.mask, height=height)
+    return rmse(output_error(data.y, fit.y_sim, data.mask, fit.spec), mask=data.mask, height=height)
