@@ -336,7 +336,9 @@ def _diagnose(data: GreyData, current: GreyFit, names: list, skipped: list, note
     restart = _without_new_effect(data, current, fits)
     if restart is not None and _restarts < 1:  # a candidate found better values of the current parameters
         bar.close()
-        return diagnose(data, candidates=candidates, current=restart, n_folds=n_folds, bic_margin=bic_margin,
+        # one experiment has no folds to pass on (its validated default stands for none)
+        folds = n_folds if data.n_records >= 2 else None
+        return diagnose(data, candidates=candidates, current=restart, n_folds=folds, bic_margin=bic_margin,
                         min_gain=min_gain, max_iter=max_iter, noise_gain=noise_gain,
                         skip_unexcited=skip_unexcited, screen_iter=screen_iter, progress=progress,
                         _restarts=_restarts + 1, _starts=fits, _nested=_nested)

@@ -125,3 +125,21 @@ def test_an_effect_shown_by_one_record_is_credited_by_cross_validation():
     assert result.best == "saturation"
     heldout = {c["effect"]: c["rmse"] for c in result.candidates}
     assert heldout["saturation"] < 0.1 * heldout["backlash"]
+
+
+@pytest.mark.slow
+def test_the_ladder_on_one_experiment_restarts_without_folds():
+    """One LinearMotorRig-v0 experiment: a candidate's fit finds better values of the linear part, so the diagnosis
+    restarts from it. The restart passed on the validated default of two folds, which one experiment rejects, and
+    guided BO lost its twin after its first experiment (and 5 s of CPU)."""
+    import gymnasium as gym
+
+    from agents.twin.greybox import ModelSpec
+    from agents.twin.selection import diagnosed_twin
+
+    env = gym.make("gbo_envs/LinearMotorRig-v0")
+    env.reset(seed=0)
+    record = env.step(np.random.default_rng(0).uniform(env.action_space.low, env.action_space.high))[4]
+    twin, rungs = diagnosed_twin([record], ModelSpec(n_poles=2, n_integrators=1, output="position"))
+    assert twin.effect_params_["saturation"]["limit"] == pytest.approx(7.0, rel=0.1)  # the drive's 7 A
+    assert rungs[-1]["rmse"] < 0.1 * rungs[0]["rmse"]
