@@ -44,7 +44,7 @@ from scipy.optimize._lsq.common import make_strictly_feasible  # least_squares' 
 from agents.twin.fidelity import rmse
 from agents.twin.jacobian import RecordQR, dense_jacobian
 from agents.twin.open_loop import simulate_open_loop
-from agents.twin.records import as_records
+from agents.twin.records import as_records, decimate_records
 from agents.twin.trust_region import trf
 from gbo_envs.physics.effects import EFFECTS, build_effect
 from gbo_envs.physics.lti import ContinuousPlant
@@ -113,6 +113,12 @@ class GreyData:
     dt: float
     index: np.ndarray
     first_index: int = 0
+
+    @classmethod
+    def decimated(cls, records, n_samples: int | None) -> GreyData:
+        """The records decimated to about ``n_samples`` samples each, with the mean input over each hold
+        (:func:`agents.twin.records.decimate_records`; ``None`` keeps every sample), then stacked."""
+        return cls.from_records(decimate_records(as_records(records, min_steps=3), n_samples, mean_input=True))
 
     @classmethod
     def from_records(cls, records, experiment_index: Sequence[int] | None = None) -> GreyData:

@@ -32,7 +32,6 @@ from agents.twin.greybox import (
 )
 from agents.twin.guesses import rest_command
 from agents.twin.identify import LINEAR_CONSTRAINTS, check_orders
-from agents.twin.records import as_records, decimate_records
 from gbo_envs.physics.effects import build_effect
 
 __all__ = ["GreyBoxTwin"]
@@ -222,8 +221,7 @@ class GreyBoxTwin(BaseEstimator):
             if self.n_samples is not None:
                 raise ValueError("n_samples: must be None when the records are given as GreyData (already stacked)")
             return records
-        kept = decimate_records(as_records(records, min_steps=3), self.n_samples, mean_input=True)
-        return GreyData.from_records(kept)
+        return GreyData.decimated(records, self.n_samples)
 
     def _fit_from_given_values(self, data: GreyData, spec: ModelSpec, items, base: GreyFit) -> GreyFit:
         """All effect values given: the linear part profiled at them, then everything refitted from there."""

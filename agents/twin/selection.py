@@ -16,7 +16,6 @@ from agents.twin.diagnose import error_ladder
 from agents.twin.greybox import GreyData, ModelSpec
 from agents.twin.greybox_twin import GreyBoxTwin
 from agents.twin.noise_floor import noise_floor
-from agents.twin.records import as_records, decimate_records
 from gbo_envs.physics.effects import EFFECTS
 
 __all__ = ["TWIN_CANDIDATES", "diagnosed_twin", "measurement_noise"]
@@ -59,8 +58,7 @@ def diagnosed_twin(records: Sequence, spec: ModelSpec, effects: Mapping | None =
     rungs : list of dict
         The ladder: ``{"model", "added", "rmse", "fit_percent", "heldout_rmse", "params"}`` per rung.
     """
-    kept = decimate_records(as_records(records, min_steps=3), n_samples, mean_input=True)
-    data = GreyData.from_records(kept)
+    data = GreyData.decimated(records, n_samples)
     steps = max(int(max_effects) - len(effects or {}), 0)
     rungs, diagnoses = error_ladder(data, effects=dict(effects or {}), spec=spec, max_steps=steps,
                                     candidates=TWIN_CANDIDATES)
