@@ -290,7 +290,7 @@ class GreyBoxTwin(BaseEstimator):
         median bias of the fitted records (the drive's offset, common to all experiments). After dry
         friction or a dead zone the error is flat in a bias inside the stiction band, so a
         least-squares refit keeps whichever start it is given: on LinearMotorRig-v0 the first
-        guess left the fitted model's error on its own records five times its ``rmse_``.
+        guess left the fitted model's error on its own records at 5 to 10 times its ``rmse_``.
         """
         fit = self.greybox_
         rows = np.arange(data.n_records)
