@@ -160,8 +160,16 @@ class TuningResult:
 
     @property
     def n_twin(self) -> int:
-        """Number of digital-twin evaluations."""
+        """Number of digital-twin evaluations logged as rows (``source == "twin"``)."""
         return len(self.rows) - self.n_experiments
+
+    @property
+    def twin_evaluations(self) -> int:
+        """Twin simulations the tuner made: its own count (``info["twin_evaluations"]``) if it reports one,
+        else :attr:`n_twin`. With the twin as the prior mean (guided BO's default) the twin is simulated on
+        the acquisition grid, and those simulations are not rows."""
+        reported = self.info.get("twin_evaluations")
+        return int(reported) if reported is not None else self.n_twin
 
     def _best_row(self) -> dict:
         rows = self.plant_rows
@@ -204,7 +212,7 @@ class TuningResult:
 
     def __repr__(self) -> str:
         """One line: tuner, env, seed, real experiments (and twin evaluations), best gains with units, best cost."""
-        twin = f" (+{self.n_twin} twin evaluations)" if self.n_twin else ""
+        twin = f" (+{self.twin_evaluations} twin evaluations)" if self.twin_evaluations else ""
         head = (f"TuningResult({self.tuner} on {self.env_id}, seed {self.seed}: {self.n_experiments} real "
                 f"experiments{twin}{', interrupted' if self.interrupted else ''}")
         if not self.n_experiments:

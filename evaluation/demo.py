@@ -104,9 +104,10 @@ def _run_tuners(out: Path, env_id: str, truth, seeds: range, budget: int, progre
             ratio = result.min_true_cost_curve() / truth.cost
             best = result.best_gains
             rows[f"{name}, seed {seed}"] = {"gains": dict(zip(truth.gain_names, best.tolist())),
-                                            "final_ratio": float(ratio[-1]), "twin_evaluations": result.n_twin}
+                                            "final_ratio": float(ratio[-1]),
+                                            "twin_evaluations": result.twin_evaluations}
             print(f"  {name:10s} seed {seed}: best {_fmt(truth.gain_names, best)}  optimality ratio {ratio[-1]:.3f}"
-                  f"  twin evaluations {result.n_twin}")
+                  f"  twin evaluations {result.twin_evaluations}")
     fig = convergence_figure(results, optimum=truth.cost,
                              title=f"{env_id}: {len(seeds)} seeds, mean and 95 % confidence band")
     save(fig, out / "tuner_convergence.png", dpi=120)

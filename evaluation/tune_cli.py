@@ -127,7 +127,7 @@ def _tune(args: argparse.Namespace) -> int:
         resumed += f"; the session already held more than --budget {args.budget}, nothing was run"
     failed = sum(row.get("status") == "failed" for row in result.plant_rows)
     print(f"session {session.session_id} in {args.db}: {result.n_experiments}/{args.budget} plant experiments"
-          f"{resumed}, {failed} failed, {result.n_twin} twin evaluations")
+          f"{resumed}, {failed} failed, {result.twin_evaluations} twin evaluations")
     ok = [row for row in result.plant_rows if row.get("status") == "ok"]
     if ok:
         best = min(ok, key=lambda row: row["cost"])

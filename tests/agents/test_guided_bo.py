@@ -113,3 +113,14 @@ def test_params_are_the_constructor_keywords_and_rebuild_the_tuner():
 def test_needs_the_plant_env():
     with pytest.raises(ValueError, match="env"):
         GuidedBO().setup(agents.GainSpace(("Kp", "Ki"), [0.1, 0.8], [1.1, 2.1]), seed=0)
+
+
+def test_twin_simulations_of_the_prior_are_counted_though_not_rows():
+    """With the twin as prior mean (the default) the twin is simulated on the acquisition grid, not logged as rows;
+    ``make demo`` and ``gbo tune`` printed "twin evaluations 0" for guided BO."""
+    guided = GuidedBO().run(gym.make("gbo_envs/DCMotor-v0"), budget=3, seed=0)
+    assert guided.n_twin == 0
+    assert guided.twin_evaluations == guided.info["twin_evaluations"] > 0
+    assert f"(+{guided.twin_evaluations} twin evaluations)" in repr(guided)
+    plain = BayesianOptimization().run(gym.make("gbo_envs/DCMotor-v0"), budget=2, seed=0)
+    assert plain.twin_evaluations == 0
