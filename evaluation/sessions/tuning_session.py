@@ -152,8 +152,8 @@ class TuningSession:
             recorder = SessionRecorder(store, sid, on_crash=self.on_crash)
             status, message = "failed", None
             try:
-                self.tuner.run(self.env, self.budget, seed=self.seed, progress=progress, recorder=recorder,
-                               max_consecutive_skips=self.max_consecutive_skips)
+                tuned = self.tuner.run(self.env, self.budget, seed=self.seed, progress=progress, recorder=recorder,
+                                       max_consecutive_skips=self.max_consecutive_skips)
                 status = "done"
             except KeyboardInterrupt as exc:
                 status, message = "interrupted", "Ctrl-C; rerun the same command to resume"
@@ -170,4 +170,8 @@ class TuningSession:
             finally:
                 self.n_replayed, self.n_asked = recorder.n_replayed, recorder.n_asked
                 store.release_session(sid, status, message)
-            return load_result(store, sid)
+            result = load_result(store, sid)
+            # the tuner's own figures of this run (twin activations, twin evaluations, twin changes ...),
+            # which the stored rows do not hold
+            result.info = {**tuned.info, **result.info}
+            return result

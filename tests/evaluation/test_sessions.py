@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import socket
 import sqlite3
 import subprocess
@@ -433,6 +434,10 @@ def test_cli_tune_prints_when_the_twin_changes(tmp_path, capsys):
                 "--tuner-kwargs", '{"grid_points": 30}', "--no-progress"]) == 0
     out = capsys.readouterr().out
     assert "guided-bo: twin: linear, RMSE" in out and "(after 1 experiment)" in out
+    # the twin is simulated on the acquisition grid (the prior), which the stored rows do not show:
+    # the count is the tuner's own (it printed "0 twin evaluations")
+    assert "2/2 plant experiments, 0 failed, 0 twin evaluations" not in out
+    assert re.search(r"2/2 plant experiments, 0 failed, [1-9]\d* twin evaluations", out)
     events = logging.getLogger("agents.base")  # the process's logger is left as it was
     assert not [h for h in events.handlers if type(h).__name__ == "_PrintEvents"]
     agents.make("guided-bo", grid_points=30).run(gym.make(ENV), budget=2, seed=0)
