@@ -148,6 +148,7 @@ def timed_run(label: str, tuner, seed: int, best: float) -> dict:
     return {"ratios": (result.min_true_cost_curve() / best).tolist(), "seconds": round(time.perf_counter() - start, 2),
             "cpu_seconds": round(time.process_time() - cpu_start, 2), "plant_cpu_seconds": round(env.cpu_seconds, 2),
             "activations": info.get("activations"), "distrusts": info.get("distrusts"),
+            "reinitializations": info.get("reinitializations"),
             "effects": sorted(info.get("twin_effects") or {}), "twin_changes": len(info.get("twin_changes") or [])}
 
 
