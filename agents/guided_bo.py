@@ -192,8 +192,8 @@ class GuidedBO(BayesianOptimization):
     throw away the records that show the twin's error and re-diagnose from one).
 
     **Plant changes** (``twin="auto"`` or a given twin). The paper's ``delta = 2`` reads only
-    a cost miss of 200 % as a change; a load that adds 25 % inertia moves the optimum by
-    18 grid cells with misses of 40 %. Such a change shows in the responses: let ``m`` be the
+    a cost miss of 200 % as a change; a load that adds 25 % inertia (DCMotorStep-v0) changes
+    the cost by at most 55 % and moves the optimum by 24 grid cells. Such a change shows in the responses: let ``m`` be the
     records of ``D~`` that a twin simulated within the noise (it was fitted on them, or
     predicted them without a refit, with ``rmse_ <= 2 max(s, 10^-3)``). When the twin
     refitted on all of ``D~`` no longer simulates them within the noise, and a twin of the same
@@ -707,7 +707,10 @@ class GuidedBO(BayesianOptimization):
         explained = self._explained_rmse()
         if start == 0 or len(later) < PLANT_CHANGE_RECORDS or twin.rmse_ <= explained:
             return None
-        candidate = clone(twin).fit(later)
+        try:
+            candidate = clone(twin).fit(later)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+            return None  # the later records identify no twin: keep the one of all records
         if not candidate.rmse_ <= explained:
             return None  # no single plant explains the later records either: a missing effect, not a change
         self._twin_records, self._twin_costs = later, self._twin_costs[start:]
