@@ -190,21 +190,21 @@ class GuidedBO(BayesianOptimization):
     (``rmse_ <= 2 max(s, 10^-3)``); a twin that did not was wrong before the plant moved,
     so its records are kept and the miss calls for a refit on all of them (a reset would
     throw away the records that show the twin's error and re-diagnose from one).
+    An unstable experiment's record is not added (a diverging response identifies
+    nothing). The twin is refitted on ``D~`` when an activation is due (Algorithm 1,
+    "Update DT plant model").
 
     **Plant changes** (``twin="auto"`` or a given twin). The paper's ``delta = 2`` reads only
     a cost miss of 200 % as a change; a load that adds 25 % inertia (DCMotorStep-v0) changes
-    the cost by at most 55 % and moves the optimum by 24 grid cells. Such a change shows in the responses: let ``m`` be the
-    records of ``D~`` that a twin simulated within the noise (it was fitted on them, or
-    predicted them without a refit, with ``rmse_ <= 2 max(s, 10^-3)``). When the twin
-    refitted on all of ``D~`` no longer simulates them within the noise, and a twin of the same
-    structure fitted on the records after the ``m``-th alone (at least
+    the cost by at most 55 % and moves the optimum by 24 grid cells. Such a change shows in
+    the responses: let ``m`` be the records of ``D~`` that a twin simulated within the noise
+    (it was fitted on them, or predicted them without a refit, with ``rmse_ <= 2 max(s,
+    10^-3)``). When the twin refitted on all of ``D~`` no longer simulates them within the
+    noise, and a twin of the same structure fitted on the records after the ``m``-th alone (at least
     :data:`PLANT_CHANGE_RECORDS`) does, the records are explained by two plants and not by
     one: ``D~`` is re-initialised with the later records (counted in ``reinitializations_``)
     and that twin is used. A plant that drifts is followed the same way, one re-initialisation
     whenever its drift exceeds the noise.
-    An unstable experiment's record is not added (a diverging response identifies
-    nothing). The twin is refitted on ``D~`` when an activation is due (Algorithm 1,
-    "Update DT plant model").
 
     Parameters
     ----------

@@ -94,9 +94,10 @@ def effects_column(keys) -> str:
     return ", ".join(f"{k} ({v})" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
 
 
-def study_arguments(parser, variants, default_plants, seeds: int, workers: int) -> None:
-    """The options of a resumable study over :data:`PLANTS`: plants, variants, seeds, workers, summary."""
-    parser.add_argument("--plants", nargs="+", default=list(default_plants), choices=list(PLANTS))
+def study_arguments(parser, variants, default_plants, seeds: int, workers: int, plants=PLANTS) -> None:
+    """The options of a resumable study over ``plants`` (default :data:`PLANTS`): plants, variants, seeds,
+    workers, summary."""
+    parser.add_argument("--plants", nargs="+", default=list(default_plants), choices=list(plants))
     parser.add_argument("--variants", nargs="+", default=list(variants), choices=list(variants))
     parser.add_argument("--seeds", type=int, default=seeds, help=f"seeds 0..N-1 (default {seeds})")
     parser.add_argument("--workers", type=int, default=workers)

@@ -34,7 +34,7 @@ The grid optima ``J*_k`` are computed once per distinct plant and cached in
 again (an interrupted study resumes). Writes ``benchmarks/results/time_varying.md``::
 
     python benchmarks/time_varying_guided_bo.py --seeds 30 --workers 2
-    python benchmarks/time_varying_guided_bo.py --plants DCMotorStep-v0 --seeds 5
+    python benchmarks/time_varying_guided_bo.py --plants DCMotorStep-v0 --variants guided-bo --seeds 5
     python benchmarks/time_varying_guided_bo.py --summary
 """
 
@@ -47,7 +47,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from effect_aware_guided_bo import StepClock, effects_column, interval
+from effect_aware_guided_bo import StepClock, effects_column, interval, study_arguments
 from run_log import load_runs, run_missing
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -159,7 +159,8 @@ def summarise(runs: list[dict]) -> str:
         budget = len(mine["bo"][seeds[0]]["ratios"])
         at = change_at(label)
         phases = [("whole run", 0, budget)] if at is None else [
-            (f"before the change (experiments 1-{at})", 0, at), (f"after the change at experiment {at + 1}", at, budget)]
+            (f"before the change (experiments 1-{at})", 0, at),
+            (f"after the change at experiment {at + 1}", at, budget)]
         guided = [mine["guided-bo"][s] for s in seeds]
         final = [np.mean([mine[t][s]["ratios"][-1] for s in seeds]) for t in TUNERS]
         for phase, start, end in phases:
@@ -178,17 +179,13 @@ def summarise(runs: list[dict]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--plants", nargs="+", default=list(PLANTS), choices=list(PLANTS))
-    parser.add_argument("--tuners", nargs="+", default=list(TUNERS), choices=list(TUNERS))
-    parser.add_argument("--seeds", type=int, default=30, help="seeds 0..N-1 (default 30)")
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--summary", action="store_true", help="only write the table of the runs so far")
+    study_arguments(parser, TUNERS, PLANTS, seeds=30, workers=2, plants=PLANTS)
     args = parser.parse_args()
     if args.summary:
         runs = load_runs(RUNS)
     else:
         optima = {label: grid_optima(label) for label in args.plants}
-        runs = run_missing(RUNS, run_one, args.plants, args.tuners, args.seeds, optima, args.workers)
+        runs = run_missing(RUNS, run_one, args.plants, args.variants, args.seeds, optima, args.workers)
     table = summarise(runs)
     (RESULTS / "time_varying.md").write_text(
         "Real experiments to each optimality ratio on the plant of each experiment, mean [95 % CI] (misses), "
