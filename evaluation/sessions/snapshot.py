@@ -85,6 +85,11 @@ def restore_tuner(tuner, snapshot: bytes, env) -> bool:
         _log.warning("tuner snapshot holds a %s, the session runs a %s; replaying the session instead",
                      type(state).__name__, type(tuner).__name__)
         return False
+    missing = sorted(set(tuner.__dict__) - set(state.__dict__))
+    if missing:  # written by an older version of the class: its state lacks what this one keeps
+        _log.warning("tuner snapshot lacks %s (written by other code); replaying the session instead",
+                     ", ".join(missing))
+        return False
     tuner.__dict__.clear()
     tuner.__dict__.update(state.__dict__)
     return True
