@@ -262,7 +262,8 @@ class GuidedBO(BayesianOptimization):
         Twin experiments made (with ``guidance="prior"``, by twins replaced so far; ``run_summary``
         counts the current twin's too).
     reinitializations_ : int
-        How often eq. (reinit_DTdataset) emptied the twin data set.
+        How often the twin data set was re-initialised: by eq. (reinit_DTdataset), or on a plant
+        change read on the responses (see "Plant changes").
     distrusts_ : int
         How often a twin-proposed experiment disappointed and the twin lost trust.
     repeats_ : int
