@@ -403,11 +403,7 @@ class GuidedBO(BayesianOptimization):
             if missed and not self._twin_explained_its_records():
                 self._cost_missed = True  # the twin was wrong, not the plant changed: refit on every record
             elif missed:
-                self._twin_records, self._twin_costs = [], []
-                self._twin_fitted_on = 0
-                self._diagnosed_on = 0
-                self._explained_upto = 0
-                self.reinitializations_ += 1
+                self._reinitialise(len(self._twin_records))
             elif self.guidance == "prior" and abs(cost - predicted) > 3.0 * self.sigma_eps:
                 self._cost_missed = True  # the twin's cost is off by more than the cost noise explains
         self._twin_records.append(new)  # eq. (Ds): D~ <- D~ u {(u_i, y_i)}
@@ -667,8 +663,8 @@ class GuidedBO(BayesianOptimization):
                 # with the twin as prior, also when its cost missed and the records have doubled since its fit
                 doubled = len(self._twin_records) >= 2 * self._twin_fitted_on
                 self._twin_dirty = self._mispredicts(previous_rmse) or (self._cost_missed and doubled)
-                if not self._twin_dirty and self.twin_.rmse_ <= self._explained_rmse():
-                    self._explained_upto = len(self._twin_records)
+                if not self._twin_dirty:
+                    self._note_explained()
             else:  # a distrusted twin is refitted when the records have doubled since its fit (more excitation)
                 self._twin_dirty = len(self._twin_records) >= 2 * self._twin_fitted_on
         if self._twin_dirty and self._twin_records:
@@ -677,13 +673,11 @@ class GuidedBO(BayesianOptimization):
                 previous_rmse = self._error_on(new)
             try:
                 twin = self._fit_twin(previous)
-                if twin is not None and self.twin != "linear":
-                    twin = self._twin_of_a_changed_plant(twin) or twin
-                self.twin_ = twin if twin is not None and np.isfinite(twin.rmse_) else None
+                twin = self._twin_of_a_changed_plant(twin) or twin
+                self.twin_ = twin if np.isfinite(twin.rmse_) else None
             except (ValueError, FloatingPointError, np.linalg.LinAlgError):
                 self.twin_ = None  # too little excitation to identify: no twin this time
-            if self.twin_ is not None and self.twin != "linear" and self.twin_.rmse_ <= self._explained_rmse():
-                self._explained_upto = len(self._twin_records)
+            self._note_explained()
             self._twin_env = None
             self._twin_dirty = self._cost_missed = False
             self._twin_fitted_on = len(self._twin_records)
@@ -706,7 +700,7 @@ class GuidedBO(BayesianOptimization):
         start = self._explained_upto
         later = self._twin_records[start:]
         explained = self._explained_rmse()
-        if start == 0 or len(later) < PLANT_CHANGE_RECORDS or twin.rmse_ <= explained:
+        if self.twin == "linear" or start == 0 or len(later) < PLANT_CHANGE_RECORDS or twin.rmse_ <= explained:
             return None
         try:
             candidate = clone(twin).fit(later)
@@ -714,11 +708,21 @@ class GuidedBO(BayesianOptimization):
             return None  # the later records identify no twin: keep the one of all records
         if not candidate.rmse_ <= explained:
             return None  # no single plant explains the later records either: a missing effect, not a change
-        self._twin_records, self._twin_costs = later, self._twin_costs[start:]
+        self._reinitialise(start)
+        return candidate
+
+    def _reinitialise(self, start: int) -> None:
+        """``D~`` restarts from its records after the first ``start`` (eq. (reinit_DTdataset), or a plant change)."""
+        self._twin_records, self._twin_costs = self._twin_records[start:], self._twin_costs[start:]
+        self._twin_fitted_on = 0
         self._diagnosed_on = 0
         self._explained_upto = 0
         self.reinitializations_ += 1
-        return candidate
+
+    def _note_explained(self) -> None:
+        """Record that the current twin simulates every record of ``D~`` within the noise, if it does."""
+        if self.twin != "linear" and self.twin_ is not None and self.twin_.rmse_ <= self._explained_rmse():
+            self._explained_upto = len(self._twin_records)
 
     def _fit_twin(self, previous):
         """A twin fitted on ``D~``: diagnosed (``"auto"``), the paper's linear one, or the given estimator."""

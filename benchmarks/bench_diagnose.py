@@ -47,13 +47,19 @@ CASES = {
 }
 
 
-def case_data(case: str, n_experiments: int = 12, seed: int = 0) -> GreyData:
-    """The records of ``case`` at ``n_experiments`` random gains (uniform on the env's action space)."""
+def case_records(case: str, n_experiments: int = 12, seed: int = 0) -> tuple[list, tuple[str, ...]]:
+    """The records of ``case`` at ``n_experiments`` random gains (uniform on the env's action space), and
+    the env's gain names."""
     env_id, kwargs = CASES[case]
     env = gym.make(env_id, **kwargs)
     low, high = env.action_space.low, env.action_space.high
     gains = np.random.default_rng(seed).uniform(low, high, size=(n_experiments, low.size))
-    return GreyData.from_records(records_from_loop(env.unwrapped.loop, gains, rng=np.random.default_rng(seed)))
+    return records_from_loop(env.unwrapped.loop, gains, rng=np.random.default_rng(seed)), env.unwrapped.gain_names
+
+
+def case_data(case: str, n_experiments: int = 12, seed: int = 0) -> GreyData:
+    """:func:`case_records` as the workbench's data."""
+    return GreyData.from_records(case_records(case, n_experiments, seed)[0])
 
 
 def main(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int = 0, repeat: int = 1) -> dict:
@@ -79,15 +85,11 @@ def main(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int = 
 
 def command(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int = 0, repeat: int = 1) -> dict:
     """``gbo twin diagnose`` on the records of ``case`` as a user runs it, timed as a whole process."""
-    env_id, kwargs = CASES[case]
-    env = gym.make(env_id, **kwargs)
-    low, high = env.action_space.low, env.action_space.high
-    gains = np.random.default_rng(seed).uniform(low, high, size=(n_experiments, low.size))
-    records = records_from_loop(env.unwrapped.loop, gains, rng=np.random.default_rng(seed))
+    records, gain_names = case_records(case, n_experiments, seed)
     runs = []
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / f"{case}.csv"
-        write_csv(records, path, gain_names=env.unwrapped.gain_names)
+        write_csv(records, path, gain_names=gain_names)
         for _ in range(repeat):
             before = resource.getrusage(resource.RUSAGE_CHILDREN)
             start = time.perf_counter()

@@ -81,7 +81,13 @@ def count_cell(runs: list[dict], level: float) -> tuple[float, str]:
     from data_efficiency import experiments_to_reach
 
     counts = np.array([experiments_to_reach(r["ratios"], level) for r in runs])
-    misses = int(np.sum(counts > len(runs[0]["ratios"])))
+    return counts_cell(counts, len(runs[0]["ratios"]) + 1)
+
+
+def counts_cell(counts: np.ndarray, miss: int) -> tuple[float, str]:
+    """Mean of real-experiment counts and the cell ``"mean [low, high] (k misses)"``; a count of at least
+    ``miss`` is a miss, and one count has no interval."""
+    misses = int(np.sum(counts >= miss))
     mean, low, high = interval(counts) if counts.size > 1 else (float(counts[0]),) * 3
     return mean, f"{mean:.1f} [{low:.1f}, {high:.1f}] ({misses} misses)"
 
@@ -130,27 +136,37 @@ class StepClock(gym.Wrapper):
 
 
 def timed_run(label: str, tuner, seed: int, best: float) -> dict:
-    """Run ``tuner`` on plant ``label`` single-threaded, with the env's episode length as budget.
-
-    Returns the minimum-observed optimality-ratio curve (``ratios``) and the tuner's summary:
-    ``seconds`` is the run's wall time, ``cpu_seconds`` its CPU time on one thread, and
-    ``plant_cpu_seconds`` the part of it the plant env's ``step`` took (on hardware, the
-    experiments themselves): the tuner's compute is the difference.
-    """
+    """Run ``tuner`` on plant ``label`` (:func:`timed_result`) and its minimum-observed optimality-ratio curve
+    (``ratios``), with the run's summary."""
     import gbo_envs  # noqa: F401  (registers the envs in a fresh worker)
-    from agents.thread_limits import single_thread
 
     env_id, kwargs = PLANTS[label]
-    env = StepClock(gym.make(env_id, **kwargs))
+    result, summary = timed_result(gym.make(env_id, **kwargs), tuner, seed)
+    return {"ratios": (result.min_true_cost_curve() / best).tolist(), **summary}
+
+
+def timed_result(env, tuner, seed: int):
+    """Run ``tuner`` on ``env`` single-threaded, with the env's episode length as budget.
+
+    Returns the :class:`~agents.TuningResult` and the run's summary: ``seconds`` is its wall
+    time, ``cpu_seconds`` its CPU time on one thread, and ``plant_cpu_seconds`` the part of it
+    the plant env's ``step`` took (on hardware, the experiments themselves): the tuner's
+    compute is the difference; then guided BO's twin figures, if the tuner reports them.
+    """
+    from agents.thread_limits import single_thread
+
+    env = StepClock(env)
     start, cpu_start = time.perf_counter(), time.process_time()
     with single_thread(user_api=None):
         result = tuner.run(env, budget=env.spec.max_episode_steps, seed=seed, progress=False)
     info = result.info
-    return {"ratios": (result.min_true_cost_curve() / best).tolist(), "seconds": round(time.perf_counter() - start, 2),
-            "cpu_seconds": round(time.process_time() - cpu_start, 2), "plant_cpu_seconds": round(env.cpu_seconds, 2),
-            "activations": info.get("activations"), "distrusts": info.get("distrusts"),
-            "reinitializations": info.get("reinitializations"),
-            "effects": sorted(info.get("twin_effects") or {}), "twin_changes": len(info.get("twin_changes") or [])}
+    return result, {"seconds": round(time.perf_counter() - start, 2),
+                    "cpu_seconds": round(time.process_time() - cpu_start, 2),
+                    "plant_cpu_seconds": round(env.cpu_seconds, 2),
+                    "activations": info.get("activations"), "distrusts": info.get("distrusts"),
+                    "reinitializations": info.get("reinitializations"),
+                    "effects": sorted(info.get("twin_effects") or {}),
+                    "twin_changes": len(info.get("twin_changes") or [])}
 
 
 def run_one(label: str, tuner: str, seed: int, best: float) -> dict:

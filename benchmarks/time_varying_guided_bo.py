@@ -42,12 +42,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from effect_aware_guided_bo import StepClock, effects_column, interval, study_arguments
+from effect_aware_guided_bo import counts_cell, study_arguments, timed_result
+from guided_bo_ablation import twin_effects
 from run_log import load_runs, run_missing
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -106,24 +106,15 @@ def moving_ratios(plant, gains: np.ndarray, optima: list[float]) -> list[float]:
 
 
 def run_one(label: str, tuner: str, seed: int, optima: list[float]) -> dict:
-    """One tuning run of the registered ``tuner`` (defaults) on ``label``, single-threaded, and its ratios ``r_k``."""
+    """One tuning run of the registered ``tuner`` (defaults) on ``label`` (:func:`effect_aware_guided_bo.timed_result`),
+    its ratios ``r_k`` and each experiment's own ratio on its plant (``instant``)."""
     import agents
-    from agents.thread_limits import single_thread
 
-    env = StepClock(make(label))
-    start, cpu_start = time.perf_counter(), time.process_time()
-    with single_thread(user_api=None):
-        result = agents.make(tuner).run(env, budget=env.spec.max_episode_steps, seed=seed, progress=False)
-    cpu = time.process_time() - cpu_start
+    env = make(label)
+    result, summary = timed_result(env, agents.make(tuner), seed)
     gains = np.array([[row[name] for name in result.gain_names] for row in result.plant_rows])
-    info = result.info
-    instant = [row["true_cost"] / optima[k] for k, row in enumerate(result.plant_rows)]
-    return {"plant": label, "variant": tuner, "seed": seed,
-            "ratios": moving_ratios(env.unwrapped, gains, optima), "instant": instant,
-            "seconds": round(time.perf_counter() - start, 2), "cpu_seconds": round(cpu, 2),
-            "plant_cpu_seconds": round(env.cpu_seconds, 2), "activations": info.get("activations"),
-            "reinitializations": info.get("reinitializations"),
-            "effects": sorted(info.get("twin_effects") or {}), "twin_changes": len(info.get("twin_changes") or [])}
+    return {"plant": label, "variant": tuner, "seed": seed, "ratios": moving_ratios(env.unwrapped, gains, optima),
+            "instant": [row["true_cost"] / optima[k] for k, row in enumerate(result.plant_rows)], **summary}
 
 
 def experiments_to(run: dict, level: float, start: int, end: int) -> int:
@@ -138,12 +129,6 @@ def experiments_to(run: dict, level: float, start: int, end: int) -> int:
         ratios = np.fmin.accumulate(np.asarray(run["instant"][start:end]))
     hits = np.flatnonzero(ratios <= level)
     return int(hits[0]) + 1 if hits.size else end - start + 1
-
-
-def cell(counts: np.ndarray, miss: int) -> str:
-    """``"mean [low, high] (k misses)"`` of real-experiment counts; a count of ``miss`` is a miss."""
-    mean, low, high = interval(counts)
-    return f"{mean:.1f} [{low:.1f}, {high:.1f}] ({int(np.sum(counts >= miss))} misses)"
 
 
 def summarise(runs: list[dict]) -> str:
@@ -168,12 +153,12 @@ def summarise(runs: list[dict]) -> str:
                 counts = {t: np.array([experiments_to(mine[t][s], level, start, end) for s in seeds])
                           for t in TUNERS}
                 miss = end - start + 1
-                lines.append(f"| {label} | {phase} | {level} | {len(seeds)} | {cell(counts['bo'], miss)} | "
-                             f"{cell(counts['guided-bo'], miss)} | "
+                lines.append(f"| {label} | {phase} | {level} | {len(seeds)} | {counts_cell(counts['bo'], miss)[1]} | "
+                             f"{counts_cell(counts['guided-bo'], miss)[1]} | "
                              f"{counts['guided-bo'].mean() / counts['bo'].mean():.2f} | "
                              f"{final[0]:.3f} / {final[1]:.3f} | "
                              f"{np.mean([r['activations'] for r in guided]):.1f} | "
-                             f"{effects_column('+'.join(r['effects']) or 'linear' for r in guided)} |")
+                             f"{twin_effects(guided)} |")
     return "\n".join(lines)
 
 
