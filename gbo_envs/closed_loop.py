@@ -190,7 +190,8 @@ class ClosedLoop:
             raise ValueError("method: 'linear' needs a loop without actuator or sensor effects, "
                              f"this one has {self.actuator_effects + self.sensor_effects}")
         if self.stochastic and rng is None:
-            raise ValueError("rng: a numpy Generator is required for a loop with measurement noise")
+            raise ValueError("rng: a numpy Generator is required for a loop with random behaviour "
+                             "(measurement noise, a random cogging start angle)")
         noise = None
         if self.output_noise_std > 0.0:
             noise = self.output_noise_std * RowNoise(rng, gains.shape[0], draws).rows(self.n_steps)

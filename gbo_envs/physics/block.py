@@ -151,7 +151,8 @@ class RowNoise:
 
     def __init__(self, rng: np.random.Generator | None, batch: int, draws=None) -> None:
         if rng is None:
-            raise ValueError("rng: a numpy Generator is required for a loop with measurement noise")
+            raise ValueError("rng: a numpy Generator is required for a loop with random behaviour "
+                             "(measurement noise, a random cogging start angle)")
         self._rng = rng
         self._draws = None if draws is None else np.asarray(draws, dtype=np.intp)
         if self._draws is not None and self._draws.shape != (batch,):

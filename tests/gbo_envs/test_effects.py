@@ -269,7 +269,36 @@ def test_cogging_ripple_has_the_stated_period():
     shifted.reset(1, None, dt)
     assert np.isclose(shifted.command_for(np.zeros(1), np.zeros(1))[0], -3.0)
     # in the speed loop it disturbs the response
-    assert not np.allclose(dc_loop(Cogging(5.0, 2 * np.pi / 8)).simulate(DC_GAINS).y, dc_loop().simulate(DC_GAINS).y)
+    rippled = dc_loop(Cogging(5.0, 2 * np.pi / 8)).simulate(DC_GAINS, rng=np.random.default_rng(0))
+    assert not np.allclose(rippled.y, dc_loop().simulate(DC_GAINS).y)
+
+
+def test_cogging_of_a_turning_rotor_starts_at_a_random_angle_unless_synchronised():
+    gains = np.repeat(DC_GAINS[:1], 4, axis=0)
+    loop = dc_loop(Cogging(10.0))  # the DC loop starts turning at 245 rad/s
+    with pytest.raises(ValueError, match="rng"):
+        loop.simulate(gains)
+    y = loop.simulate(gains, rng=np.random.default_rng(0)).y
+    assert np.ptp(y[:, 50:], axis=0).max() > 0.1  # four experiments, four start angles
+    # common random numbers: rows of the same draw see the same angle, whatever the batch
+    same = loop.simulate(gains, rng=np.random.default_rng(0), draws=np.array([0, 1, 0, 1])).y
+    assert np.array_equal(same[0], same[2]) and not np.array_equal(same[0], same[1])
+    alone = loop.simulate(gains[:1], rng=np.random.default_rng(0), draws=np.array([1])).y
+    assert np.max(np.abs(alone[0] - same[1])) < 1e-9
+    # a step triggered at a fixed angle, or a replay without a generator, starts at theta = 0
+    fixed = dc_loop(Cogging(10.0, synchronised=True))
+    assert not fixed.stochastic
+    assert np.ptp(fixed.simulate(gains).y, axis=0).max() == 0.0
+    block = Cogging(10.0, phase=np.pi / 2)
+    block.reset(2, None, 0.002)
+    travel = 245.0 * 0.002  # rad in one sample
+    expected = [-10.0 * np.cos(travel / 2) * np.sinc(travel / (2 * np.pi)), -10.0]
+    assert np.allclose(block.command_for(np.zeros(2), np.array([245.0, 0.0])), expected, atol=1e-12)
+    # a mechanism at rest starts at its rest position even with a generator
+    block.reset(2, np.random.default_rng(0), 0.002)
+    assert block.command_for(np.zeros(2), np.zeros(2)) == pytest.approx([-10.0, -10.0])
+    with pytest.raises(ValueError, match="synchronised"):
+        Cogging(1.0, synchronised="yes")
 
 
 def test_time_delay_delays_the_response_by_the_stated_time():
@@ -316,7 +345,8 @@ def test_drift_changes_the_plant_between_experiments():
 
 
 def test_blocks_are_vectorised_and_keep_no_state_between_simulations():
-    blocks = (Backlash(1.0), Cogging(2.0, 0.5), CoulombFriction(5.0), Stiction(3.0, 0.1), Quantization(0.01))
+    blocks = (Backlash(1.0), Cogging(2.0, 0.5, synchronised=True), CoulombFriction(5.0), Stiction(3.0, 0.1),
+              Quantization(0.01))
     loop = dc_loop(*blocks)
     batch = loop.simulate(DC_GAINS)
     again = loop.simulate(DC_GAINS)
