@@ -154,8 +154,10 @@ class ClosedLoop:
 
     @property
     def stochastic(self) -> bool:
-        """Whether the measurement is noisy (sensor noise or a block with measurement noise)."""
-        return self.output_noise_std > 0.0 or any(block.stochastic for block in self.effects)
+        """Whether an experiment is random: sensor noise, a block with measurement noise, or a random start
+        (:meth:`~gbo_envs.physics.block.EffectBlock.random_in`: cogging's angle in a speed loop)."""
+        moving = self.plant.output != "position"  # a speed loop turns at its rest level
+        return self.output_noise_std > 0.0 or any(block.random_in(moving) for block in self.effects)
 
     def simulate(self, gains: np.ndarray, rng: np.random.Generator | None = None,
                  method: str = "auto", draws=None) -> StepResponse:

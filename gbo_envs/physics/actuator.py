@@ -247,6 +247,10 @@ class Cogging(EffectBlock):
         """Whether the start angle may be random (not ``synchronised``, ``amplitude > 0``)."""
         return not self.synchronised and self.amplitude > 0.0
 
+    def random_in(self, moving_at_start: bool) -> bool:
+        """A mechanism at rest starts at ``theta = 0``: only a moving one draws its start angle."""
+        return self.stochastic and moving_at_start
+
     def reset(self, batch, rng, dt, draws=None):
         self._angle = np.zeros(batch)
         self._dt = float(dt)

@@ -268,6 +268,11 @@ class EffectBlock:
     def __hash__(self) -> int:
         return hash((type(self).__name__, repr(self)))
 
+    def random_in(self, moving_at_start: bool) -> bool:
+        """Whether the block draws random numbers in a loop whose mechanism moves at the start (a speed loop)
+        or rests there (a position loop): ``stochastic`` unless a block says otherwise."""
+        return self.stochastic
+
     # -- simulator contract (identity defaults) ---------------------------------------------------
     def reset(self, batch: int, rng: np.random.Generator | None, dt: float, draws=None) -> None:
         """Start a simulation of ``batch`` loops sampled every ``dt`` s (clears any state).

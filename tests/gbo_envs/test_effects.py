@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -299,6 +300,10 @@ def test_cogging_of_a_turning_rotor_starts_at_a_random_angle_unless_synchronised
     assert block.command_for(np.zeros(2), np.zeros(2)) == pytest.approx([-10.0, -10.0])
     with pytest.raises(ValueError, match="synchronised"):
         Cogging(1.0, synchronised="yes")
+    # a position loop rests at the start: its cogging is the same in every experiment, no draws needed
+    linear = gym.make("gbo_envs/LinearMotor-v0", effects={"cogging": {"amplitude": 0.3, "period": 0.005}}).unwrapped
+    assert not linear.loop.replace(output_noise_std=0.0).stochastic
+    assert dc_loop(Cogging(10.0)).output_noise_std == 0.0 and dc_loop(Cogging(10.0)).stochastic
 
 
 def test_time_delay_delays_the_response_by_the_stated_time():
