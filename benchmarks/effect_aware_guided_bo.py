@@ -152,8 +152,13 @@ def timed_result(env, tuner, seed: int):
     time, ``cpu_seconds`` its CPU time on one thread, and ``plant_cpu_seconds`` the part of it
     the plant env's ``step`` took (on hardware, the experiments themselves): the tuner's
     compute is the difference; then guided BO's twin figures, if the tuner reports them.
+    The process keeps freed memory for reuse as the ``gbo`` command and the Monte Carlo
+    studies do (:func:`evaluation.allocator.retain_freed_memory`).
     """
     from agents.thread_limits import single_thread
+    from evaluation.allocator import retain_freed_memory
+
+    retain_freed_memory()
 
     env = StepClock(env)
     start, cpu_start = time.perf_counter(), time.process_time()

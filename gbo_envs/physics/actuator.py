@@ -244,8 +244,11 @@ class Cogging(EffectBlock):
 
     @property
     def stochastic(self) -> bool:
-        """Whether the start angle may be random (not ``synchronised``, ``amplitude > 0``)."""
-        return not self.synchronised and self.amplitude > 0.0
+        """Whether the start angle may be random (not ``synchronised``, ``amplitude > 0``).
+
+        ``amplitude`` may be an array: the twin's replays merge the blocks of several
+        candidate fits into one with per-row parameters (:mod:`agents.twin.open_loop`)."""
+        return not self.synchronised and bool(np.any(np.asarray(self.amplitude) > 0.0))
 
     def random_in(self, moving_at_start: bool) -> bool:
         """A mechanism at rest starts at ``theta = 0``: only a moving one draws its start angle."""
@@ -254,7 +257,7 @@ class Cogging(EffectBlock):
     def reset(self, batch, rng, dt, draws=None):
         self._angle = np.zeros(batch)
         self._dt = float(dt)
-        self._start = RowNoise(rng, batch, draws) if self.stochastic and rng is not None else None
+        self._start = RowNoise(rng, batch, draws) if rng is not None and self.stochastic else None
         # stratified over the K draws of an expectation: draw j starts in the j-th K-th of a period
         self._strata = None if draws is None else (np.asarray(draws, dtype=float),
                                                    float(np.max(draws, initial=0)) + 1.0)

@@ -47,3 +47,18 @@ def test_position_rows_use_the_speed_for_their_friction():
 def _spec(chain) -> dict:
     """The effect spec of a chain of blocks (fresh blocks: the batch's have run)."""
     return {block.name: {p: getattr(block, p) for p in block.param_names} for block in chain}
+
+
+def test_candidate_fits_of_one_effect_merge_into_one_block_with_per_row_parameters():
+    """The replays of a diagnosis stack many fits of one effect; a class whose block cannot hold per-row
+    parameters falls back to one slice per row (a cogging block whose ``stochastic`` compared an array
+    amplitude with 0 did, and a DCMotorRig-v0 guided-BO run took 3-4 s longer)."""
+    from agents.twin.open_loop import _merged
+
+    rng = np.random.default_rng(0)
+    for spec in ({"cogging": {"amplitude": 2.0}}, {"cogging": {"amplitude": 5.0, "period": 0.5}},
+                 {"coulomb_friction": {"torque": 3.0}}, {"saturation": {"limit": 40.0}}):
+        name, params = next(iter(spec.items()))
+        blocks = [build_effects({name: {**params, **{key: value * scale for key, value in params.items()}}})[0]
+                  for scale in (1.0, 1.5, 2.0)]
+        assert _merged(blocks, rng, column=False) is not None, name
