@@ -104,7 +104,7 @@ class TwinEnv(ControllerTuningEnv):
         metrics and cost over the twin's measurement noise (one simulation without
         noise). The twin is time-invariant, so its loop is simulated as it is.
         """
-        metrics, cost, _ = self._expected(self.loop, np.atleast_2d(np.asarray(gains, dtype=float)))
+        metrics, cost, _ = self._expected(self.loop, np.atleast_2d(np.asarray(gains, dtype=float)), record=False)
         return metrics, cost
 
     def noise_free(self) -> TwinEnv:
