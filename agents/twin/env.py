@@ -108,24 +108,38 @@ class TwinEnv(ControllerTuningEnv):
         return metrics, cost
 
     def noise_free(self) -> TwinEnv:
-        """This twin without its measurement noise (itself if it has none): one simulation per gain.
+        """This twin without its random parts (itself if it has none): one simulation per gain.
+
+        No measurement noise, and a cogging ripple that starts at the same angle in every
+        experiment (``synchronised``; in a speed loop the twin draws the angle per noise draw,
+        as the plant does, see :class:`gbo_envs.physics.actuator.Cogging`).
 
         Returns
         -------
         TwinEnv
-            The same plant, effects, controller, cost and bounds with ``measurement_noise_std=0``.
+            The same plant, controller, cost and bounds with ``measurement_noise_std=0`` and
+            deterministic effects.
         """
-        if self.loop.output_noise_std == 0.0:
+        if not self.loop.stochastic:
             return self
         if self._noise_free is None:
-            self._noise_free = TwinEnv(self.plant_env, self.twin, cost_noise_std=self.cost_noise_std,
-                                       measurement_noise_std=0.0, draws=self.expectation_draws)
+            twin = TwinEnv(self.plant_env, self.twin, cost_noise_std=self.cost_noise_std,
+                           measurement_noise_std=0.0, draws=self.expectation_draws)
+            twin.loop = twin.loop.replace(effects=tuple(_deterministic(block) for block in twin.loop.effects))
+            self._noise_free = twin
         return self._noise_free
 
     @property
     def plant(self) -> ContinuousPlant:
         """The twin's plant."""
         return self.loop.plant
+
+
+def _deterministic(block):
+    """``block`` without a random start: a cogging block ``synchronised``, any other block itself."""
+    if "synchronised" in block.options and not block.synchronised:
+        return type(block)(**{**block.params, "synchronised": True})
+    return block
 
 
 def make_twin_env(plant_env, twin, cost_noise_std: float = 0.0, measurement_noise_std: float = 0.0,

@@ -68,8 +68,9 @@ class TwinMetrics:
     the twin's cost is the env's ``unstable_cost``: ``f~_i = n_i unstable_cost / sum_j w_j``,
     since ``J = sum_i w_i f_i / n_i`` (eq. (J_used)).
 
-    A twin with measurement noise (:meth:`agents.twin.TwinEnv.noise_free` is not the twin
-    itself) costs its ``draws`` simulations per gain, 8 times the noise-free one. The noise
+    A twin with measurement noise, or a cogging ripple starting at random angles
+    (:meth:`agents.twin.TwinEnv.noise_free` is not the twin itself), costs its ``draws``
+    simulations per gain, 8 times the noise-free one (no noise, one start angle). The noise
     only raises the cost (later settling, larger ITAE and overshoot; on the DCMotorRig-v0
     plant with 0.09 and 0.2 rad/s of sensor noise the expected cost is at least 0.998 times
     the noise-free one over a 25 x 25 grid, and the gains within the bound are 12 % and 24 %

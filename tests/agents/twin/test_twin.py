@@ -205,3 +205,24 @@ def test_simulation_error_over_several_batches_is_that_of_all_samples():
     assert score == pytest.approx(rmse(errors, height=heights), rel=1e-12)
     assert score_abs == pytest.approx(rmse(errors), rel=1e-12)
     np.testing.assert_array_equal(levels[:, 0], np.concatenate([out[1] for out in y_sim]))
+
+
+def test_the_noise_free_twin_of_a_speed_loop_with_cogging_is_deterministic():
+    """The twin's cogging starts at a random angle per noise draw, as the plant's does; its noise-free
+    twin (the one simulation per gain of the prior's grid) starts at one angle and has no noise."""
+    from agents.twin import GreyBoxTwin
+
+    env = gym.make("gbo_envs/DCMotor-v0", effects={"cogging": {"amplitude": 10.0}})
+    quiet = gym.make("gbo_envs/DCMotor-v0", noise=False, effects={"cogging": {"amplitude": 10.0, "synchronised": True}})
+    quiet.reset(seed=0)
+    records = [quiet.step(np.array(g))[4] for g in ([0.5, 1.2], [0.9, 1.6])]
+    twin = GreyBoxTwin(effects={"cogging": {"amplitude": 10.0, "period": 2 * np.pi, "phase": 0.0}}).fit(records)
+    twin_env = TwinEnv(env, twin, measurement_noise_std=0.05)
+    assert twin_env.loop.stochastic
+    plain = twin_env.noise_free()
+    assert not plain.loop.stochastic and plain.loop.output_noise_std == 0.0
+    assert plain.noise_free() is plain
+    assert [b.params["amplitude"] for b in plain.loop.effects if b.name == "cogging"] == \
+           [b.params["amplitude"] for b in twin_env.loop.effects if b.name == "cogging"]
+    gains = np.array([[0.5, 1.2], [0.55, 1.21]])
+    assert np.array_equal(plain.evaluate(gains)[1], plain.evaluate(gains)[1])
