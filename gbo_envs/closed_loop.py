@@ -160,7 +160,7 @@ class ClosedLoop:
         return self.output_noise_std > 0.0 or any(block.random_in(moving) for block in self.effects)
 
     def simulate(self, gains: np.ndarray, rng: np.random.Generator | None = None,
-                 method: str = "auto", draws=None) -> StepResponse:
+                 method: str = "auto", draws=None, inputs: bool = True) -> StepResponse:
         """Run the step experiment for every row of ``gains``.
 
         Parameters
@@ -179,6 +179,12 @@ class ClosedLoop:
             Draw index of each row: rows with the same index see the same
             measurement noise (common random numbers, see
             :class:`~gbo_envs.physics.block.RowNoise`). ``None``: independent rows.
+        inputs : bool, default True
+            Whether to record the command ``u``. ``False`` (an evaluation that needs only the
+            metrics, which read ``y``) returns ``u`` of shape (batch, 0): the linear loop skips
+            its filter, the stepping one its copy. The unstable flag is the same, except that a
+            linear loop's command that overflows while ``y`` stays bounded (an unstable plant pole
+            cancelled by a controller zero) is not seen.
 
         Returns
         -------
@@ -199,12 +205,13 @@ class ClosedLoop:
             noise = self.output_noise_std * RowNoise(rng, gains.shape[0], draws).rows(self.n_steps)
         with np.errstate(over="ignore", invalid="ignore"):
             if method == "stepping" or (method == "auto" and nonlinear):
-                u_out, y_out, u_start = self._simulate_stepping(gains, noise, rng, draws)
+                u_out, y_out, u_start = self._simulate_stepping(gains, noise, rng, draws, inputs)
             else:
-                u_out, y_out, u_start = self._simulate_linear(gains, noise)
-        return self._finish(u_out, y_out, u_start)
+                u_out, y_out, u_start = self._simulate_linear(gains, noise, inputs)
+        response = self._finish(u_out, y_out, u_start)
+        return response if inputs else replace(response, u=response.u[:, :0])
 
-    def _simulate_linear(self, gains, noise):
+    def _simulate_linear(self, gains, noise, inputs=True):
         """Exact response of the linear loop from its closed-loop transfer functions in ``z^-1``.
 
         With ``P = Np/Dp`` (plant incl. delay) and ``C = Nc/Dc`` (controller), in
@@ -228,15 +235,16 @@ class ClosedLoop:
         den += num_t
         step = np.full(n, self.step_height)
         dy = np.empty((batch, n))
-        du = np.empty((batch, n))
+        du = np.empty((batch, n if inputs else 0))
         for i in range(batch):
             drive = step if noise is None else step - noise[i]
             dy[i] = lfilter(num_t[i], den[i], drive)
-            du[i] = lfilter(num_u[i], den[i], drive)
+            if inputs:
+                du[i] = lfilter(num_u[i], den[i], drive)
         y = self.r1 + dy if noise is None else self.r1 + dy + noise
         return u0 + du, y, np.full(batch, u0)
 
-    def _simulate_stepping(self, gains, noise, rng, draws=None):
+    def _simulate_stepping(self, gains, noise, rng, draws=None, inputs=True):
         """Sample-by-sample simulation through the effect blocks, vectorised over the batch.
 
         At sample ``k``: the sensor blocks (and the noise) turn the plant output
@@ -311,6 +319,8 @@ class ClosedLoop:
             x = transition @ stacked
             stacked[:order] = x
             v_prev = v
+        if not inputs:  # the command's rows only say whether it stayed finite (see _finish)
+            return np.where(np.isfinite(u_rec.sum(axis=0)), 0.0, np.nan)[:, None], _transposed(y_rec), u_start
         return _transposed(u_rec), _transposed(y_rec), u_start
 
     def _finish(self, u_out, y_out, u_start):

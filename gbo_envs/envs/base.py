@@ -360,7 +360,8 @@ def expected_outcome(loop: ClosedLoop, gains: np.ndarray, draws: int, seed: int,
     for start in range(0, gains.shape[0], per_chunk):
         part = gains[start : start + per_chunk]
         rows = np.repeat(part, k, axis=0)
-        response = loop.simulate(rows, rng=np.random.default_rng(seed), draws=np.tile(np.arange(k), part.shape[0]))
+        response = loop.simulate(rows, rng=np.random.default_rng(seed), draws=np.tile(np.arange(k), part.shape[0]),
+                                 inputs=record)
         row_metrics = loop.metrics(response)
         metrics.append(row_metrics.reshape(part.shape[0], k, -1).mean(axis=1))
         if cost is not None:

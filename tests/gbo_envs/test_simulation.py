@@ -111,3 +111,16 @@ def test_bad_loop_arguments_are_named(kwargs, match):
 def test_bad_plants_are_named(kwargs, match):
     with pytest.raises(ValueError, match=match):
         ContinuousPlant(**kwargs)
+
+
+@pytest.mark.parametrize("method", ["linear", "stepping"])
+def test_a_metrics_only_simulation_gives_the_same_outputs_and_flags_without_the_command(method):
+    # gains from the feasible set to far beyond it: some loops diverge
+    gains = np.column_stack([np.linspace(0.05, 30.0, 40), np.linspace(0.1, 60.0, 40)[::-1]])
+    rng = np.random.default_rng
+    loop = dc_loop().replace(output_noise_std=0.1)
+    full = loop.simulate(gains, rng=rng(3), method=method)
+    lean = loop.simulate(gains, rng=rng(3), method=method, inputs=False)
+    assert full.unstable.any() and not full.unstable.all()
+    assert np.array_equal(lean.unstable, full.unstable) and np.array_equal(lean.y, full.y)
+    assert full.u.shape == full.y.shape and lean.u.shape == (gains.shape[0], 0)
