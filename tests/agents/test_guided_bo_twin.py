@@ -281,7 +281,8 @@ def test_effects_that_mispredict_the_recorded_costs_give_way_to_the_linear_twin(
 
 def test_a_cost_miss_resets_the_twin_data_only_if_the_twin_had_replayed_its_records():
     """eq. (reinit_DTdataset) reads a cost miss as a plant change; with twin="auto" only when the twin was right
-    before (a wrong twin's miss says nothing about the plant, and the reset threw its records away)."""
+    before on at least two records (a wrong twin's miss says nothing about the plant, and the reset threw its
+    records away; a twin of one record fits it whatever the plant)."""
     from types import SimpleNamespace
 
     env = gym.make("gbo_envs/DCMotor-v0")
@@ -292,8 +293,13 @@ def test_a_cost_miss_resets_the_twin_data_only_if_the_twin_had_replayed_its_reco
     tuner._twin_env, tuner.twin_ = far, SimpleNamespace(rmse_=0.05)  # replayed its records 25x worse than the noise
     tuner.tell(records[1]["gains"], records[1]["cost"], records[1])
     assert tuner.reinitializations_ == 0 and len(tuner._twin_records) == 2
-    tuner._twin_env, tuner.twin_ = far, SimpleNamespace(rmse_=0.0)  # a twin that was right: the plant changed
+    # a twin that replayed the one record it was fitted on: one record fits any structure, no change is read
+    tuner._twin_env, tuner.twin_, tuner._twin_fitted_on = far, SimpleNamespace(rmse_=0.0), 1
     tuner.tell(records[2]["gains"], records[2]["cost"], records[2])
+    assert tuner.reinitializations_ == 0 and len(tuner._twin_records) == 3
+    # a twin that was right on two records: the plant changed
+    tuner._twin_env, tuner.twin_, tuner._twin_fitted_on = far, SimpleNamespace(rmse_=0.0), 2
+    tuner.tell(records[1]["gains"], records[1]["cost"], records[1])
     assert tuner.reinitializations_ == 1 and len(tuner._twin_records) == 1
 
 
