@@ -110,13 +110,17 @@ def study_arguments(parser, variants, default_plants, seeds: int, workers: int, 
     parser.add_argument("--summary", action="store_true", help="only write the table of the runs so far")
 
 
-def study_runs(path: Path, run, args) -> list[dict]:
-    """The runs logged in ``path`` (``--summary``), or those plus the missing ones of ``args``, run now."""
+def study_runs(path: Path, run, args, optimum_of=None) -> list[dict]:
+    """The runs logged in ``path`` (``--summary``), or those plus the missing ones of ``args``, run now.
+
+    ``run`` gets each plant's ``optimum_of(label)``, by default its ground-truth optimal cost.
+    """
     from run_log import run_missing
 
     if args.summary:
         return load_runs(path)
-    optima = {label: optimum(label)["cost"] for label in args.plants}
+    optimum_of = optimum_of or (lambda label: optimum(label)["cost"])
+    optima = {label: optimum_of(label) for label in args.plants}
     return run_missing(path, run, args.plants, args.variants, args.seeds, optima, args.workers)
 
 

@@ -46,9 +46,8 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from effect_aware_guided_bo import counts_cell, study_arguments, timed_result
+from effect_aware_guided_bo import counts_cell, study_arguments, study_runs, timed_result
 from guided_bo_ablation import twin_effects
-from run_log import load_runs, run_missing
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNS = RESULTS / "time_varying_runs.jsonl"
@@ -166,11 +165,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     study_arguments(parser, TUNERS, PLANTS, seeds=30, workers=2, plants=PLANTS)
     args = parser.parse_args()
-    if args.summary:
-        runs = load_runs(RUNS)
-    else:
-        optima = {label: grid_optima(label) for label in args.plants}
-        runs = run_missing(RUNS, run_one, args.plants, args.variants, args.seeds, optima, args.workers)
+    runs = study_runs(RUNS, run_one, args, optimum_of=grid_optima)
     table = summarise(runs)
     (RESULTS / "time_varying.md").write_text(
         "Real experiments to each optimality ratio on the plant of each experiment, mean [95 % CI] (misses), "

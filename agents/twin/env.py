@@ -125,7 +125,7 @@ class TwinEnv(ControllerTuningEnv):
         if self._noise_free is None:
             twin = TwinEnv(self.plant_env, self.twin, cost_noise_std=self.cost_noise_std,
                            measurement_noise_std=0.0, draws=self.expectation_draws)
-            twin.loop = twin.loop.replace(effects=tuple(_deterministic(block) for block in twin.loop.effects))
+            twin.loop = twin.loop.replace(effects=tuple(block.at_fixed_start() for block in twin.loop.effects))
             self._noise_free = twin
         return self._noise_free
 
@@ -133,13 +133,6 @@ class TwinEnv(ControllerTuningEnv):
     def plant(self) -> ContinuousPlant:
         """The twin's plant."""
         return self.loop.plant
-
-
-def _deterministic(block):
-    """``block`` without a random start: a cogging block ``synchronised``, any other block itself."""
-    if "synchronised" in block.options and not block.synchronised:
-        return type(block)(**{**block.params, "synchronised": True})
-    return block
 
 
 def make_twin_env(plant_env, twin, cost_noise_std: float = 0.0, measurement_noise_std: float = 0.0,

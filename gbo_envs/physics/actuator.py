@@ -254,13 +254,14 @@ class Cogging(EffectBlock):
         """A mechanism at rest starts at ``theta = 0``: only a moving one draws its start angle."""
         return self.stochastic and moving_at_start
 
+    def at_fixed_start(self) -> Cogging:
+        """This ripple ``synchronised``: every experiment starts at ``theta = 0``."""
+        return self if self.synchronised else Cogging(**{**self.params, "synchronised": True})
+
     def reset(self, batch, rng, dt, draws=None):
         self._angle = np.zeros(batch)
         self._dt = float(dt)
         self._start = RowNoise(rng, batch, draws) if rng is not None and self.stochastic else None
-        # stratified over the K draws of an expectation: draw j starts in the j-th K-th of a period
-        self._strata = None if draws is None else (np.asarray(draws, dtype=float),
-                                                   float(np.max(draws, initial=0)) + 1.0)
 
     def ripple(self, angle: np.ndarray, travel: np.ndarray) -> np.ndarray:
         """Mean ripple over an interval starting at phase ``angle`` and advancing by ``travel`` (both rad).
@@ -276,11 +277,8 @@ class Cogging(EffectBlock):
     def command_for(self, u_applied, speed):
         if self._start is not None:  # a moving mechanism starts at a random angle within one period
             moving = np.asarray(speed) != 0.0
-            if np.any(moving):
-                fraction = self._start.uniform()
-                if self._strata is not None:
-                    fraction = (self._strata[0] + fraction) / self._strata[1]
-                self._angle = np.where(moving, self.period * fraction, 0.0)
+            if np.any(moving):  # draw j of an expectation's K starts in the j-th K-th of a period
+                self._angle = np.where(moving, self.period * self._start.stratified_uniform(), 0.0)
         travel = (2.0 * np.pi / self.period) * speed * self._dt
         return u_applied - self.ripple(self._phase_angle(), travel)
 

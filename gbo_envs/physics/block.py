@@ -174,6 +174,15 @@ class RowNoise:
         values = self._rng.random(self._size)
         return values if self._draws is None else values[self._draws]
 
+    def stratified_uniform(self) -> np.ndarray:
+        """Shape (batch,): as :meth:`uniform`, but draw ``j`` of ``K`` falls in ``[j / K, (j + 1) / K)``.
+
+        The mean over the ``K`` draws then covers the unit interval evenly (stratified sampling);
+        independent rows (no ``draws``) are plain uniform values.
+        """
+        values = self.uniform()
+        return values if self._draws is None else (self._draws + values) / self._size
+
 
 class EffectBlock:
     """A physical effect that can be put into any plant loop.
@@ -272,6 +281,10 @@ class EffectBlock:
         """Whether the block draws random numbers in a loop whose mechanism moves at the start (a speed loop)
         or rests there (a position loop): ``stochastic`` unless a block says otherwise."""
         return self.stochastic
+
+    def at_fixed_start(self) -> EffectBlock:
+        """This block starting the same way in every experiment (cogging ``synchronised``); itself if it does."""
+        return self
 
     # -- simulator contract (identity defaults) ---------------------------------------------------
     def reset(self, batch: int, rng: np.random.Generator | None, dt: float, draws=None) -> None:
