@@ -86,7 +86,9 @@ class BayesianOptimization(Tuner):
         variance ``sum w_i^2 sigma_i^2`` (:mod:`agents.metric_surrogate`, which documents the
         noise model). EI is computed on that mean and std by the same acquisition code; the
         ``"observed"`` incumbent is the lowest ``sum w f / n`` of the measured metrics (the
-        additive cost noise is not in them). Needs ``env.unwrapped.weights`` and
+        additive cost noise is not in them; with ``settling_model="envelope"`` the settling
+        time there is the envelope model's own, :meth:`MetricSurrogate.observed_cost
+        <agents.metric_surrogate.MetricSurrogate.observed_cost>`). Needs ``env.unwrapped.weights`` and
         ``.normalizers`` (four metrics) at :meth:`setup`; without them, and for any fit where a
         training point has no finite metrics (no record, an unstable experiment, or extra data
         added without ``metrics=``), the cost GP is used. ``"cost"``: one GP on the measured
@@ -329,8 +331,10 @@ class BayesianOptimization(Tuner):
         if self.incumbent_rule == "observed":
             if self._model_in_use == "metrics":
                 # J_hat of the measured metrics, sum w f / n: the best observed noise-free-ish cost
-                # (the cost noise epsilon is not in the metrics the composite model is fitted on)
-                return float(np.min(self.metric_surrogate.reconstruct(self.metric_training_set()[1])))
+                # (the cost noise epsilon is not in the metrics the composite model is fitted on),
+                # with the envelope model's own settling time where it models it
+                X_metrics, metrics, _ = self.metric_training_set()
+                return float(np.min(self.metric_surrogate.observed_cost(model, X_metrics, metrics)))
             return float(np.min(y))  # J+_n, best observed cost (paper, eq. (LCB))
         return float(np.min(model.predict(X)[0]))
 

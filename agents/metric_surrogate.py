@@ -67,14 +67,20 @@ class CompositeSurrogate:
         ``w_i`` of eq. (J_used).
     cost_noise_std : float, default 0
         Std of the cost-level noise the metric models do not see (see the module doc).
+    derived : iterable of int, default ()
+        Metrics whose model is fitted on something other than the metric's own measurements
+        (the settling time from the error envelope, :mod:`agents.settling`); at a training
+        point such a model predicts its own estimate, not the measurement (see
+        :meth:`MetricSurrogate.observed_cost`).
     """
 
-    def __init__(self, models, weights, cost_noise_std: float = 0.0) -> None:
+    def __init__(self, models, weights, cost_noise_std: float = 0.0, derived=()) -> None:
         self.models = list(models)
         self.weights = np.asarray(weights, dtype=float).ravel()
         if self.weights.size != len(self.models):
             raise ValueError(f"weights: need one per model ({len(self.models)}), got {self.weights.size}")
         self.cost_noise_std_ = float(cost_noise_std)
+        self.derived = tuple(sorted(int(i) for i in derived))
 
     def predict_metrics(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Posterior means and stds of every normalised metric, each of shape (m, n_metrics)."""
@@ -145,6 +151,32 @@ class MetricSurrogate:
         """``sum_i w_i f_i / n_i`` for metrics of shape (n, n_metrics): ``J_hat`` of the measured metrics."""
         return np.asarray(metrics, dtype=float) @ (self.weights / self.normalizers)
 
+    def observed_cost(self, model: CompositeSurrogate, X: np.ndarray, metrics: np.ndarray) -> np.ndarray:
+        """``J_hat`` of measured points on the model's footing, shape (n,): the incumbent of EI.
+
+        ``sum_i w_i g_i`` with ``g_i = f_i / n_i`` measured, except for the model's
+        :attr:`~CompositeSurrogate.derived` metrics, whose ``g_i`` is the model's mean at ``X``.
+        The envelope model places a settling time at the midpoint of the interval between two
+        of its envelope times (half an interval from the measured one, more where its GP
+        smooths); against the measured incumbent the model could then promise an improvement at
+        the incumbent's own gains, which EI proposed again and again (LinearMotor-v0, seed 57:
+        the same gains 11 times in a row).
+
+        Parameters
+        ----------
+        model : CompositeSurrogate
+            The surrogate :meth:`fit` returned on these points.
+        X : ndarray of shape (n, d)
+            Unit-box inputs of the measured points.
+        metrics : ndarray of shape (n, n_metrics)
+            Their raw metrics ``f_i``.
+        """
+        scaled = np.asarray(metrics, dtype=float) / self.normalizers
+        if model.derived:
+            mean, _ = model.predict_metrics(X)
+            scaled[:, model.derived] = mean[:, model.derived]
+        return scaled @ self.weights
+
     def fit(self, X: np.ndarray, metrics: np.ndarray, costs: np.ndarray | None = None,
             seed: int | None = None, optimize: bool = True, envelopes: np.ndarray | None = None,
             prior: MetricPrior | None = None) -> CompositeSurrogate:
@@ -164,7 +196,11 @@ class MetricSurrogate:
             ``False`` keeps every GP's hyperparameters (see :meth:`GPSurrogate.fit`).
         envelopes : ndarray of shape (n, k), optional
             Error envelopes of the responses (:func:`agents.settling.error_envelope`); with a
-            ``settling`` model, the settling time is modelled from them instead of by a GP.
+            ``settling`` model, the settling time is modelled from them instead of by a GP once
+            there are the points its GP fits hyperparameters on (``settling.gp.min_fit_points``).
+            Below that, the envelope GP's fixed prior kernel (noise 1e-2 on each standardised
+            envelope time) spreads the settling time at the measured gains over several envelope
+            intervals, and EI measured the same gains up to four times in a row (LinearMotor-v0).
         prior : MetricPrior, optional
             Prior mean of the raw metrics; every GP then models the discrepancy from it (see
             the module doc). The settling time is then always modelled by a GP.
@@ -175,11 +211,13 @@ class MetricSurrogate:
         target = self._transformed(metrics)
         if prior is not None:
             target = target - self._transformed(prior(X))  # the discrepancy d_i from the prior
-        models = []
+        models, derived = [], []
         for i, model in enumerate(self.models):
-            if i == self.settling_index and self.settling is not None and envelopes is not None and prior is None:
+            if i == self.settling_index and self.settling is not None and envelopes is not None and prior is None \
+                    and np.shape(X)[0] >= self.settling.gp.min_fit_points:
                 seed_i = None if seed is None else int(seed) + i
                 models.append(self.settling.fit(X, envelopes, seed=seed_i, optimize=optimize))
+                derived.append(i)
                 continue
             model.fit(X, target[:, i], seed=None if seed is None else int(seed) + i, optimize=optimize)
             shifted = model if prior is None else _PriorMean(model, prior, i, self._transformed)
@@ -188,7 +226,7 @@ class MetricSurrogate:
         if costs is not None and np.size(costs) > 1:
             residual = np.asarray(costs, dtype=float) - self.reconstruct(metrics)
             noise = float(np.sqrt(np.mean(residual**2)))
-        return CompositeSurrogate(models, self.weights, cost_noise_std=noise)
+        return CompositeSurrogate(models, self.weights, cost_noise_std=noise, derived=derived)
 
     def _transformed(self, metrics: np.ndarray) -> np.ndarray:
         """``T_i(f_i)`` of raw metrics (n, n_metrics): ``f_i / n_i``, in logs for :attr:`log_metrics`."""

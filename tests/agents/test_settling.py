@@ -126,3 +126,30 @@ def test_bo_models_the_settling_time_from_the_envelope_and_falls_back_to_a_gp():
     assert not isinstance(gp_only.fit_surrogate().models[1], SettlingTimeModel)
     with pytest.raises(ValueError, match="settling_model"):
         agents.BayesianOptimization(settling_model="envelopes")
+
+
+def test_the_envelope_model_starts_with_the_hyperparameter_fits_and_bo_does_not_remeasure_its_incumbent():
+    env = gym.make("gbo_envs/LinearMotor-v0")
+    # below the GPs' min_fit_points the settling time has a GP of its own (no envelope model yet)
+    early = agents.BayesianOptimization(settling_model="envelope")
+    early.run(env, budget=4, seed=57)
+    assert not isinstance(early.fit_surrogate().models[1], SettlingTimeModel) and not early.fit_surrogate().derived
+    # seeds 57 and 29 measured the corner (Kp_min, Kd_min) four times in a row with the envelope model
+    # on the first points and the measured settling time as the incumbent's
+    for seed in (57, 29):
+        result = agents.BayesianOptimization(settling_model="envelope").run(env, budget=8, seed=seed)
+        gains = result.to_pandas()[["Kp", "Kd"]].round(6)
+        assert gains.value_counts().max() <= 2, gains
+    # the incumbent takes the envelope model's settling time, so that at the measured gains the
+    # model promises nothing the measurement did not show
+    bo = agents.BayesianOptimization(settling_model="envelope")
+    bo.run(env, budget=8, seed=57)
+    model = bo.fit_surrogate()
+    assert model.derived == (1,)
+    X, metrics, _ = bo.metric_training_set()
+    observed = bo.metric_surrogate.observed_cost(model, X, metrics)
+    mean = model.predict_metrics(X)[0]
+    np.testing.assert_allclose(observed, np.column_stack(
+        [metrics[:, 0] / bo.metric_surrogate.normalizers[0], mean[:, 1],
+         metrics[:, 2:] / bo.metric_surrogate.normalizers[2:]]) @ bo.metric_surrogate.weights)
+    assert bo.incumbent() == pytest.approx(observed.min())
