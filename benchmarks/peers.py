@@ -10,17 +10,18 @@ A run that never reaches a ratio counts as ``budget + 1`` and as a miss. Means w
 Student-t intervals, the ratio of each mean to ``bo``'s, and seconds per run (one worker
 is one core: BLAS and torch run single-threaded).
 
-Rows (:data:`ROWS`): ``bo`` (the reference), ``guided-bo``, ``optuna-gp`` (Optuna's
+Rows (:data:`ROWS`): ``bo`` (the reference), ``bo-envelope`` (``settling_model="envelope"``, the
+stronger BO on the DC motors), ``guided-bo``, ``optuna-gp`` (Optuna's
 GPSampler), ``botorch`` (qLogNEI), ``botorch-logei``, ``skopt`` (gp_minimize's setup) and
 ``bayes-opt``. A row whose library is not installed is skipped with a note
 (``pip install "gbo-envs[peers]"``). The rows are compared on the seeds all of them ran; a
 row that ran fewer seeds is summarised on the seeds it shares with ``bo``, against ``bo``
 on those seeds (its own seed count in the table).
 
-The ``guided-bo`` runs of ``guided_bo_ablation.py`` (same envs, seeds, budget and initial
-design; its ``bo`` runs are those of this study, bit for bit) count as this study's:
-``--summary`` pulls them from ``benchmarks/results/guided_bo_ablation_runs.jsonl`` where
-this study has not run that seed itself.
+The ``guided-bo`` and ``bo, envelope settling`` runs of ``guided_bo_ablation.py`` (same envs,
+seeds, budget and initial design; its ``bo`` runs are those of this study, bit for bit) count
+as this study's ``guided-bo`` and ``bo-envelope``: ``--summary`` pulls them from
+``benchmarks/results/guided_bo_ablation_runs.jsonl`` where this study has not run that seed itself.
 
 Each finished run is appended to ``benchmarks/results/peers_runs.jsonl`` and skipped when
 the command is run again (an interrupted study resumes). Writes
@@ -45,12 +46,15 @@ from run_log import append_runs, load_runs
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RUNS = RESULTS / "peers_runs.jsonl"
-#: The ablation study's run log, whose guided-bo runs on these envs are this study's too.
+#: The ablation study's run log, whose guided-bo and envelope-BO runs on these envs are this study's too.
 ABLATION_RUNS = RESULTS / "guided_bo_ablation_runs.jsonl"
+#: ablation variant -> the row of this study it is
+ABLATION_ROWS = {"guided-bo": "guided-bo", "bo, envelope settling": "bo-envelope"}
 
 #: row label -> (registry name, constructor keywords): every row starts from BO's N0 = 1 design.
 ROWS: dict[str, tuple[str, dict]] = {
     "bo": ("bo", {}),
+    "bo-envelope": ("bo", {"settling_model": "envelope"}),
     "guided-bo": ("guided-bo", {}),
     "optuna-gp": ("optuna-gp", {"n_initial": 1}),
     "botorch": ("botorch", {"n_initial": 1, "acquisition": "qlognei"}),
@@ -105,12 +109,13 @@ def run_one(env_label: str, row: str, seed: int, best: float) -> dict:
 
 
 def ablation_runs(runs: list[dict]) -> list[dict]:
-    """``guided_bo_ablation.py``'s guided-bo runs on :data:`ENVS` at seeds ``runs`` lacks, as runs of this study."""
+    """``guided_bo_ablation.py``'s runs of :data:`ABLATION_ROWS` on :data:`ENVS` at seeds ``runs`` lacks, as runs
+    of this study."""
     have = {(r["env"], r["row"], r["seed"]) for r in runs}
-    return [{"env": r["plant"], "row": "guided-bo", "seed": r["seed"], "ratios": r["ratios"], "seconds": r["seconds"],
-             "source": ABLATION_RUNS.name}
-            for r in load_runs(ABLATION_RUNS) if r["variant"] == "guided-bo" and r["plant"] in ENVS
-            and (r["plant"], "guided-bo", r["seed"]) not in have]
+    return [{"env": r["plant"], "row": ABLATION_ROWS[r["variant"]], "seed": r["seed"], "ratios": r["ratios"],
+             "seconds": r["seconds"], "source": ABLATION_RUNS.name}
+            for r in load_runs(ABLATION_RUNS) if r["variant"] in ABLATION_ROWS and r["plant"] in ENVS
+            and (r["plant"], ABLATION_ROWS[r["variant"]], r["seed"]) not in have]
 
 
 def summarise(runs: list[dict]) -> pd.DataFrame:
@@ -187,7 +192,7 @@ def main() -> None:
 
         rows = [row for row in args.rows if available(row)]
         optima = {env_label: optimum(env_label)["cost"] for env_label in args.envs}
-        done = {(r["env"], r["row"], r["seed"]) for r in runs}
+        done = {(r["env"], r["row"], r["seed"]) for r in runs + ablation_runs(runs)}  # the ablation's are done too
         todo = [(e, r, s, optima[e]) for e in args.envs for s in range(args.seeds) for r in rows
                 if (e, r, s) not in done]
         runs += append_runs(RUNS, run_one, todo, args.workers)
@@ -198,7 +203,7 @@ def main() -> None:
         "Real experiments to each optimality ratio, mean [95 % CI] (misses; a miss counts as budget + 1), the "
         "ratio of the mean to bo's on the same seeds, and seconds per run; the same N0 = 1 Latin hypercube start "
         "for every tuner, the seeds every tuner ran (a row with fewer: the seeds it shares with bo; guided-bo's "
-        "runs are guided_bo_ablation.py's) (benchmarks/peers.py).\n\n" + text)
+        "and bo-envelope's runs are guided_bo_ablation.py's) (benchmarks/peers.py).\n\n" + text)
     print(text)
 
 

@@ -109,15 +109,31 @@ def test_peers_summary_takes_guided_bo_from_the_ablation_log_on_the_seeds_it_sha
     runs.append({"env": "DCMotor-v0", "row": "guided-bo", "seed": 1, "ratios": [1.04] * 4, "seconds": 1.0})
     ablation = [{"plant": plant, "variant": variant, "seed": seed, "ratios": [1.2, 1.0, 1.0, 1.0], "seconds": 9.0}
                 for plant, variant, seed in [("DCMotor-v0", "guided-bo", 0), ("DCMotor-v0", "guided-bo", 1),
-                                             ("DCMotor-v0", "bo", 3), ("DC+backlash", "guided-bo", 0)]]
+                                             ("DCMotor-v0", "bo", 3), ("DC+backlash", "guided-bo", 0),
+                                             ("DCMotor-v0", "bo, envelope settling", 2)]]
     bench.ABLATION_RUNS.write_text("".join(json.dumps(run) + "\n" for run in ablation))
     pulled = bench.ablation_runs(runs)
-    # only the guided-bo run of a peers env at a seed this study lacks
-    assert [(r["env"], r["row"], r["seed"]) for r in pulled] == [("DCMotor-v0", "guided-bo", 0)]
+    # only the guided-bo and envelope-BO runs of a peers env at a seed this study lacks
+    assert [(r["env"], r["row"], r["seed"]) for r in pulled] == [("DCMotor-v0", "guided-bo", 0),
+                                                                  ("DCMotor-v0", "bo-envelope", 2)]
     table = bench.summarise(runs + pulled).set_index(["ratio", "row"])
     assert table.loc[(1.05, "bo"), ["seeds", "mean"]].tolist() == [3, 7.0 / 3.0]  # on all its seeds
     # guided-bo on seeds 0 (ablation: 1.05 at experiment 2) and 1 (this study: at 1), against bo on 0 and 1 (2, 4)
     assert table.loc[(1.05, "guided-bo"), ["seeds", "mean", "vs_bo"]].tolist() == [2, 1.5, 0.5]
+
+
+def test_peers_does_not_rerun_the_seeds_the_ablation_log_has(monkeypatch, tmp_path):
+    bench = _peers_module(monkeypatch, tmp_path)
+    ablation = [{"plant": "DCMotor-v0", "variant": variant, "seed": 0, "ratios": [1.0], "seconds": 1.0}
+                for variant in ("guided-bo", "bo, envelope settling")]
+    bench.ABLATION_RUNS.write_text("".join(json.dumps(run) + "\n" for run in ablation))
+    asked = []
+    monkeypatch.setattr(bench, "append_runs", lambda path, run, todo, workers: asked.extend(todo) or [])
+    monkeypatch.setattr(sys, "argv", ["peers.py", "--envs", "DCMotor-v0", "--rows", "bo", "bo-envelope", "guided-bo",
+                                      "--seeds", "2"])
+    bench.main()
+    assert sorted((row, seed) for _, row, seed, _ in asked) == [("bo", 0), ("bo", 1), ("bo-envelope", 1),
+                                                                 ("guided-bo", 1)]
 
 
 def test_peers_skips_a_row_whose_library_is_missing(monkeypatch, tmp_path, capsys):
