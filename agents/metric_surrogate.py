@@ -172,9 +172,8 @@ class MetricSurrogate:
             Their raw metrics ``f_i``.
         """
         scaled = np.asarray(metrics, dtype=float) / self.normalizers
-        if model.derived:
-            mean, _ = model.predict_metrics(X)
-            scaled[:, model.derived] = mean[:, model.derived]
+        for i in model.derived:
+            scaled[:, i] = model.models[i].predict(X)[0]
         return scaled @ self.weights
 
     def fit(self, X: np.ndarray, metrics: np.ndarray, costs: np.ndarray | None = None,
@@ -211,10 +210,11 @@ class MetricSurrogate:
         target = self._transformed(metrics)
         if prior is not None:
             target = target - self._transformed(prior(X))  # the discrepancy d_i from the prior
+        from_envelopes = self.settling is not None and envelopes is not None and prior is None \
+            and np.shape(X)[0] >= self.settling.gp.min_fit_points
         models, derived = [], []
         for i, model in enumerate(self.models):
-            if i == self.settling_index and self.settling is not None and envelopes is not None and prior is None \
-                    and np.shape(X)[0] >= self.settling.gp.min_fit_points:
+            if from_envelopes and i == self.settling_index:
                 seed_i = None if seed is None else int(seed) + i
                 models.append(self.settling.fit(X, envelopes, seed=seed_i, optimize=optimize))
                 derived.append(i)

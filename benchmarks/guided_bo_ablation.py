@@ -154,8 +154,9 @@ def mean_of(runs: list[dict], key: str) -> str:
 
 
 def twin_effects(runs: list[dict]) -> str:
-    """The twin's effects at the end of each run (``linear`` for none), with their counts, if logged."""
-    if not all("effects" in r for r in runs):
+    """The twin's effects at the end of each run (``linear`` for none), with their counts, if logged
+    (``-`` for a tuner without a twin, which reports no activations)."""
+    if not all("effects" in r and r.get("activations") is not None for r in runs):
         return "-"
     return effects_column("+".join(r["effects"]) or "linear" for r in runs)
 

@@ -187,16 +187,17 @@ def main() -> None:
     parser.add_argument("--summary", action="store_true", help="only write and print the tables of the runs so far")
     args = parser.parse_args()
     runs = load_runs(RUNS)
+    pulled = ablation_runs(runs)  # the ablation's runs at seeds this study lacks: done, and summarised
     if not args.summary:
         from effect_aware_guided_bo import optimum
 
         rows = [row for row in args.rows if available(row)]
         optima = {env_label: optimum(env_label)["cost"] for env_label in args.envs}
-        done = {(r["env"], r["row"], r["seed"]) for r in runs + ablation_runs(runs)}  # the ablation's are done too
+        done = {(r["env"], r["row"], r["seed"]) for r in runs + pulled}
         todo = [(e, r, s, optima[e]) for e in args.envs for s in range(args.seeds) for r in rows
                 if (e, r, s) not in done]
         runs += append_runs(RUNS, run_one, todo, args.workers)
-    table = summarise(runs + ablation_runs(runs))
+    table = summarise(runs + pulled)
     table.round(4).to_csv(RESULTS / "peers.csv", index=False)
     text = markdown(table)
     (RESULTS / "peers.md").write_text(
