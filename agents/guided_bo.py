@@ -115,7 +115,7 @@ class GuidedBO(BayesianOptimization):
     diagnose``), and the twin becomes the linear model plus every effect they
     evidence, at most two, as a :class:`~agents.twin.GreyBoxTwin`, if that fits
     better. For a position output a grey-box twin's RMSE is that of the increments of
-    its error (:func:`agents.twin.greybox.output_error`): a replayed slider that sticks
+    its error (:func:`agents.twin.least_squares.output_error`): a replayed slider that sticks
     a moment off the plant's stays off in open loop, not in the twin's closed loop.
     A twin with effects is kept only while its closed loop predicts the costs
     measured at the recorded gains better than the linear twin's does (RMS relative
@@ -743,7 +743,7 @@ class GuidedBO(BayesianOptimization):
             doubled = n >= 2 * self._diagnosed_on and self._diagnosed_on < MAX_DIAGNOSED_RECORDS
             due = self._diagnosed_on == 0 or doubled
             if due and not twin.rmse_ <= self._explained_rmse():  # an error the noise does not explain
-                from agents.twin.greybox import ModelSpec
+                from agents.twin.model import ModelSpec
                 from agents.twin.selection import diagnosed_twin
 
                 spec = ModelSpec(n_poles=self.twin_poles, n_integrators=self._integrators(),

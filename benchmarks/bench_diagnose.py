@@ -37,7 +37,7 @@ import numpy as np
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.csvio import records_from_loop, write_csv
-from agents.twin.greybox import GreyData
+from agents.twin.data import GreyData
 from agents.twin.workbench import diagnose
 
 CASES = {

@@ -21,7 +21,7 @@ import numpy as np
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.jsonable import jsonable
-from agents.twin.greybox import ModelSpec
+from agents.twin.model import ModelSpec
 from agents.twin.selection import diagnosed_twin
 
 ENV_ID = "gbo_envs/LinearMotorRig-v0"

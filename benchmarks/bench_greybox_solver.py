@@ -6,7 +6,7 @@ The problems are the ones ``gbo twin diagnose`` builds on three DCMotor-v0 recor
 Coulomb friction (3 N m): the refit of the current (linear) model and the
 candidate problems of each catalogued effect with a smooth simulation error
 (quantization and cogging left out). Both solvers minimise the same residual
-(:func:`agents.twin.greybox.residual`) over the same free parameters, from the
+(:func:`agents.twin.least_squares.residual`) over the same free parameters, from the
 same start, within the same bounds and scales, with the same forward-difference
 Jacobian (the per-record rest levels and biases perturbed all at once), the same
 relative cost-decrease tolerance (``tol = 1e-7``, least_squares' ``ftol``) and the
@@ -31,9 +31,13 @@ import numpy as np
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.thread_limits import single_thread
+from agents.twin.candidates import candidate_problems
 from agents.twin.csvio import records_from_loop
-from agents.twin.fitting import candidate_problems, linear_fit, make_problem
-from agents.twin.greybox import FITTED_PARAMETERS, GreyData, Problem, fit_problems, residual, simulate_sets
+from agents.twin.data import GreyData
+from agents.twin.least_squares import Problem, fit_problems, make_problem, residual
+from agents.twin.linear_fit import linear_fit
+from agents.twin.model import FITTED_PARAMETERS
+from agents.twin.simulation import simulate_sets
 
 EFFECTS = ("saturation", "coulomb_friction", "dead_zone", "viscous_friction", "backlash", "stiction", "offset",
            "time_delay")

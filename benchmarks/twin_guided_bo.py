@@ -29,7 +29,7 @@ import gbo_envs  # noqa: F401  (registers the envs)
 from agents.guided_bo import GuidedBO
 from agents.twin import GreyBoxTwin
 from agents.twin.csvio import records_from_env
-from agents.twin.greybox import GreyData
+from agents.twin.data import GreyData
 from agents.twin.workbench import error_ladder
 from gbo_envs import ground_truth
 

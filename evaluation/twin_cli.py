@@ -118,7 +118,8 @@ def _u_unit(args) -> str:
 
 def _load(args):
     from agents.twin.csvio import read_csv
-    from agents.twin.greybox import GreyData, ModelSpec
+    from agents.twin.data import GreyData
+    from agents.twin.model import ModelSpec
 
     records = read_csv(args.data)
     data = GreyData.from_records(records)  # experiment index = the CSV's experiment id

@@ -26,7 +26,7 @@ import numpy as np
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.csvio import read_csv, records_from_env, write_csv
-from agents.twin.greybox import GreyData
+from agents.twin.data import GreyData
 from agents.twin.ladder_text import advice, unobservable_lines
 from agents.twin.workbench import GreyBoxTwin, compare, diagnose
 from gbo_envs.experiment import Experiment

@@ -13,13 +13,15 @@ from __future__ import annotations
 
 from agents.twin.compare import compare
 from agents.twin.csvio import read_csv, write_csv
-from agents.twin.diagnose import diagnose, error_ladder
+from agents.twin.data import GreyData
+from agents.twin.diagnose import diagnose
 from agents.twin.env import TwinEnv, make_twin_env
-from agents.twin.fitting import fit_model
-from agents.twin.greybox import GreyData, GreyFit, ModelSpec
+from agents.twin.fits import fit_model
 from agents.twin.greybox_twin import GreyBoxTwin
 from agents.twin.identify import identify_linear
+from agents.twin.ladder import error_ladder
 from agents.twin.linear_twin import LinearTwin
+from agents.twin.model import GreyFit, ModelSpec
 from agents.twin.residuals import residuals
 
 __all__ = ["GreyBoxTwin", "LinearTwin", "TwinEnv", "identify_linear", "make_twin_env"]

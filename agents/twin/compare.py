@@ -7,8 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from agents.twin.data import GreyData
 from agents.twin.fidelity import rmse
-from agents.twin.greybox import GreyData, GreyFit
+from agents.twin.model import GreyFit
 
 __all__ = ["CompareResult", "compare"]
 

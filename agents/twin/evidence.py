@@ -5,12 +5,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from agents.twin.data import GreyData
 from agents.twin.fidelity import rmse
-from agents.twin.greybox import GreyData, GreyFit
+from agents.twin.model import GreyFit
 from agents.twin.residuals import residuals
 
-__all__ = ["REVEALING_EXPERIMENTS", "SEPARATING_EXPERIMENTS", "effect_evidence", "excitation_notes",
-           "separating_experiment", "unobservable_effects"]
+__all__ = ["DRIFT_MIN_RECORDS", "REVEALING_EXPERIMENTS", "SEPARATING_EXPERIMENTS", "both_directions",
+           "effect_evidence", "excitation_notes", "separating_experiment", "unobservable_effects"]
+
+
+#: Fewest experiments, in time order, from which a drift can be told from the differences between
+#: experiments (a trend over the session needs points on both sides of its middle and one to spare).
+DRIFT_MIN_RECORDS = 5
 
 
 #: Experiments that separate two effects which explain the data equally well.
@@ -41,10 +47,12 @@ REVEALING_EXPERIMENTS: dict[str, str] = {
     "coulomb_friction": "a step through zero speed (e.g. the reference from +r to -r) makes the friction change sign",
     "stiction": "a slow speed reversal with a dwell at zero speed shows the breakaway",
     "backlash": "an input reversal (a step down after a step up) shows the play",
-    "dead_zone": "a step whose input crosses zero (e.g. to a negative reference) shows the dead band",
-    "drift": "several experiments over the session, the first repeated at the end, show a drift",
-    "offset": "an experiment from a known zero (u = 0 and y = 0 at rest) pins a constant offset; otherwise every "
-              "experiment's own rest level absorbs it",
+    "dead_zone": "a step whose input crosses zero (e.g. to a negative reference), or an experiment that shows its "
+                 "rest at zero input before the step, shows the dead band",
+    "drift": f"at least {DRIFT_MIN_RECORDS} experiments over the session, the first repeated at the end, show a "
+             "drift",
+    "offset": "an experiment that starts at rest and shows it (the input held before the step, e.g. u = 0 and "
+              "y = 0 for a while) pins a constant offset; otherwise every experiment's own rest level absorbs it",
 }
 
 
@@ -72,7 +80,25 @@ def separating_experiment(a: str, b: str) -> str:
 
 
 def excitation_notes(data: GreyData, output: str) -> dict[str, str]:
-    """Effects the data cannot show, with the reason.
+    """Effects the data cannot show, with the reason, judged on all experiments together.
+
+    An effect that acts on a record as a constant load or input offset (a friction whose
+    speed keeps its sign, a dead zone whose input keeps its sign, an offset) is absorbed
+    by the free rest level and plant-input bias of a record whose rest the data do not show
+    (:mod:`agents.twin.initial`, ``"steady"``/``"moving"``), but not by a record that shows
+    its rest (``"rest"``): its rest level and command are measured, and the model must hold
+    them. So, with ``speed`` the mechanical speed (``y``, or ``dy/dt`` for a position):
+
+    * ``coulomb_friction``, ``stiction``: observable when a record reverses its speed, or when
+      a record shows its rest (a start from standstill shows the breakaway; a rest at speed
+      shows the friction as a load, which several directions tell from an offset);
+    * ``dead_zone``: when a record's input crosses zero, or a record shows its rest;
+    * ``offset``: when a record shows its rest;
+    * ``backlash``: when a record's input turns back;
+    * ``drift``: with at least :data:`DRIFT_MIN_RECORDS` experiments in time order.
+
+    Speeds and inputs count as crossing zero only beyond the output's noise (and the
+    input's own scale), so that noise around standstill is not a reversal.
 
     Parameters
     ----------
@@ -85,27 +111,72 @@ def excitation_notes(data: GreyData, output: str) -> dict[str, str]:
     dict
         ``{effect: reason}`` for the effects the records do not excite.
     """
+    mask = data.mask
     speed = data.y if output != "position" else np.gradient(data.y, data.dt, axis=1)
+    speed_tol = _speed_noise(speed, mask)
+    u_tol = 1e-6 * max(float(np.max(np.abs(data.u[mask]))), 1e-300)
+    reversal = bool(np.any(_both_signs(speed, mask, speed_tol)))
+    crossing = bool(np.any(_both_signs(data.u, mask, u_tol)))
+    shown = data.initial.pinned
     notes = {}
-    reversal = np.any((np.max(np.where(data.mask, speed, -np.inf), axis=1) > 0)
-                      & (np.min(np.where(data.mask, speed, np.inf), axis=1) < 0))
-    if not reversal:
+    if not reversal and not shown.any():
         for name in ("coulomb_friction", "stiction"):
-            notes[name] = "no speed reversal in the data: acts as a constant load, absorbed by the rest levels"
+            notes[name] = ("no speed reversal in any experiment and no experiment that shows its rest: friction "
+                           "acts as a constant load, absorbed by each experiment's estimated rest level")
     # the play acts on the input path: it shows wherever the input turns back (after an overshoot of the
     # command, as in most PI step responses), whatever the sign of the speed
-    step = np.diff(np.where(data.mask, data.u, np.nan), axis=1)
+    step = np.diff(np.where(mask, data.u, np.nan), axis=1)
     if not np.any((np.nanmax(step, axis=1, initial=0.0) > 0) & (np.nanmin(step, axis=1, initial=0.0) < 0)):
         notes["backlash"] = "the input never turns back in the data: the play stays closed on one side, " \
                             "absorbed by the rest levels"
-    crossing = np.any((np.max(np.where(data.mask, data.u, -np.inf), axis=1) > 0)
-                      & (np.min(np.where(data.mask, data.u, np.inf), axis=1) < 0))
-    if not crossing:
-        notes["dead_zone"] = "the input never crosses zero: a dead zone acts as a constant input offset"
-    if data.n_records < 2 or np.ptp(data.index) == 0:
-        notes["drift"] = "one experiment: drift between experiments cannot be seen"
-    notes["offset"] = "a constant offset is absorbed by the per-experiment rest levels"
+    if not crossing and not shown.any():
+        notes["dead_zone"] = ("the input never crosses zero and no experiment shows its rest: a dead zone acts as "
+                              "a constant input offset, absorbed by each experiment's estimated rest level")
+    if np.unique(data.index).size < DRIFT_MIN_RECORDS:
+        notes["drift"] = (f"{np.unique(data.index).size} experiment(s): a drift over the session needs at least "
+                          f"{DRIFT_MIN_RECORDS} experiments in time order to be told from the differences between "
+                          "experiments")
+    if not shown.any():
+        notes["offset"] = ("no experiment shows its rest before the excitation: a constant offset is absorbed by "
+                           "each experiment's estimated rest level")
     return notes
+
+
+def both_directions(data: GreyData, output: str) -> bool:
+    """Whether the data show the mechanism moving both ways with its loads pinned: a record that reverses its
+    speed, or records that show their rest (:mod:`agents.twin.initial`) with speeds of both signs between them.
+
+    Only then can a friction level per direction (``coulomb_friction``'s ``asymmetry``) be told from a
+    single level: elsewhere each record's estimated rest absorbs its own level.
+    """
+    mask = data.mask
+    speed = data.y if output != "position" else np.gradient(data.y, data.dt, axis=1)
+    tol = _speed_noise(speed, mask)
+    if np.any(_both_signs(speed, mask, tol)):
+        return True
+    shown = data.initial.pinned
+    if not shown.any():
+        return False
+    high = np.max(np.where(mask, speed, -np.inf), axis=1)[shown] > tol
+    low = np.min(np.where(mask, speed, np.inf), axis=1)[shown] < -tol
+    return bool(high.any() and low.any())
+
+
+def _speed_noise(speed: np.ndarray, mask: np.ndarray) -> float:
+    """Level below which a speed is not told from standstill: 3 noise std (second differences) plus a quantum."""
+    d2 = np.diff(speed, n=2, axis=1)[mask[:, 2:]]
+    sigma = float(np.sqrt(np.median(d2**2) / (6.0 * 0.4549))) if d2.size >= 10 else 0.0
+    changes = np.abs(np.diff(speed, axis=1)[mask[:, 1:]])
+    changes = changes[changes > 1e-12 * max(float(np.max(np.abs(speed[mask]))), 1e-300)]
+    quantum = float(np.min(changes)) if changes.size else 0.0
+    return 3.0 * sigma + quantum
+
+
+def _both_signs(x: np.ndarray, mask: np.ndarray, tol: float) -> np.ndarray:
+    """Per record, whether ``x`` goes beyond ``+tol`` and below ``-tol`` (bool, shape (n_records,))."""
+    high = np.max(np.where(mask, x, -np.inf), axis=1) > tol
+    low = np.min(np.where(mask, x, np.inf), axis=1) < -tol
+    return high & low
 
 
 def _corr(a: np.ndarray, b: np.ndarray) -> float:

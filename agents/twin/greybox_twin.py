@@ -10,28 +10,16 @@ from sklearn.utils._param_validation import Interval, StrOptions
 from sklearn.utils.validation import check_is_fitted
 
 from agents.thread_limits import single_thread
+from agents.twin.candidates import effect_bounds, forward_bias
+from agents.twin.data import GreyData
 from agents.twin.fidelity import rmse
-from agents.twin.fitting import (
-    effect_bounds,
-    effect_items,
-    fit_model,
-    forward_bias,
-    linear_fit,
-    make_problem,
-    profile,
-    refine_grid_parameters,
-)
-from agents.twin.greybox import (
-    FITTED_PARAMETERS,
-    GreyData,
-    GreyFit,
-    ModelSpec,
-    fit_problems,
-    output_error,
-    simulate_sets,
-)
+from agents.twin.fits import fit_model, refine_grid_parameters
 from agents.twin.guesses import rest_command
 from agents.twin.identify import LINEAR_CONSTRAINTS, check_orders
+from agents.twin.least_squares import fit_problems, make_problem
+from agents.twin.linear_fit import linear_fit, profile
+from agents.twin.model import FITTED_PARAMETERS, GreyFit, ModelSpec, effect_items, output_error
+from agents.twin.simulation import simulate_sets
 from gbo_envs.physics.effects import build_effect
 
 __all__ = ["GreyBoxTwin"]
@@ -73,7 +61,7 @@ class GreyBoxTwin(BaseEstimator):
         over its hold interval, more where the command moves within a hold
         (:func:`agents.twin.records.decimate_records`); default the whole record.
     max_iter : int, default 25
-        Trial points of each least-squares fit of the effects (:func:`agents.twin.greybox.fit_problems`), >= 0.
+        Trial points of each least-squares fit of the effects (:func:`agents.twin.least_squares.fit_problems`), >= 0.
 
     Attributes
     ----------
@@ -92,7 +80,7 @@ class GreyBoxTwin(BaseEstimator):
     rmse_ : float
         Eq. (RMSE) on the fitted data, normalised by each record's step height ``|r2 - y0|``.
         For a position output it is taken on the increments of the error
-        (:func:`agents.twin.greybox.output_error`), as the fit is: a replayed slider that
+        (:func:`agents.twin.least_squares.output_error`), as the fit is: a replayed slider that
         sticks a moment earlier than the plant's stays off for the rest of the record, an
         offset the twin's closed loop, whose controller sees it, does not keep.
     rmse_abs_ : float
@@ -144,7 +132,7 @@ class GreyBoxTwin(BaseEstimator):
         ----------
         records : GreyData, mapping, sequence of mappings or of arrays (n_steps, 4), or DataFrame
             Experiment records with ``t, r, u, y`` (see :func:`agents.twin.records.as_records`),
-            or already stacked :class:`agents.twin.greybox.GreyData`.
+            or already stacked :class:`agents.twin.least_squares.GreyData`.
         y : None
             Ignored (scikit-learn signature).
 

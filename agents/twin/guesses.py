@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from agents.twin.greybox import GreyData, GreyFit
+from agents.twin.data import GreyData
+from agents.twin.model import GreyFit
 from agents.twin.noise_floor import quantization_step
 from gbo_envs.physics.effects import EFFECT_NAMES
 
@@ -25,11 +26,13 @@ def data_scales(data: GreyData, output: str = "speed") -> dict[str, float]:
     }
 
 
-def effect_starts(name: str, data: GreyData, base: GreyFit, with_starts: bool = True) -> tuple[
+def effect_starts(name: str, data: GreyData, base: GreyFit, with_starts: bool = True, options=None) -> tuple[
         list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
     """Starting values, bounds and scales of the fitted parameters of effect ``name``, from the data.
 
-    ``with_starts=False`` skips the (for quantization and drift, costlier) starting values.
+    ``with_starts=False`` skips the (for quantization and drift, costlier) starting values;
+    ``options`` are the effect's (its ``variant`` adds parameters:
+    :data:`agents.twin.model.VARIANT_PARAMETERS`).
 
     Returns
     -------
@@ -55,6 +58,9 @@ def effect_starts(name: str, data: GreyData, base: GreyFit, with_starts: bool = 
     if name in ("dead_zone", "backlash"):
         return [np.array([f * us]) for f in fractions], np.array([0.0]), np.array([2 * us]), np.array([us])
     if name == "coulomb_friction":
+        if dict(options or {}).get("variant") == "asymmetric":  # the level, and its asymmetry in [-1, 1]
+            return [np.array([f * us, 0.0]) for f in fractions[:-1]], np.array([0.0, -0.95]), \
+                np.array([us, 0.95]), np.array([us, 0.3])
         return [np.array([f * us]) for f in fractions[:-1]], np.array([0.0]), np.array([us]), np.array([us])
     if name == "viscous_friction":
         c = us / speed

@@ -134,14 +134,14 @@ def check_orders(n_poles: int, n_zeros: int, n_integrators: int) -> srivc.Orders
 
 
 def prepare_signals(records, orders: srivc.Orders, n_samples: int | None = None, hold: str = "auto",
-                    oversample: int = 10, offset: bool = True):
+                    oversample: int = 10, offset: bool = True, rest_levels: np.ndarray | None = None):
     """Validate, decimate (``n_samples``), batch and lay the records on the SRIVC filter grid.
 
     Parameters
     ----------
     records : see :func:`agents.twin.records.as_records`
     orders : srivc.Orders
-    n_samples, hold, oversample, offset
+    n_samples, hold, oversample, offset, rest_levels
         As in :func:`identify_linear`.
 
     Returns
@@ -162,7 +162,13 @@ def prepare_signals(records, orders: srivc.Orders, n_samples: int | None = None,
     if hold == "auto":
         hold = "foh" if any(d.n_steps < r.n_steps for d, r in zip(data, raw)) else "zoh"
     batches = make_batches(data)
-    signals = [srivc.prepare(b.dt, b.u, b.y, b.r2, offset, hold, int(oversample)) for b in batches]
+    if rest_levels is not None:
+        rest_levels = np.asarray(rest_levels, dtype=float)
+        if rest_levels.shape != (len(data), 2):
+            raise ValueError(f"rest_levels: expected shape ({len(data)}, 2), one (y0, u0) row per record, "
+                             f"got {rest_levels.shape}")
+    signals = [srivc.prepare(b.dt, b.u, b.y, b.r2, offset, hold, int(oversample),
+                             None if rest_levels is None else rest_levels[b.index]) for b in batches]
     return data, batches, signals
 
 
@@ -208,14 +214,15 @@ def simulation_error(orders: srivc.Orders, theta: np.ndarray, delay: float, sign
     return float(total[0]), float(total[1]), np.concatenate(levels)
 
 
-@validate_params({"records": "no_validation", "start": [None, tuple], **LINEAR_CONSTRAINTS},
+@validate_params({"records": "no_validation", "start": [None, tuple], "rest_levels": [None, "array-like"],
+                  **LINEAR_CONSTRAINTS},
                  prefer_skip_nested_validation=True)
 def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrators: int = 0,
                     delay: float | None = None, max_delay: float | None = None, delay_step: float | None = None,
                     refine_delay: bool = True, offset: bool = True, n_samples: int | None = None,
                     hold: str = "auto", oversample: int = 10, max_iter: int = 50, tol: float = 1e-8,
                     svf_bandwidth: float | None = None, polish: bool = False,
-                    start: tuple | None = None) -> LinearIdentification:
+                    start: tuple | None = None, rest_levels=None) -> LinearIdentification:
     r"""Continuous-time transfer function with input delay, identified by SRIVC from closed-loop records.
 
     Model (:mod:`agents.twin.srivc`): ``y = y0 + B(s)/A(s) e^{-s tau} (u - u0)``
@@ -277,6 +284,10 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
         A previous solution (``theta`` as :attr:`LinearIdentification.theta`, delay in s):
         SRIVC starts there and the delay grid shrinks to the delay +- 2 grid steps
         (much faster when records are added one by one, as in guided BO).
+    rest_levels : array_like of shape (n_records, 2), optional
+        Rest levels ``(y0, u0)`` (units of ``y`` and ``u``) that the data pin, per record; a
+        ``NaN`` row is estimated as with ``offset``. A record that shows its rest before the
+        excitation (:mod:`agents.twin.initial`) has no free level that could absorb a load.
 
     Returns
     -------
@@ -300,7 +311,7 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
     True
     """
     orders = check_orders(n_poles, n_zeros, n_integrators)
-    data, batches, signals = prepare_signals(records, orders, n_samples, hold, oversample, offset)
+    data, batches, signals = prepare_signals(records, orders, n_samples, hold, oversample, offset, rest_levels)
     batch_index = np.concatenate([b.index for b in batches])  # record of each row of the signals, batch after batch
     del batches  # stacked copies of u and y: the signals hold what SRIVC needs
     dt = min(rec.dt for rec in data)

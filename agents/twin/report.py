@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from agents.html_page import image_tag, page, scrolling
-from agents.twin.greybox import GreyData, GreyFit
+from agents.twin.data import GreyData
 from agents.twin.ladder_text import advice, unobservable_lines
+from agents.twin.model import GreyFit
 from agents.twin.workbench import Diagnosis, ResidualAnalysis, compare
 from gbo_envs.atomic_write import atomic_write
 from gbo_envs.lazy_pyplot import pyplot

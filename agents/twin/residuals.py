@@ -6,7 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.twin.greybox import GreyData, GreyFit
+from agents.twin.data import GreyData
+from agents.twin.model import GreyFit
 
 __all__ = ["ResidualAnalysis", "residuals"]
 

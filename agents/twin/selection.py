@@ -12,10 +12,11 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from agents.twin.diagnose import error_ladder
-from agents.twin.greybox import GreyData, ModelSpec
+from agents.twin.data import GreyData
 from agents.twin.greybox_twin import GreyBoxTwin
-from agents.twin.noise_floor import noise_floor
+from agents.twin.ladder import error_ladder
+from agents.twin.model import ModelSpec
+from agents.twin.noise_floor import white_noise_floor
 from gbo_envs.physics.effects import EFFECTS
 
 __all__ = ["TWIN_CANDIDATES", "diagnosed_twin", "measurement_noise"]
@@ -66,9 +67,10 @@ def diagnosed_twin(records: Sequence, spec: ModelSpec, effects: Mapping | None =
 
 
 def measurement_noise(record) -> float:
-    """Noise floor of one record's measured output, in output units (:func:`agents.twin.noise_floor.noise_floor`).
+    """White-noise floor of one record's measured output, in output units
+    (:func:`agents.twin.noise_floor.white_noise_floor`: the noise a twin simulates).
 
     ``0.0`` when it cannot be estimated (too short, or quantized without visible noise and no common step).
     """
-    floor = noise_floor(GreyData.from_records([record]))
+    floor = white_noise_floor(GreyData.from_records([record]))
     return float(floor) if floor is not None and np.isfinite(floor) else 0.0

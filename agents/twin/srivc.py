@@ -112,6 +112,9 @@ class Signals:
         Measured ``y - y_ref``.
     y_ref, u_ref, r2 : ndarray of shape (n_records,)
         Reference levels subtracted, and the post-step reference.
+    free : ndarray of bool, shape (n_records,)
+        Records whose rest levels ``(y0, u0)`` are estimated (with ``offset=True``); the others are
+        pinned at ``(y_ref, u_ref)``, the rest their data show (:mod:`agents.twin.initial`).
     """
 
     h: float
@@ -122,6 +125,7 @@ class Signals:
     y_ref: np.ndarray
     u_ref: np.ndarray
     r2: np.ndarray
+    free: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -134,23 +138,30 @@ class SrivcResult:
 
 
 def prepare(dt: float, u: np.ndarray, y: np.ndarray, r2: np.ndarray, offset: bool, hold: str,
-            oversample: int = 10) -> Signals:
+            oversample: int = 10, rest: np.ndarray | None = None) -> Signals:
     """Subtract reference levels and lay the signals on the filter grid.
 
     ``y_ref = y[0]``; ``u_ref = u[0]`` when the rest input is estimated
-    (``offset=True``), else ``0`` (the record is already a deviation).
+    (``offset=True``), else ``0`` (the record is already a deviation). ``rest`` of shape
+    (n_records, 2) pins the rest levels ``(y0, u0)`` of the records whose row is finite
+    (``NaN`` rows are estimated).
     """
     y_ref = y[:, 0].copy()
     u_ref = u[:, 0].copy() if offset else np.zeros(u.shape[0])
+    free = np.full(u.shape[0], bool(offset))
+    if rest is not None:
+        pinned = np.all(np.isfinite(rest), axis=1)
+        y_ref[pinned], u_ref[pinned] = rest[pinned, 0], rest[pinned, 1]
+        free &= ~pinned
     du, dy = u - u_ref[:, None], y - y_ref[:, None]
     n = u.shape[1]
     if hold == "zoh":
-        return Signals(dt, du, dy, np.arange(n), dy, y_ref, u_ref, r2)
+        return Signals(dt, du, dy, np.arange(n), dy, y_ref, u_ref, r2, free)
     fine_t = np.minimum((np.arange((n - 1) * oversample + 1) + 0.5) / oversample, n - 1)  # mid-interval
     grid = np.arange(n)
     u_fine = np.stack([np.interp(fine_t, grid, row) for row in du])
     y_fine = np.stack([np.interp(fine_t, grid, row) for row in dy])
-    return Signals(dt / oversample, u_fine, y_fine, np.arange(n) * oversample, dy, y_ref, u_ref, r2)
+    return Signals(dt / oversample, u_fine, y_fine, np.arange(n) * oversample, dy, y_ref, u_ref, r2, free)
 
 
 class _Prefilter:
@@ -239,7 +250,7 @@ def _equations(orders: Orders, batches: list[Signals], den: np.ndarray, delay: f
             x_hat = _output(orders, theta_aux, us_fine)  # (S2)
             xs = fy.states(x_hat)[:, :, sig.rows]
             zeta = np.stack([-xs[i] for i in range(n - k)] + u_cols, axis=-1)  # (S3)
-        if offset:
+        if offset and sig.free.any():
             ones = np.ones((1, sig.u_fine.shape[1]))
             if free_offsets:  # any y_0 A(p)/A_f(p) 1 - u_0 B(p)/A_f(p) 1(t - tau)
                 s_y = fy.states(ones)[:, 0, sig.rows]
@@ -249,8 +260,14 @@ def _equations(orders: Orders, batches: list[Signals], den: np.ndarray, delay: f
                 step = _output(orders, theta_aux, fu.states(ones))[0, sig.rows]
                 nuisance = np.column_stack([np.ones(sig.rows.size), step])
             q = _projector(nuisance)
-            phi, zeta = _project(q, phi), _project(q, zeta)
-            target = _project(q, target[:, :, None])[:, :, 0]
+            if sig.free.all():
+                phi, zeta = _project(q, phi), _project(q, zeta)
+                target = _project(q, target[:, :, None])[:, :, 0]
+            else:  # the pinned records keep their rest levels: nothing to project out of their rows
+                free = sig.free
+                phi, zeta, target = phi.copy(), zeta.copy(), target.copy()
+                phi[free], zeta[free] = _project(q, phi[free]), _project(q, zeta[free])
+                target[free] = _project(q, target[free][:, :, None])[:, :, 0]
         zeta_rows = zeta.reshape(-1, p)  # the samples of all records, one row each (BLAS, not einsum: 7x faster)
         gram += zeta_rows.T @ phi.reshape(-1, p)
         rhs += zeta_rows.T @ target.ravel()
@@ -315,7 +332,8 @@ def simulate(orders: Orders, theta: np.ndarray, delay: float, sig: Signals, offs
     """Simulated output ``y0 + B/A u(t - tau) - u0 B/A 1(t - tau)`` at the measured samples.
 
     With ``offset=True`` the rest levels ``(y0, u0)`` of each record are the
-    least-squares fit of the simulation error; else ``y0 = y[0]``, ``u0 = 0``.
+    least-squares fit of the simulation error, except where :attr:`Signals.free` pins them;
+    else ``y0 = y[0]``, ``u0 = 0``.
 
     Returns
     -------
@@ -327,10 +345,11 @@ def simulate(orders: Orders, theta: np.ndarray, delay: float, sig: Signals, offs
     den = orders.den(theta)
     fu = _Prefilter(den, sig.h, delay)
     x = _output(orders, theta, fu.states(sig.u_fine))[:, sig.rows]
-    if not offset:
+    if not offset or not sig.free.any():
         return sig.y_ref[:, None] + x, sig.y_ref.copy(), sig.u_ref.copy()
     step = _output(orders, theta, fu.states(np.ones((1, sig.u_fine.shape[1]))))[0, sig.rows]
     basis = np.column_stack([np.ones(sig.rows.size), step])
     coef = np.linalg.lstsq(basis, (sig.y - x).T, rcond=None)[0]  # (2, n_records)
+    coef[:, ~sig.free] = 0.0  # pinned rest levels
     y_sim = sig.y_ref[:, None] + x + (basis @ coef).T
     return y_sim, sig.y_ref + coef[0], sig.u_ref - coef[1]

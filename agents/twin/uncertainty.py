@@ -6,8 +6,9 @@ import numpy as np
 from scipy import stats
 
 from agents.thread_limits import single_thread
-from agents.twin.fitting import make_problem
-from agents.twin.greybox import GreyData, GreyFit, jacobian
+from agents.twin.data import GreyData
+from agents.twin.least_squares import jacobian, make_problem
+from agents.twin.model import GreyFit
 
 __all__ = ["parameter_intervals"]
 
@@ -17,7 +18,7 @@ def parameter_intervals(data: GreyData, fit: GreyFit, level: float = 0.95) -> di
     """Standard error and confidence interval of each global parameter the fit moved.
 
     The covariance is the Gauss-Newton one, ``s^2 (J^T J)^{-1}`` with ``J`` the
-    Jacobian of the simulation error (:func:`agents.twin.greybox.jacobian`) with
+    Jacobian of the simulation error (:func:`agents.twin.least_squares.jacobian`) with
     respect to every parameter the least-squares fit moves (global parameters,
     per-record rest levels and biases) and ``s^2 = RSS / (n - p)`` the residual
     variance; the interval is ``value +- t_{(1+level)/2, n-p} * std``. It assumes

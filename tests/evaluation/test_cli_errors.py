@@ -17,7 +17,7 @@ import pytest
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.csvio import read_csv, write_csv
-from agents.twin.greybox import GreyData
+from agents.twin.data import GreyData
 from agents.twin.workbench import diagnose
 from evaluation.cli import main
 from evaluation.study import StudySpecError, parse_study

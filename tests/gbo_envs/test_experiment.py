@@ -14,7 +14,7 @@ from hypothesis.extra.numpy import arrays
 import agents
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.csvio import read_csv, write_csv
-from agents.twin.greybox import GreyData
+from agents.twin.data import GreyData
 from agents.twin.records import as_records
 from gbo_envs.experiment import SIGNALS, Experiment, RecordError, validate_signals
 

@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin.fitting import candidate_problems, linear_fit
-from agents.twin.greybox import GreyData, fit_problems
+from agents.twin.candidates import candidate_problems
+from agents.twin.data import GreyData
+from agents.twin.least_squares import fit_problems
+from agents.twin.linear_fit import linear_fit
 from agents.twin.open_loop import _transfer_functions
 from agents.twin.workbench import diagnose
 from gbo_envs.physics import ContinuousPlant
@@ -79,13 +81,15 @@ def _copy(p):
 
 @pytest.mark.slow
 def test_unexcited_effects_are_listed_with_their_note_and_not_fitted():
-    # 245 -> 306 rad/s: no speed reversal, no zero crossing (the command turns back, which shows a play)
+    # 245 -> 306 rad/s: no speed reversal, no zero crossing (the command turns back, which shows a play), no
+    # experiment that shows its rest (the step comes with the first sample), 4 experiments (too few for a drift)
     data = _data({"saturation": {"limit": 150.0}})
     result = diagnose(data)
     out = result.to_dict()
     assert out["best"] == "saturation"
     skipped = {c["effect"]: c for c in out["candidates"] if not c["fitted"]}
-    assert set(skipped) == {"coulomb_friction", "stiction", "dead_zone", "offset"}
+    assert set(skipped) == {"coulomb_friction", "stiction", "dead_zone", "offset", "drift"}
+    assert "at least 5 experiments" in skipped["drift"]["note"]
     for name, c in skipped.items():
         assert name not in result.fits
         assert c["note"] and c["evidence"].startswith("not fitted")
@@ -134,7 +138,7 @@ def test_the_ladder_on_one_experiment_restarts_without_folds():
     guided BO lost its twin after its first experiment (and 5 s of CPU)."""
     import gymnasium as gym
 
-    from agents.twin.greybox import ModelSpec
+    from agents.twin.model import ModelSpec
     from agents.twin.selection import diagnosed_twin
 
     env = gym.make("gbo_envs/LinearMotorRig-v0")

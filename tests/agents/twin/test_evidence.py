@@ -38,8 +38,8 @@ def test_backlash_is_excited_by_an_input_that_turns_back_without_a_speed_reversa
     import numpy as np
 
     import gbo_envs  # noqa: F401  (registers the envs)
+    from agents.twin.data import GreyData
     from agents.twin.evidence import excitation_notes
-    from agents.twin.greybox import GreyData
 
     env = gym.make("gbo_envs/DCMotor-v0", noise=False)
     env.reset(seed=0)

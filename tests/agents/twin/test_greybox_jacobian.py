@@ -14,10 +14,13 @@ import pytest
 from scipy.optimize import least_squares
 
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin import greybox
-from agents.twin.fitting import linear_fit, make_problem
-from agents.twin.greybox import GreyData, fit_problems, jacobian, residual, simulate_sets
+from agents.twin import least_squares as greybox
+from agents.twin import simulation
+from agents.twin.data import GreyData
 from agents.twin.jacobian import RecordQR, dense_jacobian
+from agents.twin.least_squares import fit_problems, jacobian, make_problem, residual
+from agents.twin.linear_fit import linear_fit
+from agents.twin.simulation import simulate_sets
 from tests.support import loop_records
 
 GAINS = np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2], [1.05, 2.0], [0.5, 1.9], [0.7, 1.1]])
@@ -184,6 +187,7 @@ def test_simulation_in_small_passes_equals_one_pass(monkeypatch):
     rows = np.arange(data.n_records)
     sets = [(base.spec, np.concatenate([base.theta * (1 + 0.01 * i), base.y0, base.bias]), rows) for i in range(3)]
     whole = simulate_sets(data, sets)
+    monkeypatch.setattr(simulation, "SIMULATION_BATCH_SAMPLES", data.u.shape[1])
     monkeypatch.setattr(greybox, "SIMULATION_BATCH_SAMPLES", data.u.shape[1])
     for a, b in zip(whole, simulate_sets(data, sets)):
         np.testing.assert_array_equal(a, b)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from agents.twin.greybox import GreyData, residual
+from agents.twin.data import GreyData
+from agents.twin.least_squares import residual
 
 
 def _data(n_records=2, n=50):

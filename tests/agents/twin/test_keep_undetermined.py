@@ -6,16 +6,17 @@ Data as in ``test_workbench``: DCMotor-v0 with a hidden 20-unit dead zone, refer
 
 from __future__ import annotations
 
-import sys
 from dataclasses import replace
 
 import numpy as np
 
-from agents.twin.fitting import fit_model
-from agents.twin.greybox import GreyData, fit_problems
+from agents.twin import ranking as diagnose_module
+from agents.twin.candidates import refit_problem
+from agents.twin.data import GreyData
+from agents.twin.fits import fit_model
+from agents.twin.least_squares import fit_problems
 from tests.support import loop_records
 
-diagnose_module = sys.modules["agents.twin.diagnose"]  # the module (agents.twin exports a function of its name)
 GAINS = np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2], [1.05, 2.0], [0.5, 1.9]])
 
 
@@ -25,7 +26,7 @@ def test_a_width_the_biases_absorb_is_put_back():
     fit = fit_model(data, ["dead_zone"])
     width = fit.theta[-1]
     assert abs(width - 20.0) < 0.5
-    fold = diagnose_module._refit_problem(data, fit, np.array([1, 2, 3]), True, tag=(0, 0))
+    fold = refit_problem(data, fit, np.array([1, 2, 3]), True, tag=(0, 0))
     # the width moved to 11 along the fold's flat valley: the input biases take up the difference
     moved = replace(fold, theta=fold.theta.copy(), free=fold.free.copy())
     moved.theta[-7] = 11.0  # the width: the last global parameter (then 3 rest levels and 3 biases)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from agents.twin.csvio import read_csv, write_csv
-from agents.twin.greybox import GreyData
+from agents.twin.data import GreyData
 from agents.twin.ladder_text import advice, format_interval, rung_text, unit_text
 from agents.twin.noise_floor import NOISE_FLOOR_LABELS, noise_floor, noise_floor_method
 from agents.twin.uncertainty import parameter_intervals

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from agents.html_page import image_tag, page
-from agents.twin.greybox import GreyData
+from agents.twin.data import GreyData
 from agents.twin.report import compare_figure, ladder_figure
 from agents.twin.workbench import GreyBoxTwin
 from gbo_envs.lazy_pyplot import pyplot

@@ -13,9 +13,12 @@ from sklearn.exceptions import NotFittedError
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin import GreyBoxTwin, LinearTwin, TwinEnv, identify_linear
 from agents.twin.csvio import records_from_loop
+from agents.twin.data import GreyData
 from agents.twin.fidelity import rmse
-from agents.twin.fitting import linear_fit, make_problem
-from agents.twin.greybox import GreyData, ModelSpec, fit_problems, residual, simulate_sets
+from agents.twin.least_squares import fit_problems, make_problem, residual
+from agents.twin.linear_fit import linear_fit
+from agents.twin.model import ModelSpec
+from agents.twin.simulation import simulate_sets
 
 TRUE = np.array([9.544, 4.145, 4.199])
 
@@ -213,7 +216,8 @@ def test_greybox_twin_finds_the_linear_motors_drive_limit_on_decimated_records()
 
 
 def test_a_position_outputs_error_is_taken_on_its_increments():
-    from agents.twin.greybox import output_error, residual
+    from agents.twin.least_squares import residual
+    from agents.twin.model import output_error
 
     t = np.arange(6) * 0.01
     data = GreyData.from_records([{"t": t, "r": np.ones(6), "u": np.ones(6), "y": np.array([0, 1, 2, 3, 3, 3.0])}])

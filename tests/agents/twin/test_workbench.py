@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin.greybox import GreyData
+from agents.twin.data import GreyData
 from agents.twin.open_loop import simulate_open_loop
 from agents.twin.workbench import compare, diagnose, fit_model, noise_floor, quantization_step, residuals
 from gbo_envs.physics import build_effects

@@ -1,0 +1,263 @@
+"""The candidates of a diagnosis: structures tried as an addition to the current model, and their starting problems.
+
+The pipeline's third stage (records, linear fit, **candidates**, fits, ranking, report).
+A :class:`Candidate` is one catalogue effect added to the current model, in one or more
+variants (``drift`` of the gain or of a denominator coefficient; ``coulomb_friction``
+symmetric or, where the speed takes both signs, direction-dependent). Its
+:meth:`~Candidate.problems` are bounded least-squares problems
+(:class:`agents.twin.least_squares.Problem`) started from data-based guesses
+(:mod:`agents.twin.guesses`), on the SRIVC profile where it helps
+(:func:`agents.twin.linear_fit.profile`). :func:`candidate_plan` says which candidates a
+diagnosis fits, and which effects the data cannot show (:func:`agents.twin.evidence.excitation_notes`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from agents.twin.data import GreyData
+from agents.twin.evidence import both_directions, excitation_notes, unobservable_effects
+from agents.twin.guesses import effect_starts, rest_command
+from agents.twin.least_squares import Problem, make_problem
+from agents.twin.linear_fit import PROFILE_EFFECTS, profile
+from agents.twin.model import GreyFit, ModelSpec, fitted_parameters
+from agents.twin.simulation import simulate_sets
+from gbo_envs.physics.effects import EFFECT_NAMES
+
+__all__ = ["Candidate", "CandidatePlan", "candidate_plan", "candidate_problems", "effect_bounds", "forward_bias",
+           "refit_problem"]
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One catalogue effect tried as an addition to a model.
+
+    Attributes
+    ----------
+    name : str
+        Catalogue effect (:data:`gbo_envs.physics.EFFECT_NAMES`).
+    variants : tuple of dict
+        Options of each variant of the added effect (block options such as drift's
+        ``parameter``, and the pseudo-option ``variant`` that chooses the fitted
+        parameters, :data:`agents.twin.model.VARIANT_PARAMETERS`).
+    """
+
+    name: str
+    variants: tuple = ({},)
+
+    def problems(self, data: GreyData, current: GreyFit) -> list[Problem]:
+        """The starting problems of every variant added to ``current``, tagged with :attr:`name`."""
+        out = []
+        for options in self.variants:
+            out += candidate_problems(data, current, self.name, options, tag=self.name)
+        return out
+
+
+@dataclass(frozen=True)
+class CandidatePlan:
+    """What a diagnosis tries: the candidates it fits, and the effects the data cannot show.
+
+    Attributes
+    ----------
+    candidates : list of Candidate
+        Fitted, in catalogue order.
+    skipped : list of str
+        Effects not fitted because the data cannot show them.
+    notes : dict
+        ``{effect: reason}`` for every effect the data cannot show (:func:`excitation_notes`).
+    unobservable : list of dict
+        ``{"effect", "reason", "experiment"}`` of the tried effects the data cannot show.
+    """
+
+    candidates: list
+    skipped: list
+    notes: dict
+    unobservable: list
+
+    @property
+    def names(self) -> list[str]:
+        """Names of the fitted candidates."""
+        return [c.name for c in self.candidates]
+
+
+def candidate_plan(data: GreyData, current: GreyFit, names: Sequence[str] | None = None,
+                   skip_unexcited: bool = True) -> CandidatePlan:
+    """The candidates of a diagnosis of ``current`` on ``data``.
+
+    Parameters
+    ----------
+    data : GreyData
+    current : GreyFit
+        The model diagnosed; its effects are not tried again.
+    names : sequence of str, optional
+        Effects to try (default: the whole catalogue).
+    skip_unexcited : bool, default True
+        Leave out the effects the data cannot show (they are listed in ``skipped``).
+    """
+    names = [n for n in (names or EFFECT_NAMES) if n not in current.spec.effect_names]
+    notes = excitation_notes(data, current.spec.output)
+    unobservable = unobservable_effects({n: notes[n] for n in names if n in notes})
+    skipped = [n for n in names if n in notes] if skip_unexcited else []
+    candidates = [Candidate(n, _variants(n, data, current.spec)) for n in names if n not in skipped]
+    return CandidatePlan(candidates, skipped, notes, unobservable)
+
+
+def _variants(name: str, data: GreyData, spec: ModelSpec) -> tuple[dict, ...]:
+    """Variants of effect ``name`` worth fitting on ``data``.
+
+    ``drift`` of the gain and of each denominator coefficient; ``coulomb_friction`` also with a
+    level per direction (``asymmetry``) when the speed takes both signs in records whose
+    loads the data pin (a reversal within a record, or records that show their rest), since
+    only then do both levels act.
+    """
+    if name == "drift":
+        dens = [f"den{i}" for i in range(1, spec.n_poles - spec.n_integrators + 1)]
+        return tuple({"parameter": p} for p in ["gain", *dens])
+    if name == "coulomb_friction" and both_directions(data, spec.output):
+        return ({}, {"variant": "asymmetric"})
+    return ({},)
+
+
+def forward_bias(data: GreyData, fit: GreyFit, spec: ModelSpec, theta: np.ndarray) -> np.ndarray:
+    """Plant-input bias that keeps each record's rest input after adding effect blocks.
+
+    The blocks of ``spec`` at ``theta`` map the rest command (:func:`rest_command` of ``fit``)
+    differently from ``fit``'s blocks; the difference is added to ``fit.bias``. A record
+    whose rest the data pin keeps its bias (zero: its rest is measured).
+
+    Returns
+    -------
+    ndarray of shape (n_records,)
+        In the units of ``u``.
+    """
+    u_rest = rest_command(fit)
+    v = u_rest.copy()
+    speed = fit.y0 if spec.output != "position" else np.zeros_like(fit.y0)
+    try:
+        blocks = spec.blocks(theta)
+    except ValueError:
+        return fit.bias.copy()
+    v_old = u_rest.copy()
+    for block in fit.blocks:
+        if block.side == "actuator":
+            block.reset(v_old.size, None, data.dt)
+            v_old = block.actuate(v_old, speed)
+    for block in blocks:
+        if block.side == "actuator":
+            block.reset(v.size, None, data.dt)
+            v = block.actuate(v, speed)
+    return np.where(data.initial.pinned, fit.bias, fit.bias + (v_old - v))
+
+
+def _profile_problems(data, current, spec, name, starts, lo, hi, lower, upper, scale, tag) -> list[Problem]:
+    """Starting point on the SRIVC profile of the new effect's parameter(s), then one bounded problem."""
+    from scipy.optimize import minimize_scalar
+
+    settings = {"max_iter": 10, "tol": 1e-5}
+    rows = np.arange(data.n_records)
+    g0 = current.theta.size
+    if name == "time_delay":
+        theta = np.concatenate([current.theta, [0.0]])
+        res = profile(data, spec, theta, max_delay=float(hi[0]), **settings)
+    elif not starts:
+        return []
+    else:
+        results = []
+        for start in starts:
+            theta = np.concatenate([current.theta, np.clip(start, lo, hi)])
+            results.append((theta, profile(data, spec, theta, **settings)))
+        best = int(np.argmin([r[1][0] for r in results]))
+        res = results[best][1]
+        if lo.size == 1 and len(starts) > 1 and np.isfinite(res[0]):
+            values = [float(r[0][g0]) for r in results]
+            a = values[max(best - 1, 0)]
+            b = values[min(best + 1, len(values) - 1)]
+            if b > a:
+                cache = {}
+
+                def cost(x: float) -> float:
+                    th = results[best][0].copy()
+                    th[g0] = x
+                    cache[x] = profile(data, spec, th, **settings)
+                    return cache[x][0]
+
+                minimize_scalar(cost, bounds=(a, b), method="bounded", options={"maxiter": 6,
+                                                                                 "xatol": 1e-3 * (b - a)})
+                x = min(cache, key=lambda key: cache[key][0])
+                if cache[x][0] < res[0]:
+                    res = cache[x]
+    _, theta, y0, bias = res
+    if not np.isfinite(res[0]):
+        return []
+    return [make_problem(data, spec, theta, y0, bias, rows, lower, upper, scale, tag=tag)]
+
+
+def candidate_problems(data: GreyData, current: GreyFit, name: str, options: Mapping | None = None,
+                       n_keep: int = 2, tag=None) -> list[Problem]:
+    """Problems for ``current`` plus effect ``name``: its data-based starts, screened, the best ``n_keep`` kept.
+
+    Actuator effects of :data:`agents.twin.linear_fit.PROFILE_EFFECTS` and ``time_delay`` start
+    from the SRIVC profile (one problem); the others from the starts of
+    :func:`agents.twin.guesses.effect_starts` screened by their simulation error.
+    """
+    spec = current.spec.with_effect(name, options)
+    starts, lo, hi, sc = effect_starts(name, data, current, options=options)
+    rows = np.arange(data.n_records)
+    n_old = current.theta.size - current.spec.n_linear - 1
+    lower, upper, scale = effect_bounds(
+        data, current, np.concatenate([np.full(n_old, -np.inf), lo]), np.concatenate([np.full(n_old, np.inf), hi]),
+        np.concatenate([np.ones(n_old), sc]))
+    if name in PROFILE_EFFECTS or name == "time_delay" or (name == "drift" and dict(options or {}).get(
+            "parameter", "gain") == "gain" and data.n_records > 1):
+        problems = _profile_problems(data, current, spec, name, starts, lo, hi, lower, upper, scale, tag)
+        if problems:
+            return problems
+    thetas = []
+    for start in starts:
+        theta = np.concatenate([current.theta, np.clip(start, lo, hi)])
+        if name == "time_delay":
+            theta[spec.n_linear] = current.theta[current.spec.n_linear]
+        thetas.append(theta)
+    biases = [forward_bias(data, current, spec, th) for th in thetas]
+    sims = simulate_sets(data, [(spec, np.concatenate([th, current.y0, b]), rows) for th, b in zip(thetas, biases)])
+    costs = []
+    for y in sims:
+        err = np.where(data.mask, y - data.y, 0.0)
+        costs.append(float(np.sum(err**2)) if np.all(np.isfinite(err)) else np.inf)
+    order = np.argsort(costs)[:n_keep]
+    problems = []
+    for i in order:
+        problems.append(make_problem(data, spec, thetas[i], current.y0.copy(), biases[i], rows, lower, upper, scale,
+                                     tag=tag))
+    return problems
+
+
+def effect_bounds(data: GreyData, current: GreyFit, lower: np.ndarray, upper: np.ndarray,
+                  scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bounds and scales of the effects already in ``current`` (their data-based ranges, :func:`effect_starts`).
+
+    ``lower``, ``upper`` and ``scale`` (one entry per effect parameter, the effects of
+    ``current`` first) are filled in place for those effects and returned.
+    """
+    pos = 0
+    for name, options in current.spec.effects:
+        _, lo, hi, sc = effect_starts(name, data, current, with_starts=False, options=options)
+        n = len(fitted_parameters(name, options))
+        lower[pos : pos + n], upper[pos : pos + n], scale[pos : pos + n] = lo, hi, sc
+        pos += n
+    return lower, upper, scale
+
+
+def refit_problem(data: GreyData, fit: GreyFit, rows=None, free_global: bool = True, theta=None, y0=None, bias=None,
+                  tag=None) -> Problem:
+    """``fit``'s structure on the records ``rows`` (default all), started from ``fit`` (or the given global
+    parameters ``theta``, rest levels ``y0`` and biases ``bias``), within its effects' data-based bounds."""
+    rows = np.arange(data.n_records) if rows is None else np.asarray(rows, dtype=int)
+    n_eff = fit.theta.size - fit.spec.n_linear - 1
+    lower, upper, scale = effect_bounds(data, fit, np.full(n_eff, -np.inf), np.full(n_eff, np.inf), np.ones(n_eff))
+    return make_problem(data, fit.spec, fit.theta if theta is None else theta,
+                        fit.y0[rows] if y0 is None else y0, fit.bias[rows] if bias is None else bias, rows,
+                        lower, upper, scale, free_global=free_global, tag=tag)

@@ -1,0 +1,204 @@
+"""Fits of model structures: a given structure (:func:`fit_model`) and the candidates of a diagnosis.
+
+The pipeline's fourth stage (records, linear fit, candidates, **fits**, ranking, report).
+Every fit is a bounded least-squares problem of the simulation error
+(:mod:`agents.twin.least_squares`); many are solved together in lock-step, so that their
+simulations share vectorised passes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from agents.thread_limits import single_thread
+from agents.twin.candidates import CandidatePlan, candidate_problems, refit_problem
+from agents.twin.data import GreyData
+from agents.twin.guesses import quantization_scan
+from agents.twin.least_squares import Problem, fit_problems, make_problem
+from agents.twin.linear_fit import linear_fit
+from agents.twin.model import GreyFit, ModelSpec, effect_items, effect_offset, fitted_parameters
+from agents.twin.simulation import simulate_sets
+
+__all__ = ["CandidateFits", "fit_candidates", "fit_model", "refine_grid_parameters"]
+
+
+@single_thread()
+def fit_model(data: GreyData, effects: Sequence | Mapping | None = None, spec: ModelSpec | None = None,
+              base: GreyFit | None = None, max_iter: int = 25) -> GreyFit:
+    """Grey-box fit of the linear model plus ``effects`` (names, or ``{name: {parameter: value}}`` guesses).
+
+    Effects are added one at a time to the fitted model (each from its
+    data-based starts, or from the given values), then all parameters are
+    refitted together.
+    """
+    fit = base if base is not None else linear_fit(data, spec)
+    for name, given in effect_items(effects):
+        options = {k: v for k, v in given.items() if k not in dict(fitted_parameters(name, given))}
+        fitted = dict(fitted_parameters(name, options))
+        problems = candidate_problems(data, fit, name, options)
+        if any(k in fitted for k in given):
+            p = problems[0]
+            pos = fit.theta.size
+            for j, (pname, _) in enumerate(fitted_parameters(name, options)):
+                if pname in given:
+                    p.theta[pos + j] = float(np.clip(given[pname], p.lower[pos + j], p.upper[pos + j]))
+        fit_problems(data, problems, max_iter=max_iter)
+        best = min(problems, key=lambda p: p.cost)
+        fit = refine_grid_parameters(data, GreyFit.from_problem(data, best))
+    return fit
+
+
+def refine_grid_parameters(data: GreyData, fit: GreyFit) -> GreyFit:
+    """Refine the quantization step of a fit on a fine grid around its value (other parameters fixed)."""
+    if "quantization" not in fit.spec.effect_names:
+        return fit
+    rows = np.arange(data.n_records)
+    theta = np.concatenate([fit.theta, fit.y0, fit.bias])
+    y_true = simulate_sets(data, [(fit.spec, theta, rows)], true_output=True)[0]
+    j = fit.spec.n_linear + 1 + effect_offset(fit.spec, "quantization")
+    span = float(np.ptp(data.y[data.mask]))
+    steps = quantization_scan(data, fit, span, n_best=1, y_true=y_true)
+    best = fit
+    for q in steps + [fit.theta[j]]:
+        th = fit.theta.copy()
+        th[j] = q
+        problem = make_problem(data, fit.spec, th, fit.y0, fit.bias, rows, free_global=False)
+        fit_problems(data, [problem], max_iter=0)
+        cand = GreyFit.from_problem(data, problem)
+        if cand.rmse < best.rmse:
+            best = cand
+    return best
+
+
+@dataclass(frozen=True)
+class CandidateFits:
+    """The current model and each candidate's fit to all data.
+
+    Attributes
+    ----------
+    current : GreyFit
+        The model diagnosed, refitted with the candidates' iteration budget (or its better
+        minimum that a candidate found, see :func:`fit_candidates`).
+    fits : dict
+        ``{candidate name: GreyFit}`` of the candidates whose fit is finite, in plan order.
+    restarted : bool
+        Whether the current model was replaced by a better minimum of its own parameters.
+    """
+
+    current: GreyFit
+    fits: dict
+    restarted: bool = False
+
+
+def fit_candidates(data: GreyData, current: GreyFit, plan: CandidatePlan, max_iter: int = 20,
+                   screen_iter: int = 8, progress=None) -> CandidateFits:
+    """Fit the current model and every candidate of ``plan`` to all data.
+
+    The current model gets the same iteration budget as the candidates that can win, so
+    that no candidate wins by merely polishing parameters the current model already has.
+    Each candidate is screened with ``screen_iter`` trial points and refitted with all
+    ``max_iter`` when it beats the current model (:func:`_screened_fit`); among a
+    candidate's variants the one of lowest training BIC is kept (:func:`_best_variant`).
+    A candidate starts from its own profile fit of the linear part, which can land in a
+    better minimum than the current model's; if that minimum survives switching the new
+    effect off (:func:`_without_new_effect`), the current model is replaced by it and every
+    candidate is fitted once more, from its first fit.
+
+    Parameters
+    ----------
+    data : GreyData
+    current : GreyFit
+    plan : CandidatePlan
+    max_iter, screen_iter : int
+        Trial points of the full and of the screening fits.
+    progress : tqdm bar, optional
+        Advanced once per candidate's starts and once per round of fits.
+    """
+    starts = None
+    for restarted in (False, True):
+        problems = [refit_problem(data, current, tag="__current__")]
+        for candidate in plan.candidates:
+            if starts is not None and candidate.name in starts:  # the second round: from the first round's fit
+                problems.append(refit_problem(data, starts[candidate.name], tag=candidate.name))
+            else:
+                if progress is not None:
+                    progress.set_postfix_str(f"starts of {candidate.name}")
+                problems += candidate.problems(data, current)
+            if progress is not None and not restarted:
+                progress.update(1)
+        if progress is not None:
+            progress.set_postfix_str(f"fitting {len(plan.candidates)} candidates")
+        _screened_fit(data, problems, max_iter, screen_iter)
+        polished = GreyFit.from_problem(data, problems[0])
+        if polished.rmse < current.rmse:
+            current = refine_grid_parameters(data, polished)
+        fits = {}
+        for candidate in plan.candidates:
+            mine = [p for p in problems if p.tag == candidate.name and np.isfinite(p.cost)]
+            if mine:
+                fits[candidate.name] = refine_grid_parameters(data, _best_variant(data, mine))
+        better = _without_new_effect(data, current, fits)
+        if better is None or restarted:
+            return CandidateFits(current, fits, restarted)
+        current, starts = better, fits
+    raise AssertionError("unreachable")
+
+
+def _best_variant(data: GreyData, problems: list[Problem]) -> GreyFit:
+    """The fit of lowest training BIC, ``n log(RSS / n) + k log n``, among a candidate's problems.
+
+    Variants of one effect differ in their fitted parameters (a Coulomb friction with one level or
+    two); starts of one variant have the same ``k``, so among them the lowest cost wins.
+    """
+    n = data.n_samples
+
+    def bic(p: Problem) -> float:
+        return n * np.log(max(p.cost, 1e-300) / n) + p.n_global * np.log(n)
+
+    return GreyFit.from_problem(data, min(problems, key=bic))
+
+
+def _screened_fit(data: GreyData, problems: list[Problem], max_iter: int, screen_iter: int) -> None:
+    """Fit the current model (``problems[0]``, ``max_iter`` trial points) and the candidates (``screen_iter``).
+
+    The candidates whose cost is then below the current model's are fitted again
+    from their starts with all ``max_iter`` trial points (the same fit as without
+    the screen), in place in ``problems``.
+    """
+    if max_iter <= screen_iter:
+        fit_problems(data, problems, max_iter=max_iter)
+        return
+    starts = [replace(p) for p in problems]
+    fit_problems(data, problems, budgets=[max_iter] + [screen_iter] * (len(problems) - 1))
+    ahead = [i for i in range(1, len(problems)) if problems[i].cost < problems[0].cost]
+    for i in ahead:
+        problems[i] = starts[i]
+    if ahead:
+        fit_problems(data, [problems[i] for i in ahead], max_iter=max_iter)
+
+
+def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit | None:
+    """The best candidate fit with its new effect switched off, if that beats the current model.
+
+    A candidate starts from its own profile fit of the linear part, which can
+    land in a better minimum than the current model's (quantized outputs make
+    the error surface rough); whatever of that gain survives switching the
+    effect off belongs to the current model.
+    """
+    best = None
+    for fit in fits.values():
+        if fit.rmse >= current.rmse * (1.0 - 1e-3):
+            continue
+        n_old = current.theta.size
+        theta = fit.theta[:n_old].copy()
+        problem = make_problem(data, current.spec, theta, fit.y0, fit.bias, np.arange(data.n_records),
+                               free_global=False)
+        problem.free[:] = False
+        fit_problems(data, [problem], max_iter=0)
+        reduced = GreyFit.from_problem(data, problem)
+        if reduced.rmse < current.rmse * (1.0 - 1e-3) and (best is None or reduced.rmse < best.rmse):
+            best = reduced
+    return best

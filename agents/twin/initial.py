@@ -1,0 +1,158 @@
+"""How each record starts: at a rest its data show, at an unobserved rest, or moving.
+
+A record's model needs its initial state. Three cases occur in real data:
+
+* ``"rest"``: the record shows the machine at rest before its excitation: the
+  input (open loop) or the reference (closed loop) holds its first value for a
+  while, and the output stays flat meanwhile (within its noise and quantum). The
+  rest level ``y0`` and the rest command ``u0`` are then *measured*: the model is
+  pinned there, with no free level per record. A load or a friction that acts
+  at rest must then be explained by the model itself (an ``offset``, a
+  ``coulomb_friction``), which is what makes them observable.
+* ``"steady"``: the excitation starts with the first sample (a closed-loop step
+  at ``t = 0``, as the envs record it) and the output starts flat: the record
+  starts at a rest it does not show. Its rest level and the command that held it
+  are estimated: a free rest level ``y0`` and a free plant-input bias (the
+  SRIVC rest input ``u0`` in disguise), as before. A constant load within such a
+  record cannot be told from the unobserved rest command.
+* ``"moving"``: the output is not flat at the start (a record cut from a long log).
+  The rest level and the bias are estimated, as for ``"steady"``.
+
+:func:`initial_conditions` classifies the records from the data; users can
+override it (``GreyData.from_records(..., initial="steady")``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["INITIAL_MODES", "InitialConditions", "initial_conditions"]
+
+#: Values of the ``initial`` argument: detect per record, or force one case for every record.
+INITIAL_MODES = ("auto", "rest", "steady")
+#: Output samples checked for flatness at the start of a record whose excitation starts at once.
+START_SAMPLES = 3
+#: A flat output stays within this many noise standard deviations (plus half a quantum) of its median.
+FLAT_SIGMAS = 5.0
+
+
+@dataclass(frozen=True, eq=False)
+class InitialConditions:
+    """The start of each record (see the module docstring).
+
+    Attributes
+    ----------
+    mode : ndarray of str, shape (n_records,)
+        ``"rest"``, ``"steady"`` or ``"moving"``.
+    y0, u0 : ndarray of shape (n_records,)
+        Measured rest level of ``y`` and rest command ``u`` of the ``"rest"`` records
+        (mean over the samples before the excitation), ``NaN`` for the others.
+    quiet : ndarray of int, shape (n_records,)
+        Samples before the excitation (0 when it starts with the record).
+    """
+
+    mode: np.ndarray
+    y0: np.ndarray
+    u0: np.ndarray
+    quiet: np.ndarray
+
+    @property
+    def pinned(self) -> np.ndarray:
+        """Records whose rest levels the data pin (bool, shape (n_records,))."""
+        return self.mode == "rest"
+
+    @property
+    def rest_levels(self) -> np.ndarray:
+        """``(y0, u0)`` per record, shape (n_records, 2); ``NaN`` rows where they are estimated."""
+        return np.column_stack([self.y0, self.u0])
+
+    def subset(self, rows) -> InitialConditions:
+        """The conditions of the records ``rows``."""
+        rows = np.asarray(rows, dtype=int)
+        return InitialConditions(self.mode[rows], self.y0[rows], self.u0[rows], self.quiet[rows])
+
+
+def initial_conditions(r: np.ndarray, u: np.ndarray, y: np.ndarray, mask: np.ndarray, initial: str = "auto",
+                       open_loop: np.ndarray | None = None) -> InitialConditions:
+    """Classify how each record starts, and measure the rest of those that show it.
+
+    Parameters
+    ----------
+    r, u, y : ndarray of shape (n_records, n_steps)
+        Reference, command and measured output (padded rows allowed, see ``mask``).
+    mask : ndarray of bool, shape (n_records, n_steps)
+        True on real samples, which lead each row.
+    initial : {"auto", "rest", "steady"}, default "auto"
+        ``"auto"`` detects each record's start; ``"rest"`` takes every record to start at
+        the rest of its first sample (``y0 = y[0]``, ``u0 = u[0]``); ``"steady"`` estimates
+        every record's rest (the behaviour for records that do not show it).
+    open_loop : ndarray of bool, shape (n_records,), optional
+        Records without a controller (``r`` equal to ``u``): their excitation is the input's
+        first change. Default: where ``r`` equals ``u``.
+
+    Returns
+    -------
+    InitialConditions
+
+    Raises
+    ------
+    ValueError
+        ``initial`` outside :data:`INITIAL_MODES`.
+    """
+    if initial not in INITIAL_MODES:
+        raise ValueError(f"initial: must be one of {INITIAL_MODES}, got {initial!r}")
+    k = u.shape[0]
+    mode = np.full(k, "steady", dtype=object)
+    y0, u0, quiet = np.full(k, np.nan), np.full(k, np.nan), np.zeros(k, dtype=int)
+    if open_loop is None:
+        open_loop = np.array([np.array_equal(r[i][mask[i]], u[i][mask[i]]) for i in range(k)])
+    for i in range(k):
+        n = int(mask[i].sum())
+        ui, yi, ri = u[i, :n], y[i, :n], r[i, :n]
+        if initial == "rest":
+            mode[i], y0[i], u0[i] = "rest", yi[0], ui[0]
+            continue
+        if initial == "steady":
+            continue
+        driver = ui if open_loop[i] else ri
+        j = _first_change(driver)
+        if not open_loop[i] and j >= n:
+            j = 0  # a constant reference: the step came with the first sample, or before it
+        quiet[i] = min(j, n)
+        if j >= 1:
+            segment = yi[: max(j, 2)]
+            if _flat(segment, yi):
+                mode[i], y0[i], u0[i] = "rest", float(np.mean(yi[:j])), float(np.mean(ui[:j]))
+            else:
+                mode[i] = "moving"
+        elif not _flat(yi[:START_SAMPLES], yi):
+            mode[i] = "moving"
+    return InitialConditions(mode.astype(str), y0, u0, quiet)
+
+
+def _first_change(x: np.ndarray) -> int:
+    """Index of the first sample that differs from the first (``len(x)`` if none)."""
+    tol = 1e-12 * max(float(np.max(np.abs(x))), 1e-300)
+    moved = np.flatnonzero(np.abs(x - x[0]) > tol)
+    return int(moved[0]) if moved.size else x.size
+
+
+def _flat(segment: np.ndarray, record: np.ndarray) -> bool:
+    """Whether ``segment`` (the start of ``record``) holds one level within the record's noise and quantum.
+
+    The noise is the robust second-difference estimate of the whole record
+    (``var(Delta^2 e) = 6 sigma^2``, median-based so that the record's steps do not count), and
+    a quantized output may sit on either side of a level: half its smallest change.
+    """
+    if segment.size < 2:
+        return True
+    d2 = np.diff(record, n=2)
+    sigma = float(np.sqrt(np.median(d2**2) / (6.0 * 0.4549))) if d2.size >= 10 else 0.0
+    changes = np.abs(np.diff(record))
+    changes = changes[changes > 1e-12 * max(float(np.max(np.abs(record))), 1e-300)]
+    quantum = float(np.min(changes)) if changes.size else 0.0
+    scale = max(float(np.ptp(record)), 1e-300)
+    spread = float(np.max(np.abs(segment - np.median(segment))))
+    return spread <= FLAT_SIGMAS * sigma + quantum + 1e-6 * scale

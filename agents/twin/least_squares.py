@@ -1,0 +1,447 @@
+"""Bounded least squares of the simulation error: the fits of every stage of the pipeline.
+
+A :class:`Problem` is one structure fitted to some records (:func:`make_problem` builds
+it with the default bounds). :func:`fit_problems` solves many problems together by the
+trust-region reflective method of ``scipy.optimize.least_squares`` (within bounds;
+:func:`agents.twin.trust_region.trf`): the parameters minimise the simulation error
+
+.. math:: V(\\theta) = \\sum_k \\sum_t (y_k(t) - \\hat y_k(t; \\theta))^2
+
+The Jacobian is a forward difference, in which the per-record nuisance parameters are
+perturbed all at once (each only moves its own record). It is simulated and compressed a
+few records at a time to one small triangular block per record
+(:class:`agents.twin.jacobian.RecordQR`) with the same normal equations, so that memory
+and time grow linearly with the number of records and the full Jacobian never exists. Up
+to :data:`DENSE_JACOBIAN_MAX_BYTES` (as a dense matrix) the iteration takes
+``least_squares``' exact trust-region steps (``tr_solver="exact"``, from the SVD of the
+compressed system: the same steps in exact arithmetic); a larger one takes its LSMR steps
+(``tr_solver="lsmr"``).
+
+Parameters of effects whose simulation error is not differentiable (the quantization
+step) are not moved by the iteration; they are chosen from a grid
+(:func:`agents.twin.guesses.effect_starts`) and refined on a finer grid at the end
+(:func:`agents.twin.fits.refine_grid_parameters`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize._lsq.common import make_strictly_feasible  # least_squares' own (private module)
+
+from agents.twin.data import GreyData
+from agents.twin.jacobian import RecordQR, dense_jacobian
+from agents.twin.model import ModelSpec, fitted_parameters, residual_in_increments, to_increments
+from agents.twin.simulation import SIMULATION_BATCH_SAMPLES, Lockstep, simulate_sets
+from agents.twin.trust_region import trf
+
+__all__ = ["DENSE_JACOBIANS_TOTAL_BYTES", "DENSE_JACOBIAN_MAX_BYTES", "JACOBIAN_PASS_SAMPLES", "Problem",
+           "fit_problems", "jacobian", "make_problem", "residual"]
+
+#: Largest Jacobian (bytes as a dense float64 matrix) whose fit takes ``least_squares``' exact trust-region
+#: steps (the SVD of its compression record by record, :class:`agents.twin.jacobian.RecordQR`); a larger one
+#: takes the LSMR steps, and keeps fewer signals in memory.
+DENSE_JACOBIAN_MAX_BYTES = 32 * 2**20
+#: Largest sum of the dense Jacobians of the problems solved together in lock-step (bytes); above it
+#: each takes the LSMR steps, however small.
+DENSE_JACOBIANS_TOTAL_BYTES = 256 * 2**20
+#: Most samples (records times steps, all trial points together) simulated in one pass of a compressed
+#: Jacobian (about 8 MB per signal); problems in lock-step share :data:`SIMULATION_BATCH_SAMPLES` per pass.
+JACOBIAN_PASS_SAMPLES = 2**20
+
+
+@dataclass(eq=False)
+class Problem:
+    """One bounded least-squares problem: a model structure fitted to some records.
+
+    ``theta`` holds the global parameters followed by ``y0`` and ``bias`` of
+    each record of ``rows``. ``free`` marks what the iteration may move.
+    """
+
+    spec: ModelSpec
+    rows: np.ndarray
+    theta: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    scale: np.ndarray
+    free: np.ndarray
+    tag: object = None
+    cost: float = np.inf
+    n_iter: int = 0
+    residual: np.ndarray | None = field(default=None, repr=False)
+    y_sim: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def n_global(self) -> int:
+        """Global (model) parameters."""
+        return self.theta.size - 2 * self.rows.size
+
+
+def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarray | None = None,
+             increments: bool = False) -> np.ndarray:
+    r"""Simulation error ``y_sim - y`` of the records ``rows``, the residual :func:`fit_problems` minimises.
+
+    Padding samples give 0; a non-finite or huge simulated value (a diverged model) gives a large
+    finite penalty, ``1e6 (1 + max |y|)``, so that the cost stays comparable and its sum of squares
+    cannot overflow inside the solver.
+
+    With ``increments`` (a position output, :func:`residual_in_increments`) the error is taken on the
+    increments of the output after the first sample,
+
+    .. math:: \epsilon_k(0) = e_k(0), \qquad \epsilon_k(t) = e_k(t) - e_k(t-1),
+
+    an invertible map of ``e``: the same minimum for a model that replays the record, but an
+    error that does not persist. A replayed slider that sticks a moment earlier than the
+    plant's stays off by the difference for the rest of the record; on the increments the
+    difference counts once, so the error is smooth in the friction and the drive limit.
+
+    Parameters
+    ----------
+    data : GreyData
+    rows : ndarray of int
+        The records simulated, in the order of the rows of ``y_sim``.
+    y_sim : ndarray of shape (len(rows), n_steps)
+        Simulated measurement, units of ``y``.
+    out : ndarray of shape (len(rows), n_steps), optional
+        Array to write the residual into (e.g. a Jacobian column); default a new one.
+
+    Returns
+    -------
+    ndarray of shape (len(rows), n_steps)
+        In the units of ``y``.
+    """
+    y, mask = (data.y, data.mask) if data.is_all(rows) else (data.y[rows], data.mask[rows])  # no copies
+    penalty = 1e6 * (1.0 + max(float(y.max()), -float(y.min())))
+    with np.errstate(invalid="ignore", over="ignore"):
+        err = np.subtract(y_sim, y, out=out)
+    err[~mask] = 0.0
+    diverged = ~np.isfinite(err)
+    np.clip(err, -penalty, penalty, out=err)
+    err[diverged] = penalty
+    return to_increments(err, mask) if increments else err
+
+
+def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7, *,
+                 budgets: Sequence[int] | None = None) -> list[Problem]:
+    """Solve bounded least-squares problems of the simulation error with ``scipy.optimize.least_squares``.
+
+    All problems are first simulated at their starts in one vectorised pass; each
+    problem with free parameters is then solved by the trust-region reflective
+    method (``method="trf"``) within its bounds, with the variables scaled by
+    ``scale``, stopping when an accepted step lowers the cost by less than the
+    fraction ``tol`` (``ftol``) or after ``max_iter`` trial points (``max_nfev =
+    max_iter + 1``). The Jacobian is a forward difference computed in vectorised
+    simulations (:func:`simulate_sets`), with the per-record rest levels (and
+    biases) perturbed all at once, since each only moves its own record; for a
+    model with a quantized output it is taken on the plant output before the
+    sensor, which is smooth in the parameters. It is compressed record by record
+    (:class:`~agents.twin.jacobian.RecordQR`), so memory and time grow linearly with the
+    records; up to :data:`DENSE_JACOBIAN_MAX_BYTES` the trust-region steps are exact
+    (``tr_solver="exact"``), above they are in the 2-D subspace of ``tr_solver="lsmr"``
+    (:func:`agents.twin.trust_region.trf`).
+    ``benchmarks/bench_greybox_solver.py`` compares it with the hand-written Levenberg-Marquardt iteration it replaced.
+
+    Parameters
+    ----------
+    data : GreyData
+    problems : list of Problem
+    max_iter : int, default 25
+        Trial points per problem after the start; 0 only simulates the starts.
+    tol : float, default 1e-7
+        Relative cost decrease that ends the iteration.
+    budgets : sequence of int, optional
+        Trial points of each problem, instead of ``max_iter`` for all.
+
+    Returns
+    -------
+    list of Problem
+        The same objects, with ``theta``, ``cost`` (sum of squared residuals, units of ``y`` squared),
+        ``residual``, ``y_sim`` and ``n_iter`` (simulations of trial points) set.
+    """
+    sims = simulate_sets(data, [(p.spec, p.theta, p.rows) for p in problems])
+    for p, y in zip(problems, sims):
+        p.y_sim, p.residual = y, residual(data, p.rows, y, increments=residual_in_increments(p.spec))
+        p.cost = float(np.sum(p.residual**2))
+    budgets = [int(max_iter)] * len(problems) if budgets is None else [int(b) for b in budgets]
+    if len(budgets) != len(problems):
+        raise ValueError(f"budgets: need one per problem ({len(problems)}), got {len(budgets)}")
+    todo = [(p, b) for p, b in zip(problems, budgets) if b > 0 and np.any(p.free & (p.lower < p.upper))]
+    if len(todo) == 1:
+        _solve(data, todo[0][0], todo[0][1], float(tol))
+    elif todo:
+        lockstep = Lockstep(data, len(todo))
+
+        def solve(p: Problem, budget: int) -> None:
+            try:
+                _solve(data, p, budget, float(tol), lockstep.simulate, n_parallel=len(todo))
+            finally:
+                lockstep.leave()
+
+        with ThreadPoolExecutor(max_workers=len(todo)) as pool:
+            for future in [pool.submit(solve, p, b) for p, b in todo]:
+                future.result()
+    return problems
+
+
+def _difference_layout(data: GreyData, p: Problem, simulate=None):
+    """``(simulate, free, rough, columns)`` of a forward-difference Jacobian of ``p``.
+
+    ``simulate`` defaults to :func:`simulate_sets` on ``data``; ``free`` are the moving
+    parameters; ``rough`` says a grid parameter (a quantized output) makes the
+    Jacobian be taken on the plant output before the sensor; ``columns`` groups the
+    free parameters one per simulation: each global parameter alone, then all rest
+    levels together and all biases together (each moves only its own record).
+    """
+    if simulate is None:
+        def simulate(sets, true_output=False):
+            return simulate_sets(data, sets, true_output=true_output)
+    free = np.flatnonzero(p.free & (p.lower < p.upper))
+    g, k = p.n_global, p.rows.size
+    rough = any(not smooth for name, options in p.spec.effects for _, smooth in fitted_parameters(name, options))
+    columns = [[j] for j in free[free < g]]
+    columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
+    return simulate, free, rough, columns
+
+
+def _difference_sets(p: Problem, theta: np.ndarray, columns: list[list[int]]) -> tuple[list, list[float]]:
+    """Forward-difference trial sets of ``p`` at ``theta``: one per group of ``columns``, and their steps.
+
+    The step of a group is ``1e-6`` times its largest magnitude (at least its scale),
+    taken backwards where a lone parameter would cross its upper bound.
+    """
+    sets, steps = [], []
+    for cols in columns:
+        h = 1e-6 * max(float(np.max(np.abs(theta[cols]))), p.scale[cols[0]])
+        if len(cols) == 1 and theta[cols[0]] + h > p.upper[cols[0]]:
+            h = -h
+        trial = theta.copy()
+        trial[cols] += h
+        sets.append((p.spec, trial, p.rows))
+        steps.append(h)
+    return sets, steps
+
+
+def jacobian(data: GreyData, p: Problem, theta: np.ndarray, simulate=None) -> np.ndarray:
+    """Forward-difference Jacobian of the residual of ``p`` with respect to its free parameters, at ``theta``.
+
+    One simulation per free global parameter and one for each group of per-record
+    nuisances (rest levels, biases: each only moves its own record), all in one
+    vectorised pass; for a model with a grid parameter (a quantized output) it is taken
+    on the plant output before the sensor, which is smooth in the parameters.
+
+    Parameters
+    ----------
+    data : GreyData
+    p : Problem
+        Its ``free`` mask, ``scale``, ``upper`` and ``rows`` are used.
+    theta : ndarray
+        All parameters of ``p`` (globals, rest levels, biases).
+    simulate : callable, optional
+        ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``).
+
+    Returns
+    -------
+    ndarray of shape (len(p.rows) * n_steps, n_free)
+        Units of ``y`` per unit of each free parameter.
+    """
+    simulate, free, rough, columns = _difference_layout(data, p, simulate)
+    sets, steps = _difference_sets(p, theta, columns)
+    ys = simulate([*sets, (p.spec, theta, p.rows)], true_output=rough)  # last the output at theta itself
+    inc = residual_in_increments(p.spec)
+    base = residual(data, p.rows, ys[-1], increments=inc)
+    diffs = [(residual(data, p.rows, y, increments=inc) - base) / h for y, h in zip(ys, steps)]
+    n_shared = int(np.sum(free < p.n_global))
+    shared = np.array(diffs[:n_shared]).reshape(n_shared, *base.shape)
+    return _dense_jacobian(p, free, columns, shared, diffs[n_shared:])
+
+
+def _dense_jacobian(p: Problem, free: np.ndarray, columns: list[list[int]], shared: np.ndarray,
+                    per_record: list[np.ndarray]) -> np.ndarray:
+    """The dense Jacobian of ``p`` from its difference quotients: ``shared`` (one per free global
+    parameter, the first groups of ``columns``) and ``per_record`` (one per later group of ``columns``)."""
+    g, k = p.n_global, p.rows.size
+    positions = [np.flatnonzero(free < g)]
+    for cols in columns[shared.shape[0]:]:
+        first = g if cols[0] < g + k else g + k
+        positions.append(np.column_stack([np.searchsorted(free, cols), np.asarray(cols) - first]))
+    return dense_jacobian(shared, per_record, positions)
+
+
+def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None, n_parallel: int = 1) -> None:
+    """One :class:`Problem` by the trust-region reflective method from its start; see :func:`fit_problems`.
+
+    ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``);
+    ``n_parallel`` problems make their requests together (:class:`Lockstep`), so each asks for
+    its share of the samples of a pass at a time. The iteration is ``least_squares``' (trf;
+    :func:`agents.twin.trust_region.trf`) with a forward-difference Jacobian (:func:`jacobian`),
+    simulated and factorised a few records at a time (:data:`JACOBIAN_PASS_SAMPLES` samples per
+    pass) into :class:`~agents.twin.jacobian.RecordQR`. A Jacobian of at most
+    :data:`DENSE_JACOBIAN_MAX_BYTES` as a dense matrix (and :data:`DENSE_JACOBIANS_TOTAL_BYTES` for
+    all parallel problems) gets the exact trust-region steps of ``tr_solver="exact"`` (the same
+    steps as ``least_squares`` on the dense Jacobian, whose SVD took most of the time of a small
+    fit), and the simulated outputs of the current and the trial point are kept; a larger one gets
+    the 2-D subspace steps of ``tr_solver="lsmr"``, and memory linear in the records: beyond the
+    simulated output and residual at the current and the trial point, bounded (the final output is
+    simulated again, once).
+    """
+    simulate, free, rough, columns = _difference_layout(data, p, simulate)
+    g, k, n = p.n_global, p.rows.size, data.u.shape[1]
+    inc = residual_in_increments(p.spec)
+    size = 8 * k * n * free.size  # bytes of the Jacobian as a dense matrix
+    exact = size <= DENSE_JACOBIAN_MAX_BYTES and size * n_parallel <= DENSE_JACOBIANS_TOTAL_BYTES
+    start = p.theta.copy()
+    n_shared = int(np.sum(free < g))
+    positions = _record_positions(p, free, columns, n_shared)
+    # records per pass: at most JACOBIAN_PASS_SAMPLES samples of this problem, and SIMULATION_BATCH_SAMPLES
+    # of all problems in lock-step (as many passes per Jacobian as it takes, each one round of the lock-step)
+    n_sets = len(columns) + 1
+    per_pass = max(1, min(JACOBIAN_PASS_SAMPLES // (n * n_sets), SIMULATION_BATCH_SAMPLES // (n * n_sets * n_parallel)))
+    # the current point (accepted: the lowest cost so far) and the last trial point, with their residuals
+    # (and, with exact steps, their simulated outputs)
+    at = {"key": None, "residual": p.residual, "y": p.y_sim}
+    trial: dict = {"key": None}
+
+    def full(x: np.ndarray) -> np.ndarray:
+        theta = start.copy()
+        theta[free] = x
+        return theta
+
+    def part(theta: np.ndarray, records: slice) -> np.ndarray:
+        return np.concatenate([theta[:g], theta[g : g + k][records], theta[g + k :][records]])
+
+    def cost(x: np.ndarray) -> float:
+        trial.update(key=None, residual=None, y=None)  # a rejected trial point's residual: freed first
+        y = simulate([(p.spec, full(x), p.rows)])[0]
+        res = residual(data, p.rows, y, increments=inc)
+        trial.update(key=x.tobytes(), residual=res, y=y if exact else None)
+        return 0.5 * float(np.einsum("kt,kt->", res, res))
+
+    def system(x: np.ndarray):
+        if x.tobytes() == trial["key"]:  # accepted: the trial point becomes the current one
+            at.update(trial)
+        trial.update(key=None, residual=None, y=None)
+        theta = full(x)
+        sets, steps = _difference_sets(p, theta, columns)
+        compressed = RecordQR(k, positions.shape[1])
+        for first in range(0, k, per_pass):
+            records = slice(first, first + per_pass)
+            rows = p.rows[records]
+            passes = [(p.spec, part(one[1], records), rows) for one in sets]
+            if rough:  # the smooth output at x itself, first
+                passes.insert(0, (p.spec, part(theta, records), rows))
+            ys = simulate(passes, true_output=rough)
+            base = residual(data, rows, ys.pop(0), increments=inc) if rough else at["residual"][records]
+            blocks = np.empty((len(ys), rows.size, n))
+            for block, y, h in zip(blocks, ys, steps):
+                residual(data, rows, y, out=block, increments=inc)
+                block -= base
+                block /= h
+            compressed.add(records, blocks, at["residual"][records])
+        return compressed.system(positions, free.size)
+
+    scale = np.where(p.scale[free] > 0, p.scale[free], 1.0)
+    lower, upper = p.lower[free], p.upper[free]
+    x0 = make_strictly_feasible(np.clip(start[free], lower, upper), lower, upper)
+    y_start = p.y_sim
+    if not exact:
+        p.y_sim = at["y"] = None  # freed meanwhile: simulated again at the end
+    if not np.array_equal(x0, start[free]):  # the start moved inside the bounds: its residual is not p's
+        at["residual"] = at["y"] = None
+        if not exact:
+            p.residual = None  # freed meanwhile (computed again if nothing beats it)
+        cost(x0)
+        at.update(trial)
+    at["key"] = x0.tobytes()
+    cost0 = 0.5 * float(np.einsum("kt,kt->", at["residual"], at["residual"]))
+    x, _, nfev = trf(cost, system, x0, cost0, lower, upper, scale, ftol=tol, max_nfev=max_iter + 1,
+                     tr_solver="exact" if exact else "lsmr", n_rows=k * n)
+    p.n_iter += nfev - 1
+    if x.tobytes() != at["key"]:  # the last accepted step ended the iteration before its Jacobian
+        at.update(trial)
+    new_cost = float(np.einsum("kt,kt->", at["residual"], at["residual"]))
+    if new_cost < p.cost:
+        p.theta = full(x)
+        p.residual, p.cost, y_start = at["residual"], new_cost, at["y"]
+    at.clear()
+    trial.clear()
+    if exact:
+        p.y_sim = y_start  # the output whose residual p has
+        return
+    p.y_sim = simulate([(p.spec, p.theta, p.rows)])[0]  # the output whose residual p has (deterministic)
+    if p.residual is None:
+        p.residual = residual(data, p.rows, p.y_sim, increments=inc)
+
+
+def _record_positions(p: Problem, free: np.ndarray, columns: list[list[int]], n_shared: int) -> np.ndarray:
+    """Position among the free parameters of each column of each record's block, -1 where fixed.
+
+    Returns
+    -------
+    ndarray of int, shape (len(p.rows), len(columns))
+        The free global parameters first (the same for every record), then the record's own
+        parameter of each per-record group of ``columns`` (rest level, bias).
+    """
+    g, k = p.n_global, p.rows.size
+    out = np.full((k, len(columns)), -1)
+    out[:, :n_shared] = np.arange(n_shared)
+    for j, cols in enumerate(columns[n_shared:], start=n_shared):
+        cols = np.asarray(cols)
+        first = g if cols[0] < g + k else g + k
+        out[cols - first, j] = np.searchsorted(free, cols)
+    return out
+
+
+def make_problem(data: GreyData, spec: ModelSpec, theta_global: np.ndarray, y0: np.ndarray, bias: np.ndarray,
+                 rows: np.ndarray, lower=None, upper=None, scale=None, free_global: bool = True,
+                 tag=None) -> Problem:
+    """A :class:`Problem` of ``spec`` on the records ``rows``, with default bounds for the linear part and nuisances.
+
+    Parameters
+    ----------
+    data : GreyData
+    spec : ModelSpec
+    theta_global : ndarray of shape (n_global,)
+        Starting global parameters (``spec.global_names()``).
+    y0, bias : ndarray of shape (len(rows),)
+        Starting rest level (units of ``y``) and plant-input bias (units of ``u``) of each record.
+    rows : ndarray of int
+        Records of ``data`` the problem fits.
+    lower, upper, scale : ndarray of shape (n_global - spec.n_linear - 1,), optional
+        Bounds and scales of the effect parameters (default unbounded, scale 1); the linear
+        part is unbounded, the delay in ``[0, data.dt]``.
+    free_global : bool, default True
+        Whether the iteration moves the global parameters (else only the rest levels and biases).
+    tag : object, optional
+        Caller's label, kept on the problem.
+    """
+    g = theta_global.size
+    nl = spec.n_linear
+    lin = np.abs(theta_global[:nl])
+    dt = data.dt
+    lo = np.concatenate([np.full(nl, -np.inf), [0.0]])
+    hi = np.concatenate([np.full(nl, np.inf), [dt]])
+    sc = np.concatenate([np.maximum(lin, 1e-6 * max(lin.max(), 1e-12)), [dt]])
+    extra = g - nl - 1
+    lo = np.concatenate([lo, lower if lower is not None else np.full(extra, -np.inf)])
+    hi = np.concatenate([hi, upper if upper is not None else np.full(extra, np.inf)])
+    sc = np.concatenate([sc, scale if scale is not None else np.ones(extra)])
+    k = rows.size
+    ys = max(float(np.ptp(data.y[rows][data.mask[rows]])), 1e-9)
+    us = max(float(np.max(np.abs(data.u[rows]))), 1e-9)
+    lower = np.concatenate([lo, np.full(2 * k, -np.inf)])
+    upper = np.concatenate([hi, np.full(2 * k, np.inf)])
+    scale = np.concatenate([sc, np.full(k, ys), np.full(k, us)])
+    # a record that shows its rest is pinned there: measured rest level, no plant-input bias (docs/design.md,
+    # "Initial conditions"); the others estimate both
+    pinned = data.initial.pinned[rows]
+    free = np.concatenate([spec.smooth_mask() & free_global, ~pinned, ~pinned])
+    y0 = np.where(pinned, data.initial.y0[rows], y0)
+    bias = np.where(pinned, 0.0, bias)
+    if "time_delay" in spec.effect_names:
+        free[nl] = False  # the extra delay takes the delay's place
+    theta = np.clip(np.concatenate([theta_global, y0, bias]), lower, upper)
+    return Problem(spec=spec, rows=np.asarray(rows, dtype=int), theta=theta, lower=lower, upper=upper, scale=scale,
+                   free=free, tag=tag)

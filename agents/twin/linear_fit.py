@@ -1,0 +1,134 @@
+"""The base linear model of the workbench's pipeline, and the linear part profiled under given effect blocks.
+
+:func:`linear_fit` is the pipeline's second stage (records, **linear fit**, candidates,
+fits, ranking, report): the paper's SRIVC identification (:func:`agents.twin.identify.identify_linear`)
+of the records, with the rest levels the records show pinned (:mod:`agents.twin.initial`),
+refined by simulation error. :func:`profile` identifies the linear part on the plant input
+that given actuator blocks make of the recorded command: the starting values of the
+candidates (:mod:`agents.twin.candidates`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from agents.thread_limits import single_thread
+from agents.twin.data import GreyData
+from agents.twin.identify import LinearIdentification, identify_linear
+from agents.twin.least_squares import fit_problems, make_problem
+from agents.twin.model import GreyFit, ModelSpec, effect_offset
+
+__all__ = ["PROFILE_EFFECTS", "linear_fit", "profile"]
+
+
+@single_thread()
+def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = True) -> GreyFit:
+    """Base linear model: SRIVC with a delay of at most one sample, then refined by simulation error.
+
+    Parameters
+    ----------
+    data : GreyData
+    spec : ModelSpec, optional
+        Orders and output kind (its effects are ignored); default 2 poles, no zero.
+    refine : bool, default True
+        Polish the SRIVC estimate by least squares on the simulation error (:func:`fit_problems`).
+    """
+    spec = ModelSpec() if spec is None else ModelSpec(spec.n_poles, spec.n_zeros, spec.n_integrators, spec.output)
+    lengths = data.mask.sum(axis=1)  # real samples lead each row, padding follows (GreyData.from_records)
+    records = [{"t": data.t[k, :m], "r": data.r[k, :m], "u": data.u[k, :m], "y": data.y[k, :m]}
+               for k, m in enumerate(lengths)]  # views of the rows: no copy of the data
+    fit = identify_linear(records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
+                          max_delay=data.dt, refine_delay=False, rest_levels=data.initial.rest_levels)
+    theta = np.concatenate([fit.params, [fit.delay]])
+    y0, u0 = fit.rest_levels[:, 0], fit.rest_levels[:, 1]
+    v_rest = fit.plant(spec.output).discretize(data.dt).equilibrium(y0)[1]
+    problem = make_problem(data, spec, theta, y0, v_rest - u0, np.arange(data.n_records))
+    fit_problems(data, [problem], max_iter=30 if refine else 0)  # the delay is refined here, in [0, dt]
+    return GreyFit.from_problem(data, problem)
+
+
+#: Actuator effects whose starting value is found on the SRIVC profile: for a given effect parameter the
+#: plant input ``v = A(u, speed)`` is computed from the records (speed from the measured output) and the
+#: linear part identified from ``(v, y)`` by SRIVC; the parameter with the lowest simulation error wins.
+PROFILE_EFFECTS = ("saturation", "dead_zone", "coulomb_friction", "backlash", "stiction")
+
+
+def _records_through(data: GreyData, blocks: Sequence, output: str) -> list[dict]:
+    """Records whose ``u`` is replaced by the plant input of the actuator ``blocks`` (speed from the measured y).
+
+    A ``drift`` of the plant's gain scales each record's input by its factor
+    (the same as scaling the numerator), so it is profiled the same way.
+    """
+    u = data.u.copy()
+    for block in blocks:
+        if block.name == "drift" and block.parameter == "gain":
+            u = u * np.array([block.factor(k)[0] for k in data.index])[:, None]
+    speed = data.y if output != "position" else np.gradient(data.y, data.dt, axis=1)
+    actuators = [b for b in blocks if b.side == "actuator"]
+    if actuators:
+        for block in actuators:
+            block.reset(data.n_records, None, data.dt)
+        for k in range(data.u.shape[1]):
+            v = u[:, k]
+            for block in actuators:
+                v = block.actuate(v, speed[:, k])
+            u[:, k] = v
+    return [{"t": data.t[k][data.mask[k]], "r": data.r[k][data.mask[k]], "u": u[k][data.mask[k]],
+             "y": data.y[k][data.mask[k]]} for k in range(data.n_records)]
+
+
+def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float | None = None,
+            max_iter: int = 20, tol: float = 1e-6) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """SRIVC fit of the linear part on the plant input implied by ``spec``'s actuator blocks at ``theta``.
+
+    Parameters
+    ----------
+    data : GreyData
+    spec : ModelSpec
+    theta : ndarray of shape (n_global,)
+        Global parameters; the effect parameters are kept.
+    max_delay : float, optional
+        Search the delay up to this many s (default: the delay of ``theta`` plus any ``time_delay``, fixed).
+    max_iter, tol
+        SRIVC iterations and tolerance (:func:`agents.twin.identify.identify_linear`).
+
+    Returns
+    -------
+    rmse : float
+        Simulation-error RMSE of the SRIVC fit, units of ``y`` (``inf`` when it fails).
+    theta_global : ndarray
+        ``theta`` with the linear part (and, with ``max_delay``, the delay) replaced by the SRIVC estimate.
+    y0, bias : ndarray of shape (n_records,)
+        Rest levels and plant-input biases of the SRIVC fit.
+    """
+    try:
+        blocks = spec.blocks(theta)
+    except ValueError:
+        return np.inf, theta, np.zeros(data.n_records), np.zeros(data.n_records)
+    nl = spec.n_linear
+    if max_delay is None:
+        delay = float(theta[nl] + sum(b.delay for b in blocks if b.name == "time_delay"))
+    else:
+        delay, max_delay = None, float(max_delay)
+    records = _records_through(data, blocks, spec.output)
+    rest = data.initial.rest_levels.copy()  # pinned records: the plant input at their rest, through the blocks
+    for k in np.flatnonzero(data.initial.pinned):
+        rest[k, 1] = float(np.mean(records[k]["u"][: max(int(data.initial.quiet[k]), 1)]))
+    try:
+        fit: LinearIdentification = identify_linear(
+            records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators, delay=delay,
+            max_delay=max_delay, max_iter=max_iter, tol=tol, rest_levels=rest)
+    except (ValueError, RuntimeError, np.linalg.LinAlgError):
+        return np.inf, theta, np.zeros(data.n_records), np.zeros(data.n_records)
+    out = theta.copy()
+    out[: nl] = fit.params
+    y0, u0 = fit.rest_levels[:, 0], fit.rest_levels[:, 1]
+    v_rest = fit.plant(spec.output).discretize(data.dt).equilibrium(y0)[1]
+    if max_delay is not None:
+        base_delay = min(fit.delay, data.dt) if "time_delay" in spec.effect_names else fit.delay
+        out[nl] = base_delay
+        if "time_delay" in spec.effect_names:
+            out[nl + 1 + effect_offset(spec, "time_delay")] = fit.delay - base_delay
+    return float(fit.rmse_abs), out, y0, v_rest - u0

@@ -1,0 +1,258 @@
+"""A grey-box model: its structure (:class:`ModelSpec`), its fitted state (:class:`GreyFit`) and its error.
+
+The model of a record is the open-loop replay of its commanded input ``u``
+(:func:`agents.twin.open_loop.simulate_open_loop`): a continuous-time transfer function
+``B(s)/A(s) e^{-s tau}`` (the SRIVC structure of :mod:`agents.twin.srivc`) with effect
+blocks from the catalogue, and per record its start (:mod:`agents.twin.initial`): the rest
+level ``y0_k`` of the measured output and a constant plant-input bias ``b_k``, both
+measured and pinned for a record that shows its rest, both estimated for one that does
+not (the bias is then the rest input of that unobserved rest, SRIVC's ``u0_k`` in
+disguise, ``b_k = v_rest(y0_k) - u0_k``).
+
+The global parameters of a structure are the linear part ``b_0..b_m, a_1..a_{n-k}``, the
+input delay and the fitted parameters of each effect (:func:`fitted_parameters`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from agents.twin.fidelity import rmse
+from gbo_envs.physics.effects import EFFECT_NAMES, EFFECTS, build_effect
+from gbo_envs.physics.lti import ContinuousPlant
+
+if TYPE_CHECKING:  # annotations only: the data and the problems come later in the pipeline
+    from agents.twin.data import GreyData
+    from agents.twin.least_squares import Problem
+
+__all__ = ["FITTED_PARAMETERS", "VARIANT_PARAMETERS", "GreyFit", "ModelSpec", "effect_items", "effect_offset",
+           "fitted_parameters", "output_error", "residual_in_increments", "to_increments"]
+
+#: Effect parameters the grey-box fit estimates, and whether they are moved by the gradient
+#: iteration (``True``) or chosen on a grid (``False``). Other parameters keep their defaults.
+FITTED_PARAMETERS: dict[str, tuple[tuple[str, bool], ...]] = {
+    "time_delay": (("delay", True),),
+    "saturation": (("limit", True),),
+    "dead_zone": (("width", True),),
+    "coulomb_friction": (("torque", True),),
+    "viscous_friction": (("coefficient", True),),
+    "stiction": (("breakaway", True), ("threshold", True)),
+    "backlash": (("width", True),),
+    "quantization": (("step", False),),
+    "drift": (("rate", True),),
+    "offset": (("value", True),),
+    "cogging": (("amplitude", True), ("period", True), ("phase", True)),
+}
+
+
+#: Fitted parameters of an effect's variants (the pseudo-option ``variant`` of a structure's effect), where they
+#: differ from :data:`FITTED_PARAMETERS`: direction-dependent Coulomb friction fits its level and its asymmetry.
+VARIANT_PARAMETERS: dict[tuple[str, str], tuple[tuple[str, bool], ...]] = {
+    ("coulomb_friction", "asymmetric"): (("torque", True), ("asymmetry", True)),
+}
+
+
+def fitted_parameters(name: str, options=()) -> tuple[tuple[str, bool], ...]:
+    """``((parameter, smooth), ...)`` fitted for effect ``name`` with ``options`` (its ``variant``, if any).
+
+    ``smooth`` says whether the gradient iteration moves the parameter (``False``: chosen on a grid).
+    """
+    variant = dict(options).get("variant")
+    return FITTED_PARAMETERS[name] if variant is None else VARIANT_PARAMETERS[(name, variant)]
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """Structure of a grey-box model: transfer-function orders and effects (with fixed options).
+
+    ``effects`` is a tuple of ``(name, ((option, value), ...))`` in application order.
+    """
+
+    n_poles: int = 2
+    n_zeros: int = 0
+    n_integrators: int = 0
+    output: str = "speed"
+    effects: tuple = ()
+
+    def with_effect(self, name: str, options: Mapping | None = None) -> ModelSpec:
+        """This structure with one more effect (appended)."""
+        return ModelSpec(self.n_poles, self.n_zeros, self.n_integrators, self.output,
+                         self.effects + ((name, tuple(sorted((options or {}).items()))),))
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        """Names of the effects."""
+        return tuple(name for name, _ in self.effects)
+
+    @property
+    def label(self) -> str:
+        """Short description, e.g. ``"linear(2p0z)+saturation"``."""
+        base = f"linear({self.n_poles}p{self.n_zeros}z" + (f"{self.n_integrators}i" if self.n_integrators else "")
+        return base + ")" + "".join(f"+{name}" for name in self.effect_names)
+
+    @property
+    def n_linear(self) -> int:
+        """Linear parameters ``b_0..b_m, a_1..a_{n-k}``."""
+        return self.n_zeros + 1 + self.n_poles - self.n_integrators
+
+    def global_names(self) -> list[str]:
+        """Names of the global parameters (before the per-record rest levels and biases)."""
+        names = [f"b{j}" for j in range(self.n_zeros + 1)]
+        names += [f"a{i}" for i in range(1, self.n_poles - self.n_integrators + 1)]
+        names.append("delay")
+        for i, (name, options) in enumerate(self.effects):
+            names += [f"{name}.{p}" if self.effect_names.count(name) == 1 else f"{name}[{i}].{p}"
+                      for p, _ in fitted_parameters(name, options)]
+        return names
+
+    def smooth_mask(self) -> np.ndarray:
+        """Which global parameters the gradient iteration moves (grid parameters excluded)."""
+        flags = [True] * (self.n_linear + 1)
+        for name, options in self.effects:
+            flags += [smooth for _, smooth in fitted_parameters(name, options)]
+        return np.array(flags)
+
+    def plant(self, theta: np.ndarray) -> ContinuousPlant:
+        """Linear plant of the global parameters ``theta``."""
+        nb = self.n_zeros + 1
+        num = tuple(theta[:nb])
+        den = (1.0, *theta[nb : self.n_linear], *([0.0] * self.n_integrators))
+        return ContinuousPlant(num=num, den=den, delay=max(float(theta[self.n_linear]), 0.0), output=self.output)
+
+    def effect_params(self, theta: np.ndarray) -> list[tuple[str, dict]]:
+        """``[(name, {parameter: value, option: value})]`` of the global parameters ``theta``."""
+        out, pos = [], self.n_linear + 1
+        for name, options in self.effects:
+            params = dict(options)
+            for p, _ in fitted_parameters(name, options):
+                params[p] = float(theta[pos])
+                pos += 1
+            out.append((name, params))
+        return out
+
+    def blocks(self, theta: np.ndarray) -> tuple:
+        """Effect blocks of the global parameters ``theta``."""
+        return tuple(build_effect(name, _valid(name, params)) for name, params in self.effect_params(theta))
+
+
+def _valid(name: str, params: dict) -> dict:
+    """Clip fitted values into the block's allowed ranges (the iteration may touch a bound); the pseudo-option
+    ``variant`` (which parameters are fitted) is not the block's."""
+    out = {key: value for key, value in params.items() if key != "variant"}
+    for spec in EFFECTS[name].parameters:
+        if spec.name in out and not isinstance(out[spec.name], str):
+            out[spec.name] = float(np.clip(out[spec.name], spec.low, spec.high))
+    return out
+
+
+def residual_in_increments(spec: ModelSpec) -> bool:
+    """Whether the fit of ``spec`` takes the simulation error on the output's increments: a position output."""
+    return spec.output == "position"
+
+
+def to_increments(err: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``err`` (records by samples, 0 on padding) replaced in place by its first sample and its increments."""
+    err[:, 1:] -= err[:, :-1].copy()
+    err[~mask] = 0.0
+    return err
+
+
+def output_error(y: np.ndarray, y_sim: np.ndarray, mask: np.ndarray, spec: ModelSpec) -> np.ndarray:
+    """Measured minus simulated output, 0 on padding; on the increments for a position output
+    (:func:`residual_in_increments`): the error every RMSE of a grey-box fit is taken on."""
+    err = np.where(mask, y - y_sim, 0.0)
+    return to_increments(err, mask) if residual_in_increments(spec) else err
+
+
+@dataclass(frozen=True, eq=False)
+class GreyFit:
+    """A fitted grey-box model.
+
+    Attributes
+    ----------
+    spec : ModelSpec
+    theta : ndarray
+        Global parameters (``spec.global_names()``).
+    plant : ContinuousPlant
+        Linear part with its delay (without the ``time_delay`` effect).
+    blocks : tuple of EffectBlock
+        Fitted effect blocks.
+    y0, bias : ndarray of shape (n_records,)
+        Rest level of the measured output and plant-input bias of each record.
+    y_sim : ndarray of shape (n_records, n_steps)
+        Simulated measurement.
+    rmse : float
+        Root-mean-square simulation error over all real samples, units of ``y``; for a position
+        output, of its increments (:func:`output_error`).
+    """
+
+    spec: ModelSpec
+    theta: np.ndarray
+    plant: ContinuousPlant
+    blocks: tuple
+    y0: np.ndarray
+    bias: np.ndarray
+    y_sim: np.ndarray
+    rmse: float
+
+    @classmethod
+    def from_problem(cls, data: GreyData, p: Problem) -> GreyFit:
+        """Collect a solved :class:`Problem` (its records must be ``data``'s)."""
+        g, k = p.n_global, p.rows.size
+        y, mask = (data.y, data.mask) if data.is_all(p.rows) else (data.y[p.rows], data.mask[p.rows])  # no copies
+        return cls(p.spec, p.theta[:g].copy(), p.spec.plant(p.theta[:g]), p.spec.blocks(p.theta[:g]),
+                   p.theta[g : g + k].copy(), p.theta[g + k :].copy(), p.y_sim,
+                   rmse(output_error(y, p.y_sim, mask, p.spec), mask=mask))
+
+    @property
+    def effect_params(self) -> dict[str, dict]:
+        """``{effect: {parameter: value}}`` of the fitted effects."""
+        return {name: params for name, params in self.spec.effect_params(self.theta)}
+
+    @property
+    def n_params(self) -> int:
+        """Global parameters (the complexity of the model; rest levels are not counted)."""
+        return int(self.theta.size)
+
+
+def effect_offset(spec: ModelSpec, name: str) -> int:
+    """Position of effect ``name``'s first fitted parameter among ``spec``'s effect parameters (0-based).
+
+    Raises
+    ------
+    KeyError
+        ``name`` is not an effect of ``spec``.
+    """
+    pos = 0
+    for effect, options in spec.effects:
+        if effect == name:
+            return pos
+        pos += len(fitted_parameters(effect, options))
+    raise KeyError(name)
+
+
+def effect_items(effects) -> list[tuple[str, dict]]:
+    """``[(name, {parameter: value})]`` of effects given as names, a comma-separated string or ``{name: values}``.
+
+    Raises
+    ------
+    ValueError
+        An effect outside the catalogue :data:`gbo_envs.physics.EFFECT_NAMES`.
+    """
+    if effects is None:
+        return []
+    if isinstance(effects, str):
+        effects = [e for e in effects.split(",") if e.strip()]
+    items = effects.items() if isinstance(effects, Mapping) else [
+        (e, {}) if isinstance(e, str) else (e[0], dict(e[1] or {})) for e in effects]
+    out = []
+    for name, given in items:
+        name = name.strip()
+        if name not in EFFECTS:
+            raise ValueError(f"unknown effect {name!r}; the catalogue is {EFFECT_NAMES}")
+        out.append((name, dict(given or {})))
+    return out

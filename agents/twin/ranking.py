@@ -1,0 +1,322 @@
+"""Rank the candidates: held-out error over experiments, a BIC penalty, and the rules a physicist would sign.
+
+The pipeline's fifth stage (records, linear fit, candidates, fits, **ranking**, report).
+:func:`heldout_rss` cross-validates every fit over experiments; :func:`rank` turns the
+held-out errors into the ranking
+
+.. math:: \\mathrm{BIC} = n \\log(\\mathrm{RSS}_{cv} / n) + k \\log n
+
+(``delta_bic`` against the current model) and picks the best candidate with the rules of
+:func:`rank`: beyond the BIC margin, a held-out gain, a gain the measurement resolves and an
+effect that itself matters; and an effect that explains a large share of the residual power
+is not beaten by one that explains little, unless the held-out error says so clearly.
+"""
+
+from __future__ import annotations
+
+import numbers
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from agents.jsonable import jsonable
+from agents.thread_limits import single_thread
+from agents.twin.candidates import refit_problem
+from agents.twin.data import GreyData
+from agents.twin.evidence import REVEALING_EXPERIMENTS, effect_evidence, separating_experiment
+from agents.twin.fidelity import rmse
+from agents.twin.least_squares import Problem, fit_problems
+from agents.twin.model import FITTED_PARAMETERS, GreyFit, effect_offset, fitted_parameters, output_error
+from agents.twin.noise_floor import NoiseFloor
+from agents.twin.simulation import simulate_sets
+from agents.twin.uncertainty import parameter_intervals
+from gbo_envs.physics.effects import EFFECTS, describe_effect
+
+__all__ = ["CLEAR_HELDOUT_GAIN", "DEFAULT_FOLDS", "NUISANCE_REFIT_ITER", "Ranking", "effect_intervals", "effect_size",
+           "heldout_rss", "rank", "validated_folds"]
+
+#: Folds of the cross-validation over experiments when none are given (fewer with fewer experiments).
+DEFAULT_FOLDS = 4
+#: Trial points of the refit of a fold's rest levels and biases with an effect parameter put back at its
+#: full-data value (:func:`_keep_undetermined`).
+NUISANCE_REFIT_ITER = 6
+
+
+def validated_folds(n_folds, n_records: int) -> int:
+    """``n_folds`` checked against the data (``None``: 4, or one fold per experiment when there are fewer)."""
+    if n_folds is None:
+        return min(DEFAULT_FOLDS, max(n_records, 2))
+    if isinstance(n_folds, bool) or not isinstance(n_folds, numbers.Integral):
+        raise TypeError(f"n_folds: expected an integer from 2 to the number of experiments ({n_records}), "
+                        f"got {n_folds!r}")
+    if not 2 <= n_folds <= max(n_records, 2) or n_records < 2:
+        what = ("one experiment has nothing to hold out; leave the folds at their default" if n_records < 2 else
+                f"must be from 2 to the number of experiments ({n_records})")
+        raise ValueError(f"n_folds (--folds): {what}, got {n_folds}")
+    return int(n_folds)
+
+
+def _folds(data: GreyData, n_folds: int) -> list[np.ndarray]:
+    order = np.argsort(data.index, kind="stable")
+    k = min(n_folds, data.n_records)
+    return [order[i::k] for i in range(k)]
+
+
+def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_iter: int = 6) -> np.ndarray:
+    """Held-out residual sum of squares of each model, cross-validated over experiments.
+
+    Each fold's experiments are left out, every model is refitted on the others
+    (from its full-data fit), and its global parameters are then applied to the
+    left-out experiments with only their rest levels and biases fitted. An effect
+    parameter that the fold's experiments do not determine keeps its full-data value
+    (:func:`_keep_undetermined`).
+
+    Returns
+    -------
+    ndarray of shape (n_models,)
+    """
+    folds = _folds(data, n_folds)
+    train = []
+    for m, fit in enumerate(fits):
+        for f, test in enumerate(folds):
+            rows = np.setdiff1d(np.arange(data.n_records), test)
+            train.append(refit_problem(data, fit, rows, True, tag=(m, f)))
+    fit_problems(data, train, max_iter=max_iter)
+    _keep_undetermined(data, train, fits)
+    tests = []
+    for p in train:
+        m, f = p.tag
+        test = folds[f]
+        fit = fits[m]
+        tests.append(refit_problem(data, fit, test, False, theta=p.theta[: p.n_global], tag=(m, f)))
+    fit_problems(data, tests, max_iter=4)
+    rss = np.zeros(len(fits))
+    for p in tests:
+        rss[p.tag[0]] += p.cost
+    return rss
+
+
+def _keep_undetermined(data: GreyData, train: list[Problem], fits: Sequence[GreyFit]) -> None:
+    """Put back the full-data value of every effect parameter that a fold's refit moved without cause.
+
+    A parameter the fold's experiments do not excite (a drive limit that no command of
+    theirs reaches) has no gradient there, yet the refit may move it along its flat
+    direction (the forward-difference steps); the left-out experiment that does show it
+    would then be predicted with an arbitrary value (on DCMotor-v0 with a 138-unit limit
+    reached in one of five experiments, the fold without it moved the limit to 134.9, just
+    above its largest command: a held-out error 700 times the fit's, and a wrong effect
+    credited instead). A parameter is put back when its full-data value, with the fold's
+    rest levels and biases fitted again (:data:`NUISANCE_REFIT_ITER` trial points), leaves
+    the fold's training cost unchanged (relative ``1e-9``): the fold's data cannot tell the
+    two values apart. The rest levels and biases take part because they can absorb an
+    effect the fold's experiments do not show in full: a dead zone of width ``w`` that
+    the commands only cross shifts each record's input by ``w / 2`` away from the band, which
+    the input biases absorb, so the width and the biases are flat only together (on
+    DCMotor-v0 with a 20-unit dead zone, a fold moved the width to 10.9 at a training cost
+    lower by 5e-10 relative, and its held-out error was 30 times the fit's). Changes ``train``
+    in place (``theta`` and ``cost``).
+    """
+    trials, owners = [], []
+    for i, p in enumerate(train):
+        full = fits[p.tag[0]].theta
+        for j in range(p.spec.n_linear + 1, p.n_global):
+            if p.theta[j] != full[j]:
+                theta = p.theta.copy()
+                theta[j] = full[j]
+                free = p.free.copy()
+                free[: p.n_global] = False  # the rest levels and biases only
+                trials.append(replace(p, theta=theta, free=free))
+                owners.append(i)
+    if not trials:
+        return
+    fit_problems(data, trials, max_iter=NUISANCE_REFIT_ITER)
+    changed = {}
+    for trial, i in zip(trials, owners):
+        if trial.cost <= train[i].cost * (1.0 + 1e-9):
+            changed.setdefault(i, []).append(trial)
+    for i, kept in changed.items():
+        p = train[i]
+        for trial in kept:  # each put-back parameter, with the rest levels and biases of its own refit
+            p.theta[: p.n_global] = np.where(trial.theta[: p.n_global] != p.theta[: p.n_global],
+                                             trial.theta[: p.n_global], p.theta[: p.n_global])
+        p.theta[p.n_global :] = min(kept, key=lambda t: t.cost).theta[p.n_global :]
+    if changed:
+        fit_problems(data, [train[i] for i in sorted(changed)], max_iter=0)  # their costs at the kept values
+
+
+def effect_intervals(data: GreyData, fit: GreyFit, name: str, level: float = 0.95) -> dict[str, dict]:
+    """Value, standard error, ``level`` confidence interval and unit of each fitted parameter of effect ``name``.
+
+    From :func:`agents.twin.uncertainty.parameter_intervals`; the unit is the catalogue's
+    (:func:`gbo_envs.physics.describe_effect`, e.g. ``"input units"``). A parameter chosen on
+    a grid (the quantization step) has ``std`` ``None``.
+
+    Returns
+    -------
+    dict
+        ``{parameter: {"value", "std", "low", "high", "unit"}}`` (JSON-ready: ``None`` for NaN).
+    """
+    intervals = parameter_intervals(data, fit, level)
+    units = {p.name: p.unit for p in describe_effect(name)}
+    out = {}
+    for param, value in fit.effect_params.get(name, {}).items():
+        if isinstance(value, str):
+            continue
+        ci = intervals.get(f"{name}.{param}", {"value": value, "std": None, "low": None, "high": None})
+        out[param] = {**jsonable(ci, finite=True), "unit": units.get(param, "")}
+    return out
+
+
+@single_thread()
+def effect_size(data: GreyData, fit: GreyFit) -> float:
+    """RMS change of the output when the last effect of ``fit`` is switched off (its magnitude at zero).
+
+    The plant output before the sensor blocks, or the measurement for a sensor effect.
+    """
+    name = fit.spec.effect_names[-1]
+    theta0 = fit.theta.copy()
+    fitted = fitted_parameters(name, fit.spec.effects[-1][1])
+    pos = fit.spec.n_linear + 1 + effect_offset(fit.spec, name) if fit.spec.effect_names.count(name) == 1 else \
+        fit.theta.size - len(fitted)
+    cls = EFFECTS[name]
+    for j, (pname, _) in enumerate(fitted):
+        if pname == cls.magnitude_param:
+            theta0[pos + j] = next(p.zero for p in cls.parameters if p.name == pname)
+    rows = np.arange(data.n_records)
+    sims = simulate_sets(data, [(fit.spec, np.concatenate([th, fit.y0, fit.bias]), rows) for th in (fit.theta, theta0)],
+                         true_output=cls.side != "sensor")  # a sensor effect only shows in the measurement
+    size = rmse(output_error(sims[0], sims[1], data.mask, fit.spec), mask=data.mask)  # in the fit's error
+    return size if np.isfinite(size) else 0.0
+
+
+#: A candidate that explains a much larger share of the residual power (see :func:`rank`) is put first
+#: unless the other's held-out RMSE is lower by at least this fraction.
+CLEAR_HELDOUT_GAIN = 0.05
+#: Shares of the residual power (training) that count as "much larger": at least this many percentage
+#: points more, and at least :data:`SHARE_RATIO` times the other's.
+SHARE_POINTS = 10.0
+SHARE_RATIO = 1.5
+
+
+@dataclass(frozen=True)
+class Ranking:
+    """The ranked candidates of a diagnosis (:func:`rank`).
+
+    Attributes
+    ----------
+    candidates : list of dict
+        Per candidate, best first: ``effect, rmse`` (held-out), ``delta_bic, params, evidence,
+        train_rmse, share`` (% of the current model's residual power the candidate's fit
+        explains), ``extra_params, effect_rms, fitted, intervals`` and ``note`` where the data
+        cannot show the effect.
+    best : str or None
+        The candidate the rules select.
+    heldout_rmse : float
+        The current model's held-out RMSE, units of ``y``.
+    validation : str
+        How the held-out error was taken.
+    indistinguishable : list of [str, str]
+        Pairs the data cannot tell apart.
+    suggested_experiment : str or None
+    """
+
+    candidates: list
+    best: str | None
+    heldout_rmse: float
+    validation: str
+    indistinguishable: list
+    suggested_experiment: str | None
+
+
+def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_folds: int,
+         bic_margin: float = 10.0, min_gain: float = 0.02, noise_gain: float = 0.05, progress=None) -> Ranking:
+    """Rank the candidate ``fits`` against ``current`` and select the best; see :func:`agents.twin.diagnose.diagnose`.
+
+    Rules, in order: a candidate is *good* when its ``delta_bic < -bic_margin``, its held-out
+    RMSE is below ``(1 - min_gain)`` times the current model's and at least ``noise_gain``
+    times the noise floor below it, and its ``effect_rms`` is at least a fifth of the RMS it
+    explains. The good candidates are ordered by ``delta_bic``; then a candidate whose fit
+    explains a much larger share of the residual power (:data:`SHARE_POINTS`, :data:`SHARE_RATIO`)
+    moves ahead of one that explains little, unless the latter's held-out RMSE is lower by
+    :data:`CLEAR_HELDOUT_GAIN`: the held-out error of a few experiments is itself uncertain,
+    and a small effect that wins by a hair is not the physics that the residual shows.
+    """
+    order = list(fits)
+    models = [current] + [fits[name] for name in order]
+    n = data.n_samples
+    if progress is not None:
+        progress.set_postfix_str("cross-validation over experiments")
+    if data.n_records >= 2:
+        rss = heldout_rss(data, models, n_folds=n_folds)
+        validation = f"held-out: {min(n_folds, data.n_records)}-fold cross-validation over experiments"
+    else:
+        rss = np.array([m.rmse**2 * n for m in models])
+        validation = "training error (one experiment: nothing to hold out)"
+    bic = n * np.log(np.maximum(rss, 1e-300) / n) + np.array([m.n_params for m in models]) * np.log(n)
+    cands = []
+    for i, name in enumerate(order, start=1):
+        fit = fits[name]
+        entry = {"effect": name, "rmse": float(np.sqrt(rss[i] / n)), "delta_bic": float(bic[i] - bic[0]),
+                 "params": jsonable(fit.effect_params.get(name, {}), finite=True) if name in fit.effect_params else {},
+                 "evidence": effect_evidence(name, data, current, fit), "train_rmse": float(fit.rmse),
+                 "share": _share(current, fit), "extra_params": int(fit.n_params - current.n_params),
+                 "effect_rms": effect_size(data, fit), "fitted": True, "intervals": effect_intervals(data, fit, name)}
+        if name in plan.notes:
+            entry["note"] = plan.notes[name]
+        cands.append(entry)
+    cur_rmse = float(np.sqrt(rss[0] / n))
+    for name in plan.skipped:  # not fitted: absorbed by the rest levels, so its fit is the current model's
+        extra = len(FITTED_PARAMETERS[name])
+        cands.append({"effect": name, "rmse": cur_rmse, "delta_bic": float(extra * np.log(n)), "params": {},
+                      "evidence": f"not fitted: {plan.notes[name]}", "train_rmse": float(current.rmse), "share": 0.0,
+                      "extra_params": extra, "effect_rms": 0.0, "note": plan.notes[name], "fitted": False})
+    cands.sort(key=lambda c: c["delta_bic"])
+    floor = noise.rmse
+    good = [c for c in cands if c["delta_bic"] < -bic_margin and c["rmse"] < (1.0 - min_gain) * cur_rmse
+            and (floor is None or cur_rmse - c["rmse"] >= noise_gain * floor)
+            and c["effect_rms"] >= 0.2 * np.sqrt(max(current.rmse**2 - c["train_rmse"] ** 2, 0.0))]
+    good = _by_share(good)
+    cands = good + [c for c in cands if c not in good]
+    best = good[0]["effect"] if good else None
+    pairs = []
+    for i, a in enumerate(good):
+        for b in good[i + 1 :]:
+            if abs(a["delta_bic"] - b["delta_bic"]) < max(bic_margin, 0.002 * abs(a["delta_bic"])) and \
+                    abs(a["rmse"] - b["rmse"]) < 0.01 * a["rmse"]:
+                pairs.append([a["effect"], b["effect"]])
+    suggestion = separating_experiment(*pairs[0]) if pairs else None
+    # effects the data cannot show for the same reason cannot be told apart either (e.g. every friction
+    # law without a speed reversal is a constant load); the experiment that shows them comes first
+    blind = [u["effect"] for u in plan.unobservable]
+    blind_pairs = [[a, b] for i, a in enumerate(blind) for b in blind[i + 1 :] if plan.notes[a] == plan.notes[b]]
+    if blind_pairs and suggestion is None:
+        suggestion = REVEALING_EXPERIMENTS.get(blind_pairs[0][0], separating_experiment(*blind_pairs[0]))
+    return Ranking(cands, best, cur_rmse, validation, pairs + blind_pairs, suggestion)
+
+
+def _share(current: GreyFit, fit: GreyFit) -> float:
+    """Share of the current model's residual power (its training RMSE squared) that ``fit`` explains, in %."""
+    return float(100.0 * max(0.0, 1.0 - fit.rmse**2 / max(current.rmse**2, 1e-300)))
+
+
+def _by_share(good: list[dict]) -> list[dict]:
+    """``good`` (ordered by ``delta_bic``) with each candidate moved ahead of those it clearly out-explains.
+
+    ``b`` goes before ``a`` when ``b`` explains at least :data:`SHARE_POINTS` percentage points and
+    :data:`SHARE_RATIO` times more of the residual power, unless ``a``'s held-out RMSE is lower than
+    ``b``'s by :data:`CLEAR_HELDOUT_GAIN`. An insertion that keeps ``delta_bic`` order otherwise.
+    """
+    out: list[dict] = []
+    for b in good:
+        pos = len(out)
+        while pos > 0:
+            a = out[pos - 1]
+            explains_more = b["share"] >= a["share"] + SHARE_POINTS and b["share"] >= SHARE_RATIO * a["share"]
+            clearly_better = a["rmse"] < (1.0 - CLEAR_HELDOUT_GAIN) * b["rmse"]
+            if explains_more and not clearly_better:
+                pos -= 1
+            else:
+                break
+        out.insert(pos, b)
+    return out
