@@ -51,6 +51,11 @@ def add_parser(subparsers) -> None:
                        help="poles at s = 0 (default 0; 1 for a position loop)")
         p.add_argument("--output", choices=("speed", "position"), default="speed",
                        help="what y measures (friction acts on y or on dy/dt; default speed)")
+        p.add_argument("--initial", choices=("auto", "rest", "zero", "steady"), default="auto",
+                       help="how the experiments start: auto (default) detects it per experiment (at a rest the "
+                            "data show, pinned; from standstill with the drive just on; or at an unshown rest, "
+                            "estimated); rest: at the rest of the first sample; zero: at rest with u = 0 before "
+                            "the record; steady: estimate every rest level and rest input")
         p.add_argument("--y-unit", default=None, help="unit of y for the printout, e.g. rad/s (default: units of y)")
         p.add_argument("--u-unit", default=None, help="unit of u for the printout, e.g. V (default: input units)")
         p.add_argument("--quiet", action="store_true",
@@ -122,7 +127,7 @@ def _load(args):
     from agents.twin.model import ModelSpec
 
     records = read_csv(args.data)
-    data = GreyData.from_records(records)  # experiment index = the CSV's experiment id
+    data = GreyData.from_records(records, initial=args.initial)  # experiment index = the CSV's experiment id
     spec = ModelSpec(args.poles, args.zeros, args.integrators, args.output)
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
     return data, spec, effects
@@ -273,6 +278,8 @@ def _diagnose(args) -> int:
     noise = payload["noise_rmse"]
     print(f"model {payload['model']}: RMSE {payload['rmse']:.4g} {y}, fit {payload['fit_percent']:.2f} % "
           f"(fit to all data); held-out RMSE {payload['heldout_rmse']:.4g} {y}")
+    for line in data.initial.describe(data.numbers):
+        print(f"starts: {line}")
     print(f"{result.noise_label}: " + ("n/a" if noise is None else f"{noise:.4g} {y}"))
     print(f"ranking ({payload['validation']}):")
     print(f"{'effect':>18} {'held-out RMSE':>14} {'delta BIC':>12}  evidence")

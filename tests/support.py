@@ -90,3 +90,62 @@ def benchmark_module(monkeypatch, script: str, **paths):
         monkeypatch.setattr(module, name, value)
     return module
 
+
+
+#: A small servo measured as real rigs measure it (:func:`real_like_records`): the speed responds to the
+#: drive as ``K / (tau s + 1)`` with K = 100 rad/s per input unit and tau = 0.1 s.
+SERVO_PLANT = ContinuousPlant((1000.0,), (1.0, 10.0))
+
+
+def encoder_speed(speed: np.ndarray, dt: float, lines: int = 1024, window: int = 4,
+                  rng: np.random.Generator | None = None) -> np.ndarray:
+    """The speed an incremental encoder reports: whole counts of the shaft angle, differenced over ``window``.
+
+    The angle (rad) is the trapezoidal integral of ``speed`` (rad/s) from a random phase of the code disc;
+    the reported speed is ``(c[k] - c[k - window]) 2 pi / (lines window dt)``, so it moves in steps of
+    that quantum and lags by about ``window / 2`` samples. At rest it reads 0.
+    """
+    rng = np.random.default_rng(0) if rng is None else rng
+    increment = 2.0 * np.pi / lines
+    angle = np.concatenate([[0.0], np.cumsum(0.5 * dt * (speed[1:] + speed[:-1]))]) + rng.uniform(0.0, increment)
+    counts = np.floor(angle / increment)
+    measured = np.zeros_like(speed)
+    measured[window:] = (counts[window:] - counts[:-window]) * increment / (window * dt)
+    return measured
+
+
+def real_like_records(effects=None, *, n_records: int = 6, duration: float = 2.0, dt: float = 1e-3,
+                      quiet: float = 0.1, levels=(0.3, 0.6), lines: int = 1024, window: int = 4, seed: int = 0,
+                      plant: ContinuousPlant = SERVO_PLANT) -> list:
+    """Open-loop records as a real servo rig produces them, with known hidden ``effects``.
+
+    Each record starts at rest (``u = 0``, ``y = 0`` for ``quiet`` s), then holds two input levels
+    (the first, then the second from the middle of the record), each drawn within +-15 % of
+    ``levels``; the records alternate in sign, so the motor runs both ways. The speed comes from
+    an incremental encoder (:func:`encoder_speed`: quantum ``2 pi / (lines window dt)`` rad/s).
+    ``r`` equals ``u`` (no controller). Sampled every ``dt`` s.
+
+    Returns
+    -------
+    list of gbo_envs.Experiment
+        Indexed from 0.
+    """
+    from agents.twin.open_loop import simulate_open_loop
+    from gbo_envs import Experiment
+    from gbo_envs.physics.effects import build_effects
+
+    rng = np.random.default_rng(seed)
+    n = int(round(duration / dt)) + 1
+    t = np.arange(n) * dt
+    blocks = build_effects(effects or {})
+    records = []
+    for k in range(n_records):
+        sign = 1.0 if k % 2 == 0 else -1.0
+        u = np.zeros(n)
+        first, second = (lvl * rng.uniform(0.85, 1.15) for lvl in levels)
+        u[int(round(quiet / dt)):] = sign * first
+        u[n // 2:] = sign * second
+        speed = simulate_open_loop(plant, u[None], dt, blocks, y0=0.0, bias=0.0).y_true[0]
+        y = encoder_speed(speed, dt, lines, window, rng)
+        records.append(Experiment(gains=(), t=t, r=u.copy(), u=u, y=y, index=k))
+    return records

@@ -3,8 +3,9 @@
 Format (docs/design.md, "Workbench CSV"): a header with at least
 ``experiment,t,r,u,y``, one row per sample: experiment number (integer, counted
 from 1 as everywhere a person reads it: the record's 0-based ``index`` plus 1), time since
-the step in s (increasing and uniformly spaced within an experiment),
-reference, commanded plant input, measured output. Optional columns, constant
+the record's start in s (increasing and uniformly spaced within an experiment),
+reference, commanded plant input, measured output. Open-loop data (no controller)
+may leave out ``r``: it is then the input ``u`` itself. Optional columns, constant
 within an experiment: the gains (``gain0, gain1, ...`` or named, e.g.
 ``Kp,Ki``), ``source`` (``plant`` or ``twin``) and ``cost``; other columns are
 allowed and ignored. :func:`write_csv` writes ``experiment,t,r,u,y``, the gain
@@ -26,8 +27,10 @@ from gbo_envs.experiment import SIGNALS, SOURCES, Experiment, RecordError, valid
 
 __all__ = ["REQUIRED_COLUMNS", "UNIFORM_RTOL_CSV", "read_csv", "records_from_env", "records_from_loop", "write_csv"]
 
-#: Columns every workbench CSV must have.
+#: Columns every workbench CSV must have (``r`` may be left out for open-loop data: it is then ``u``).
 REQUIRED_COLUMNS = ("experiment", *SIGNALS)
+#: Required columns that may be missing, and the column that stands in for each.
+STAND_INS = {"r": "u"}
 #: Largest relative deviation of a sample step from the median step within an experiment of a CSV.
 UNIFORM_RTOL_CSV = 1e-3
 _MIN_SAMPLES = 3
@@ -92,23 +95,26 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
             raise ValueError(f"{path}: the file is empty; expected a header {','.join(REQUIRED_COLUMNS)}") from exc
     raw_names = {str(c).strip(): c for c in header}
     columns = list(raw_names)
-    missing = [c for c in REQUIRED_COLUMNS if c not in columns]
+    absent = {c: other for c, other in STAND_INS.items() if c not in columns}  # open loop without r: r = u
+    missing = [c for c in REQUIRED_COLUMNS if c not in columns and c not in absent]
     if gain_names is not None:
         missing += [c for c in gain_names if c not in columns]
     if missing:
         raise ValueError(f"{path}, row 1 (header): missing column(s) {missing}; the header must contain "
-                         f"{','.join(REQUIRED_COLUMNS)} (found {columns})")
+                         f"{','.join(REQUIRED_COLUMNS)} (found {columns}; r may be left out for open-loop data)")
     if gain_names is None:
         gain_names = []
         while f"gain{len(gain_names)}" in columns:
             gain_names.append(f"gain{len(gain_names)}")
-    numeric = {column: False for column in (*REQUIRED_COLUMNS, *gain_names)}
+    numeric = {column: False for column in (*REQUIRED_COLUMNS, *gain_names) if column not in absent}
     if "cost" in columns:
         numeric["cost"] = True  # missing values allowed
     with _parse_errors(path):
         values, source_codes, source_names = _read_columns(path, raw_names, numeric, "source" in columns, options)
     if values["experiment"].size == 0:
         raise ValueError(f"{path}: no data rows after the header")
+    for column, other in absent.items():
+        values[column] = values[other]
     costs = values.pop("cost", None)
     exp = values.pop("experiment")
     not_int = np.flatnonzero(exp != np.round(exp))
