@@ -9,7 +9,7 @@ from agents.twin.model import GreyFit
 from agents.twin.noise_floor import quantization_step
 from gbo_envs.physics.effects import EFFECT_NAMES
 
-__all__ = ["data_scales", "effect_starts", "quantization_scan", "rest_command"]
+__all__ = ["data_scales", "effect_starts", "quantization_scan", "rest_command", "standstill_input"]
 
 
 def data_scales(data: GreyData, output: str = "speed") -> dict[str, float]:
@@ -55,18 +55,24 @@ def effect_starts(name: str, data: GreyData, base: GreyFit, with_starts: bool = 
         if grid.size == 0:
             grid = np.array([0.5 * (lo + u_max)]) if u_max > lo else np.array([1.001 * lo])
         return [np.array([g]) for g in grid], np.array([lo]), np.array([1.05 * u_max]), np.array([us])
+    held = standstill_input(data, base.spec.output) if with_starts else None  # the drive a body at rest withstood
     if name in ("dead_zone", "backlash"):
-        return [np.array([f * us]) for f in fractions], np.array([0.0]), np.array([2 * us]), np.array([us])
+        starts = [np.array([f * us]) for f in fractions]
+        if held is not None and name == "dead_zone":
+            starts.append(np.array([min(2.0 * held, 2.0 * us)]))
+        return starts, np.array([0.0]), np.array([2 * us]), np.array([us])
     if name == "coulomb_friction":
+        levels = [f * us for f in fractions[:-1]] + ([min(held, us)] if held is not None else [])
         if dict(options or {}).get("variant") == "asymmetric":  # the level, and its asymmetry in [-1, 1]
-            return [np.array([f * us, 0.0]) for f in fractions[:-1]], np.array([0.0, -0.95]), \
+            return [np.array([level, 0.0]) for level in levels], np.array([0.0, -0.95]), \
                 np.array([us, 0.95]), np.array([us, 0.3])
-        return [np.array([f * us]) for f in fractions[:-1]], np.array([0.0]), np.array([us]), np.array([us])
+        return [np.array([level]) for level in levels], np.array([0.0]), np.array([us]), np.array([us])
     if name == "viscous_friction":
         c = us / speed
         return [np.array([f * c]) for f in (0.01, 0.05, 0.2)], np.array([0.0]), np.array([2 * c]), np.array([c])
     if name == "stiction":
-        starts = [np.array([f * us, g * speed]) for f in (0.01, 0.05, 0.2) for g in (0.002, 0.02)]
+        levels = [f * us for f in (0.01, 0.05, 0.2)] + ([min(held, us)] if held is not None else [])
+        starts = [np.array([level, g * speed]) for level in levels for g in (0.002, 0.02)]
         return starts, np.array([0.0, 0.0]), np.array([us, 0.2 * speed]), np.array([us, 0.05 * speed])
     if name == "quantization":
         q, _ = quantization_step(data.y, data.mask)
@@ -131,6 +137,35 @@ def quantization_scan(data: GreyData, base: GreyFit, span: float, n_best: int = 
         i = int(np.argmin(cost))
         found.append((float(cost[i]), float(steps[i])))
     return [q for _, q in sorted(found)]
+
+
+def standstill_input(data: GreyData, output: str = "speed", hold: float = 0.02) -> float | None:
+    """The largest drive ``|u|`` that a body at rest withstood: held for a while without the speed leaving zero.
+
+    A sample counts when the speed (``y``, or ``dy/dt`` for a position) stays within its noise of zero
+    from it for ``max(3, hold * n)`` samples (``n`` the record's length); its ``|u|`` is a drive that
+    friction or a dead band held. The largest such drive is where breakaway lies (just above it):
+    the start of a stiction's breakaway, a Coulomb friction's level or half a dead zone's width.
+    ``None`` when the body is never held at rest under a drive.
+    """
+    speed = data.y if output != "position" else np.gradient(data.y, data.dt, axis=1)
+    best = None
+    for k in range(data.n_records):
+        n = int(data.mask[k].sum())
+        s, u = speed[k, :n], data.u[k, :n]
+        changes = np.abs(np.diff(s))
+        changes = changes[changes > 1e-9 * max(float(np.max(np.abs(s))), 1e-300)]
+        tol = 3.0 * (float(np.min(changes)) if changes.size else 0.0) + 1e-6 * max(float(np.ptp(s)), 1e-300)
+        still = np.abs(s) <= tol
+        m = max(3, int(hold * n))
+        if n <= m:
+            continue
+        window = np.convolve(still.astype(float), np.ones(m), mode="valid")[: n - m + 1] >= m  # still from k on
+        drives = np.abs(u[: n - m + 1])[window]
+        drives = drives[drives > 0.0]
+        if drives.size:
+            best = max(best or 0.0, float(drives.max()))
+    return best
 
 
 def rest_command(fit: GreyFit) -> np.ndarray:

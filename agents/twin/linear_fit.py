@@ -17,15 +17,18 @@ import numpy as np
 from agents.thread_limits import single_thread
 from agents.twin.data import GreyData
 from agents.twin.identify import LinearIdentification, identify_linear
-from agents.twin.least_squares import fit_problems, make_problem
+from agents.twin.least_squares import Problem, fit_problems, make_problem
 from agents.twin.model import GreyFit, ModelSpec, effect_offset
 
-__all__ = ["PROFILE_EFFECTS", "linear_fit", "profile"]
+__all__ = ["PROFILE_EFFECTS", "linear_fit", "profile", "step_start"]
 
 
 @single_thread()
 def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = True) -> GreyFit:
     """Base linear model: SRIVC with a delay of at most one sample, then refined by simulation error.
+
+    Where SRIVC diverges at every delay (data far from any linear model, e.g. a drive that does not
+    move below 60 % of its range), the simulation-error fit starts from :func:`step_start` instead.
 
     Parameters
     ----------
@@ -39,14 +42,47 @@ def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = Tru
     lengths = data.mask.sum(axis=1)  # real samples lead each row, padding follows (GreyData.from_records)
     records = [{"t": data.t[k, :m], "r": data.r[k, :m], "u": data.u[k, :m], "y": data.y[k, :m]}
                for k, m in enumerate(lengths)]  # views of the rows: no copy of the data
-    fit = identify_linear(records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
-                          max_delay=data.dt, refine_delay=False, rest_levels=data.initial.rest_levels)
-    theta = np.concatenate([fit.params, [fit.delay]])
-    y0, u0 = fit.rest_levels[:, 0], fit.rest_levels[:, 1]
-    v_rest = fit.plant(spec.output).discretize(data.dt).equilibrium(y0)[1]
-    problem = make_problem(data, spec, theta, y0, v_rest - u0, np.arange(data.n_records))
+    try:
+        fit = identify_linear(records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
+                              max_delay=data.dt, refine_delay=False, rest_levels=data.initial.rest_levels)
+    except RuntimeError:  # SRIVC diverged at every delay
+        problem = step_start(data, spec)
+    else:
+        theta = np.concatenate([fit.params, [fit.delay]])
+        y0, u0 = fit.rest_levels[:, 0], fit.rest_levels[:, 1]
+        v_rest = fit.plant(spec.output).discretize(data.dt).equilibrium(y0)[1]
+        problem = make_problem(data, spec, theta, y0, v_rest - u0, np.arange(data.n_records))
     fit_problems(data, [problem], max_iter=30 if refine else 0)  # the delay is refined here, in [0, dt]
     return GreyFit.from_problem(data, problem)
+
+
+def step_start(data: GreyData, spec: ModelSpec) -> Problem:
+    """A start for the linear part without SRIVC: ``n`` equal real poles and the records' static gain.
+
+    ``G(s) = K p^(n-k) / (s^k (s + p)^(n-k))`` (``k`` integrators, no zero): ``K`` is the least-squares
+    ratio of the output's change (for an integrating output, of its slope) to the input's change from
+    each record's first sample, and ``p`` the best of a geometric grid from 1 / T to 1000 / T (``T`` the
+    longest record, s) by simulation error, at rest levels from the records (pinned where the data show them).
+    """
+    y, u, mask = data.y, data.u, data.mask
+    rows = np.arange(data.n_records)
+    out = np.gradient(y, data.dt, axis=1) if spec.n_integrators else y - y[:, :1]
+    du = np.where(mask, u - u[:, :1], 0.0)
+    gain = float(np.sum(np.where(mask, out, 0.0) * du) / max(float(np.sum(du**2)), 1e-300)) or 1.0
+    span = float(mask.sum(axis=1).max() * data.dt)
+    free = spec.n_poles - spec.n_integrators
+    y0 = y[:, 0].copy()
+    best = None
+    for p in np.geomspace(1.0 / span, 1000.0 / span, 13):
+        den = np.poly(np.full(free, -p)) if free else np.array([1.0])
+        theta = np.concatenate([np.zeros(spec.n_zeros), [gain * p**free], den[1:], [0.0]])
+        plant = spec.plant(theta)
+        v_rest = plant.discretize(data.dt).equilibrium(y0)[1]
+        problem = make_problem(data, spec, theta, y0, v_rest - u[:, 0], rows)
+        fit_problems(data, [problem], max_iter=0)
+        if best is None or problem.cost < best.cost:
+            best = problem
+    return best
 
 
 #: Actuator effects whose starting value is found on the SRIVC profile: for a given effect parameter the

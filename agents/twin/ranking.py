@@ -235,8 +235,9 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
 
     Rules, in order: a candidate is *good* when its ``delta_bic < -bic_margin``, its held-out
     RMSE is below ``(1 - min_gain)`` times the current model's and at least ``noise_gain``
-    times the noise floor below it, and its ``effect_rms`` is at least a fifth of the RMS it
-    explains. The good candidates are ordered by ``delta_bic``; then a candidate whose fit
+    times the noise floor below it, its fit to all data is better than the current model's
+    (a candidate that fits worse cannot be the missing physics, whatever a few held-out
+    experiments say), and its ``effect_rms`` is at least a fifth of the RMS it explains. The good candidates are ordered by ``delta_bic``; then a candidate whose fit
     explains a much larger share of the residual power (:data:`SHARE_POINTS`, :data:`SHARE_RATIO`)
     moves ahead of one that explains little, unless the latter's held-out RMSE is lower by
     :data:`CLEAR_HELDOUT_GAIN`: the held-out error of a few experiments is itself uncertain,
@@ -275,6 +276,7 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
     floor = noise.rmse
     good = [c for c in cands if c["delta_bic"] < -bic_margin and c["rmse"] < (1.0 - min_gain) * cur_rmse
             and (floor is None or cur_rmse - c["rmse"] >= noise_gain * floor)
+            and c["train_rmse"] < current.rmse
             and c["effect_rms"] >= 0.2 * np.sqrt(max(current.rmse**2 - c["train_rmse"] ** 2, 0.0))]
     good = _by_share(good)
     cands = good + [c for c in cands if c not in good]
