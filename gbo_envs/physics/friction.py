@@ -28,13 +28,15 @@ _MAX = MAGNITUDE_LIMIT
 
 
 class CoulombFriction(EffectBlock):
-    """Coulomb (dry, kinetic) friction of constant level opposing the motion.
+    """Coulomb (dry, kinetic) friction of constant level opposing the motion, possibly unequal in the two directions.
 
-    ``f = torque * sign(speed)`` for ``speed != 0``; at ``speed == 0``
-    ``f = clip(u, -torque, torque)`` (friction balances a drive below the
-    level, so a body at rest stays at rest). With ``smoothing > 0`` the sign is
-    replaced by the ramp ``clip(speed / smoothing, -1, 1)`` (no chattering
-    around zero speed, but a body at rest creeps under any drive).
+    The level is ``torque (1 + asymmetry)`` for positive speed and ``torque (1 - asymmetry)``
+    for negative speed. ``f = level * sign(speed)`` for ``speed != 0``; at ``speed == 0``
+    ``f = clip(u, -torque (1 - asymmetry), torque (1 + asymmetry))`` (friction balances a
+    drive below the level, so a body at rest stays at rest: Karnopp). With
+    ``smoothing > 0`` the sign is replaced by the ramp ``clip(speed / smoothing, -1, 1)``
+    times the level of the speed's sign (no chattering around zero speed, but a body at
+    rest creeps under any drive).
 
     Parameters
     ----------
@@ -42,6 +44,9 @@ class CoulombFriction(EffectBlock):
         Friction level as an equivalent input, in input units, ``>= 0`` (0: none).
     smoothing : float, default 0.0
         Speed below which friction ramps linearly, in speed units, ``>= 0``.
+    asymmetry : float, default 0.0
+        Relative difference of the levels in the two directions, in ``[-1, 1]`` (0: equal;
+        0.2: 1.2 torque forwards, 0.8 torque backwards).
     """
 
     name = "coulomb_friction"
@@ -51,24 +56,34 @@ class CoulombFriction(EffectBlock):
                         "friction level as an equivalent input opposing the speed"),
         EffectParameter("smoothing", "speed units", 0.0, _MAX, 0.0, float("nan"),
                         "speed below which the friction ramps linearly (0: sign)"),
+        EffectParameter("asymmetry", "1", -1.0, 1.0, 0.0, float("nan"),
+                        "relative difference of the levels: torque (1 + a) forwards, torque (1 - a) backwards"),
     )
     magnitude_param = "torque"
 
-    def __init__(self, torque: float, smoothing: float = 0.0) -> None:
-        self._set_params(torque=torque, smoothing=smoothing)
+    def __init__(self, torque: float, smoothing: float = 0.0, asymmetry: float = 0.0) -> None:
+        self._set_params(torque=torque, smoothing=smoothing, asymmetry=asymmetry)
+
+    def _levels(self) -> tuple:
+        """Friction levels for positive and for negative speed, in input units."""
+        return self.torque * (1.0 + self.asymmetry), self.torque * (1.0 - self.asymmetry)
 
     def friction(self, u: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Friction ``f`` of shape (batch,) in input units for drive ``u`` at ``speed``."""
+        forwards, backwards = self._levels()
+        level = np.where(speed > 0.0, forwards, backwards)
         if self.smoothing > 0.0:
-            return self.torque * np.clip(speed / self.smoothing, -1.0, 1.0)
-        moving = self.torque * np.sign(speed)
-        held = np.minimum(np.maximum(u, -self.torque), self.torque)
+            return level * np.clip(speed / self.smoothing, -1.0, 1.0)
+        moving = level * np.sign(speed)
+        held = np.minimum(np.maximum(u, -backwards), forwards)
         return np.where(speed == 0.0, held, moving)
 
     def command_for(self, u_applied, speed):
         if self.smoothing > 0.0:
             return u_applied + self.friction(u_applied, speed)
-        return u_applied + self.torque * np.where(speed == 0.0, np.sign(u_applied), np.sign(speed))
+        forwards, backwards = self._levels()
+        direction = np.where(speed == 0.0, np.sign(u_applied), np.sign(speed))  # of the motion the drive holds
+        return u_applied + np.where(direction > 0.0, forwards, backwards) * direction
 
     def actuate(self, u, speed):
         return u - self.friction(u, speed)
