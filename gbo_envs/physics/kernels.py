@@ -365,7 +365,7 @@ def _measure(code, par, state, r, j, y, noise, k, column):
         if step == 0.0:
             return y
         if par[r, j, 1] != 0.0:
-            return step * math.floor(y / step)
+            return step * np.floor(y / step)
         return step * np.rint(y / step)
     if code == _POSITION_ENCODER:  # q round((y + nu) / q), nu ~ N(0, jitter^2)
         resolution = par[r, j, 0]
@@ -384,16 +384,16 @@ def _measure(code, par, state, r, j, y, noise, k, column):
                 past = angle - (2.0 * half_sample) * y * float(window - m)
                 if jitter != 0.0:
                     past = past + jitter * state[r, j, head + m]
-                state[r, j, head + m] = math.floor(past)
+                state[r, j, head + m] = np.floor(past)
             state[r, j, 2] = 0.0
         else:
             angle = state[r, j, 0] + half_sample * (y + state[r, j, 1])
         state[r, j, 0] = angle
         state[r, j, 1] = y
         if jitter != 0.0:
-            count = math.floor(angle + jitter * noise[k, column])
+            count = np.floor(angle + jitter * noise[k, column])
         else:
-            count = math.floor(angle)
+            count = np.floor(angle)
         slot = int(state[r, j, 2])
         speed = (count - state[r, j, head + slot]) * per_count
         state[r, j, head + slot] = count
@@ -576,16 +576,24 @@ def open_loop_kernel(orders, transition, c, speed, u, source, lags, u_rest, bias
             v_prev = v
 
 
-def warm_up() -> float:
-    """Compile both kernels (or load them from numba's cache) on a tiny problem; the seconds it took."""
+def warm_up(which: tuple[str, ...] = ("closed_loop", "open_loop")) -> float:
+    """Compile the kernels (or load them from numba's cache) on a tiny problem; the seconds it took.
+
+    Parameters
+    ----------
+    which : tuple of {"closed_loop", "open_loop"}
+        The kernels to compile.
+    """
     start = time.perf_counter()
     empty_blocks = (np.zeros((1, 1), dtype=np.int64), np.zeros((1, 1, N_PARAMS)), np.zeros((1, 1, 1)))
     one = np.ones(1)
-    closed_loop_kernel(np.eye(1), one, one, one, one, True, True, 0, 1.0, one, one, one, np.zeros((1, 1)), one,
-                       one, *empty_blocks, np.full((1, 1), -1, dtype=np.int64), *empty_blocks, np.zeros((2, 0)),
-                       np.zeros((0, 0)), np.empty((1, 2)), np.empty((1, 2)))
-    index = np.zeros(1, dtype=np.int64)
-    open_loop_kernel(np.ones(1, dtype=np.int64), np.ones((1, 1, 3)), np.ones((1, 1)), np.ones((1, 1)),
-                     np.ones((1, 2)), index, index, one, one, np.zeros((1, 1)), one, *empty_blocks, *empty_blocks,
-                     np.empty((1, 2)), np.empty((1, 2)), np.empty((1, 2)))
+    if "closed_loop" in which:
+        closed_loop_kernel(np.eye(1), one, one, one, one, True, True, 0, 1.0, one, one, one, np.zeros((1, 1)), one,
+                           one, *empty_blocks, np.full((1, 1), -1, dtype=np.int64), *empty_blocks, np.zeros((2, 0)),
+                           np.zeros((0, 0)), np.empty((1, 2)), np.empty((1, 2)))
+    if "open_loop" in which:
+        index = np.zeros(1, dtype=np.int64)
+        open_loop_kernel(np.ones(1, dtype=np.int64), np.ones((1, 1, 3)), np.ones((1, 1)), np.ones((1, 1)),
+                         np.ones((1, 2)), index, index, one, one, np.zeros((1, 1)), one, *empty_blocks, *empty_blocks,
+                         np.empty((1, 2)), np.empty((1, 2)), np.empty((1, 2)))
     return time.perf_counter() - start
