@@ -245,7 +245,7 @@ class ClosedLoop:
         return u0 + du, y, np.full(batch, u0)
 
     def _simulate_stepping(self, gains, noise, rng, draws=None, inputs=True):
-        """Sample-by-sample simulation through the effect blocks, vectorised over the batch.
+        """Sample-by-sample simulation through the effect blocks.
 
         At sample ``k``: the sensor blocks (and the noise) turn the plant output
         ``c x[k]`` into the measurement, the controller computes ``u[k]``, the
@@ -254,12 +254,17 @@ class ClosedLoop:
         mechanics when the command reaches them), and the exact ZOH model
         advances, ``x[k+1] = Phi x[k] + Gamma0 v[k] + Gamma1 v[k-1]``
         (:meth:`gbo_envs.physics.lti.ContinuousPlant.discretize`).
+
+        The start at rest is computed here; the stepping runs in the compiled kernel
+        (:func:`gbo_envs.physics.kernels.closed_loop_kernel`) when it knows every actuator
+        and sensor block, else in :meth:`_step_numpy` (the same operations, vectorised
+        over the batch), which gives the same numbers.
         """
         batch = gains.shape[0]
         plant = self._discrete
         n, dt, lag = self.n_steps, self.dt, plant.delay_steps
-        r2 = float(self.r2)
-        b0, b1, a1 = self.controller.coefficients(gains, dt)
+        b0, b1, a1 = (np.ascontiguousarray(np.broadcast_to(np.asarray(coef, dtype=float), (batch,)))
+                      for coef in self.controller.coefficients(gains, dt))
         actuators, sensors = self.actuator_effects, self.sensor_effects
 
         # start at rest: the measurement reads r1 (sensor blocks inverted), the plant rests there
@@ -277,23 +282,60 @@ class ClosedLoop:
         for block in reversed(actuators):
             u_prev = block.command_for(u_prev, speed0)
         u_start = np.array(u_prev, dtype=float, copy=True)
+        fractional = bool(np.any(plant.gamma1 != 0.0))
+        start = (np.ascontiguousarray(x.T), np.asarray(v_prev, dtype=float), u_start)
 
+        from gbo_envs.physics import kernels  # numba is imported on the first stepping simulation
+
+        packed_sensors = kernels.pack_blocks(((j, b, slice(None)) for j, b in enumerate(sensors)), batch, dt)
+        packed_actuators = kernels.pack_blocks(((j, b, slice(None)) for j, b in enumerate(actuators)), batch, dt)
+        if packed_sensors is not None and packed_actuators is not None:
+            sensor_noise = kernels.draw_sensor_noise(packed_sensors, sensors, rng, n, draws)
+            u_out, y_out = np.empty((batch, n)), np.empty((batch, n))
+            contiguous = np.ascontiguousarray
+            kernels.closed_loop_kernel(
+                contiguous(plant.phi), contiguous(plant.gamma0), contiguous(plant.gamma1), contiguous(plant.c),
+                contiguous(speed_row, dtype=float), fractional, speed_is_output, int(lag), float(self.r2), b0, b1, a1,
+                *start, packed_sensors.code, packed_sensors.params, packed_sensors.state, packed_sensors.noise,
+                packed_actuators.code, packed_actuators.params, packed_actuators.state, sensor_noise,
+                np.zeros((0, 0)) if noise is None else contiguous(noise, dtype=float), u_out, y_out)
+        else:
+            u_out, y_out = self._step_numpy(b0, b1, a1, start, speed_row, speed_is_output, fractional, noise)
+        if not inputs:  # the command's rows only say whether it stayed finite (see _finish)
+            return np.where(np.isfinite(u_out.sum(axis=1)), 0.0, np.nan)[:, None], y_out, u_start
+        return u_out, y_out, u_start
+
+    def _step_numpy(self, b0, b1, a1, start, speed_row, speed_is_output, fractional, noise):
+        """The stepping of :meth:`_simulate_stepping` in numpy, vectorised over the batch (blocks the kernel does
+        not know). Every sum is accumulated from left to right, as the compiled kernel does.
+
+        Returns ``(u, y)`` of shape (batch, n_steps).
+        """
+        plant = self._discrete
+        n, lag, r2 = self.n_steps, plant.delay_steps, float(self.r2)
+        actuators, sensors = self.actuator_effects, self.sensor_effects
+        x, v_prev, u_start = start
+        batch, order = x.shape
+        u_prev = u_start.copy()
         pending = np.empty((n + lag, batch))  # commands on their way through the input delay
         pending[:lag] = u_start
         u_rec = np.empty((n, batch))
         y_rec = np.empty((n, batch))
         noise_rows = None if noise is None else np.ascontiguousarray(noise.T)
-        # one matmul per sample: x[k+1] = [Phi Gamma0 Gamma1] [x[k]; v[k]; v[k-1]]
-        order, c = plant.order, plant.c
-        fractional = bool(np.any(plant.gamma1 != 0.0))
+        # batch last, elementwise: x[k+1] = sum_j [Phi Gamma0 Gamma1][:, j] [x[k]; v[k]; v[k-1]][j]
         columns = [plant.phi, plant.gamma0[:, None]] + ([plant.gamma1[:, None]] if fractional else [])
-        transition = np.hstack(columns)
+        transition = np.hstack(columns)[:, :, None]
         stacked = np.empty((transition.shape[1], batch))
-        stacked[:order] = x
-        x = stacked[:order]
+        stacked[:order] = x.T
+        if fractional:
+            stacked[order + 1] = v_prev
+        state = stacked[:order]
+        products = np.empty((order, transition.shape[1], batch))
+        c_col, speed_col = plant.c[:, None], np.asarray(speed_row, dtype=float)[:, None]
+        weighted = np.empty((order, batch))
         e_prev = np.zeros(batch)
         for k in range(n):
-            y_true = c @ x
+            y_true = np.add.reduce(np.multiply(c_col, state, out=weighted), axis=0)
             y_meas = y_true
             for block in sensors:
                 y_meas = block.measure(y_meas)
@@ -310,18 +352,15 @@ class ClosedLoop:
             else:
                 v = u
             if actuators:
-                speed = y_true if speed_is_output else speed_row @ x
+                speed = y_true if speed_is_output else np.add.reduce(np.multiply(speed_col, state, out=weighted),
+                                                                       axis=0)
                 for block in actuators:
                     v = block.actuate(v, speed)
             stacked[order] = v
+            np.add.reduce(np.multiply(transition, stacked, out=products), axis=1, out=state)
             if fractional:
-                stacked[order + 1] = v_prev
-            x = transition @ stacked
-            stacked[:order] = x
-            v_prev = v
-        if not inputs:  # the command's rows only say whether it stayed finite (see _finish)
-            return np.where(np.isfinite(u_rec.sum(axis=0)), 0.0, np.nan)[:, None], _transposed(y_rec), u_start
-        return _transposed(u_rec), _transposed(y_rec), u_start
+                stacked[order + 1] = v
+        return _transposed(u_rec), _transposed(y_rec)
 
     def _finish(self, u_out, y_out, u_start):
         """Flag diverged responses and clip them to finite values."""

@@ -152,20 +152,18 @@ def simulate_open_loop(
         continuous.append(p)
         discrete.append(cache[key])
     direct = np.array([all(b.side == "plant" or b.name in MEMORYLESS_EFFECTS for b in chain) for chain in chains])
-    if direct.all():
-        return _direct(continuous, discrete, chains, u, y0, bias)
-    if not direct.any():
-        return _stepping(continuous, discrete, chains, u, dt, y0, bias)
-    parts = {}
+    # both paths write their rows straight into the outputs (no copies of a part's results)
+    out = {"y": np.empty((batch, n)), "y_true": np.empty((batch, n)), "v": np.empty((batch, n)),
+           "u_rest": np.empty(batch), "v_rest": np.empty(batch)}
     for flag, fn in ((True, _direct), (False, _stepping)):
         rows = np.flatnonzero(direct == flag)
-        args = ([continuous[r] for r in rows], [discrete[r] for r in rows], [chains[r] for r in rows], u[rows])
-        parts[flag] = (rows, fn(*args, y0[rows], bias[rows]) if flag else fn(*args, dt, y0[rows], bias[rows]))
-    out = {name: np.empty((batch, n)) for name in ("y", "y_true", "v")}
-    out.update(u_rest=np.empty(batch), v_rest=np.empty(batch))
-    for rows, res in parts.values():
-        for name in out:
-            out[name][rows] = getattr(res, name)
+        if rows.size == 0:
+            continue
+        if rows.size < batch:
+            fn([continuous[r] for r in rows], [discrete[r] for r in rows], [chains[r] for r in rows], u, rows, dt,
+               y0[rows], bias[rows], out)
+        else:
+            fn(continuous, discrete, chains, u, rows, dt, y0, bias, out)
     return OpenLoopResult(**out)
 
 
@@ -185,10 +183,13 @@ def _row_chains(effects, batch: int) -> list[tuple[EffectBlock, ...]]:
 
 
 def _rest(continuous: list[ContinuousPlant], discrete: list[DiscretePlant], y_true0: np.ndarray):
-    """State of shape (batch, order), rest input and rest speed of each row at true output ``y_true0``."""
+    """State of shape (batch, order), rest input and rest speed of each row at true output ``y_true0``.
+
+    ``order`` is the largest of the rows' orders; a row of a lower order has zeros in its last states.
+    """
     batch = len(discrete)
-    order = discrete[0].order
-    x = np.empty((batch, order))
+    order = max(d.order for d in discrete)  # lower orders padded with zero states
+    x = np.zeros((batch, order))
     v_rest = np.empty(batch)
     speed = np.empty(batch)
     groups: dict[int, list[int]] = {}
@@ -197,7 +198,7 @@ def _rest(continuous: list[ContinuousPlant], discrete: list[DiscretePlant], y_tr
     for rows in groups.values():
         d, c = discrete[rows[0]], continuous[rows[0]]
         xs, vs = d.equilibrium(y_true0[rows])
-        x[rows] = xs.T
+        x[rows, : d.order] = xs.T
         v_rest[rows] = vs
         row_speed = d.c if c.output != "position" else d.velocity_row()
         speed[rows] = row_speed @ xs
@@ -206,28 +207,30 @@ def _rest(continuous: list[ContinuousPlant], discrete: list[DiscretePlant], y_tr
 
 @dataclass(frozen=True, eq=False)
 class _Rest:
-    """Rows sorted by :func:`_sorted_rows` (``inverse`` undoes it), their block stages and rest state."""
+    """Rows sorted by :func:`_sorted_rows` (``source`` is each sorted row's row of the batch), their block stages
+    and rest state."""
 
     continuous: list
     discrete: list
     groups: list
-    inverse: np.ndarray
+    source: np.ndarray  # row of the batch (of ``u`` and the outputs) of each sorted row
     bias: np.ndarray
     y_true0: np.ndarray  # true rest output (sensors inverted)
     x0: np.ndarray  # plant state at rest, (batch, order)
     v_rest: np.ndarray  # plant input at rest
     u_rest: np.ndarray  # command that holds the rest (actuators inverted)
-    u_delayed: np.ndarray  # u[k - d] with u_rest before the record, (batch, n)
+    lags: np.ndarray  # whole-sample input delay of each row
 
 
-def _prepare_rest(continuous, discrete, chains, u, y0, bias, dt: float, column: bool) -> _Rest:
-    """Sort the rows, then go from the measured ``y0`` to the rest state and the delayed commands.
+def _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt: float, column: bool) -> _Rest:
+    """Sort the rows, then go from the measured ``y0`` to the rest state.
 
     Measured ``y0`` -> true output (sensors inverted) -> plant equilibrium -> holding
-    command (actuators inverted). ``column``: the blocks take column parameters (the
-    direct path) rather than one value per row (the stepping path).
+    command (actuators inverted). ``rows`` are the rows of the batch these rows are;
+    ``column``: the blocks take column parameters (the direct path) rather than one
+    value per row (the stepping path).
     """
-    perm, inverse = _sorted_rows(chains)
+    perm, _ = _sorted_rows(chains)
     continuous, discrete, chains = [continuous[r] for r in perm], [discrete[r] for r in perm], [chains[r] for r in perm]
     y0, bias = y0[perm], bias[perm]
     groups = _groups(chains, column=column)
@@ -239,44 +242,57 @@ def _prepare_rest(continuous, discrete, chains, u, y0, bias, dt: float, column: 
                 y_true0[idx] = _flat(block.level_for, y_true0[idx]) if column else block.level_for(y_true0[idx])
     x0, v_rest, speed0 = _rest(continuous, discrete, y_true0)
     u_rest = _holding_command(groups, v_rest - bias, speed0, dt, column)
-    u_delayed = _delayed(u, perm, np.array([d.delay_steps for d in discrete]), u_rest)
-    return _Rest(continuous=continuous, discrete=discrete, groups=groups, inverse=inverse, bias=bias,
-                 y_true0=y_true0, x0=x0, v_rest=v_rest, u_rest=u_rest, u_delayed=u_delayed)
+    return _Rest(continuous=continuous, discrete=discrete, groups=groups, source=np.asarray(rows)[perm], bias=bias,
+                 y_true0=y_true0, x0=x0, v_rest=v_rest, u_rest=u_rest,
+                 lags=np.array([d.delay_steps for d in discrete], dtype=np.int64))
 
 
-def _direct(continuous, discrete, chains, u, y0, bias) -> OpenLoopResult:
-    """Rows whose blocks are static maps: ``y = S(y_rest + P(z) (A(u_delayed) + bias - v_rest))``.
+def _scatter(out: dict, rest: _Rest, **values: np.ndarray) -> None:
+    """Put the sorted rows' ``values`` (and their rest inputs) into the rows ``rest.source`` of the outputs."""
+    values.update(u_rest=rest.u_rest, v_rest=rest.v_rest)
+    whole = rest.source.size == out["u_rest"].size and np.array_equal(rest.source, np.arange(rest.source.size))
+    for name, value in values.items():
+        if whole:  # every row, in order: the arrays themselves (C-ordered, as the kernel writes them)
+            out[name] = np.ascontiguousarray(value)
+        else:
+            out[name][rest.source] = value
+
+
+def _direct(continuous, discrete, chains, u, rows, dt, y0, bias, out) -> None:
+    """Rows ``rows`` whose blocks are static maps: ``y = S(y_rest + P(z) (A(u_delayed) + bias - v_rest))``.
 
     The actuator map ``A`` and the sensor map ``S`` act on the whole record at
     once (their parameters as column vectors, one per row); ``P(z)`` is the
     exact sampled plant without its whole-sample delay, run on the deviation
-    from rest with ``scipy.signal.lfilter``.
+    from rest with ``scipy.signal.lfilter``. The results go into the rows
+    ``rows`` of the outputs ``out``.
     """
-    batch, n = u.shape
-    rest = _prepare_rest(continuous, discrete, chains, u, y0, bias, 1.0, column=True)
-    discrete, groups, bias, v_rest, inverse = rest.discrete, rest.groups, rest.bias, rest.v_rest, rest.inverse
-    v = rest.u_delayed
+    n = u.shape[1]
+    rest = _prepare_rest(continuous, discrete, chains, rows, y0, bias, 1.0, column=True)
+    discrete, groups, bias, v_rest = rest.discrete, rest.groups, rest.bias, rest.v_rest
+    v = _delayed(u, rest.source, rest.lags, rest.u_rest)
     for sl, _, actuators in groups:
         for stage in actuators:
             for block, part in stage.parts:
                 idx = _global(sl, part)
                 v[idx] = block.actuate(v[idx], np.zeros_like(v[idx]))
     v += bias[:, None]
-    y_true = np.empty((batch, n))
+    y_true = np.empty((len(discrete), n))
     tf_cache = _transfer_functions(discrete)
-    for row in range(batch):
-        num, den = tf_cache[id(discrete[row])]
-        y_true[row] = rest.y_true0[row] + lfilter(num, den, v[row] - v_rest[row])
+    same_plant: dict[int, list[int]] = {}
+    for row, d in enumerate(discrete):
+        same_plant.setdefault(id(d), []).append(row)
+    for key, idx in same_plant.items():  # one lfilter call per distinct plant, row by row along the last axis
+        num, den = tf_cache[key]
+        idx = np.array(idx)
+        y_true[idx] = rest.y_true0[idx, None] + lfilter(num, den, v[idx] - v_rest[idx, None], axis=-1)
     y = y_true.copy()
     for sl, sensors, _ in groups:
         for stage in sensors:
             for block, part in stage.parts:
                 idx = _global(sl, part)
                 y[idx] = block.measure(y[idx])
-    if np.array_equal(inverse, np.arange(batch)):  # rows already in order: no copies
-        return OpenLoopResult(y=y, y_true=y_true, v=v, u_rest=rest.u_rest, v_rest=v_rest)
-    return OpenLoopResult(y=y[inverse], y_true=y_true[inverse], v=v[inverse], u_rest=rest.u_rest[inverse],
-                          v_rest=v_rest[inverse])
+    _scatter(out, rest, y=y, y_true=y_true, v=v)
 
 
 def _transfer_functions(discrete: list[DiscretePlant]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
@@ -317,12 +333,12 @@ def _transfer_functions(discrete: list[DiscretePlant]) -> dict[int, tuple[np.nda
     return out
 
 
-def _delayed(u: np.ndarray, perm: np.ndarray, lags: np.ndarray, u_rest: np.ndarray) -> np.ndarray:
-    """Rows ``perm`` of the commands ``u`` (shape (batch, n_steps)), row ``i`` delayed by ``lags[i]`` >= 0 samples
+def _delayed(u: np.ndarray, source: np.ndarray, lags: np.ndarray, u_rest: np.ndarray) -> np.ndarray:
+    """Rows ``source`` of the commands ``u`` (shape (batch, n_steps)), row ``i`` delayed by ``lags[i]`` >= 0 samples
     and preceded by ``u_rest[i]``; filled by slices per distinct delay (no index arrays of the data's size)."""
-    batch, n = u.shape
+    batch, n = source.size, u.shape[1]
     out = np.empty((batch, n))
-    in_order = np.array_equal(perm, np.arange(batch))
+    in_order = source.size == u.shape[0] and np.array_equal(source, np.arange(batch))
     for lag in np.unique(lags):
         rows = np.flatnonzero(lags == lag)
         lag = min(int(lag), n)
@@ -331,7 +347,7 @@ def _delayed(u: np.ndarray, perm: np.ndarray, lags: np.ndarray, u_rest: np.ndarr
             out[:, lag:] = u[:, : n - lag]
         else:
             out[rows, :lag] = u_rest[rows, None]
-            out[rows, lag:] = u[perm[rows], : n - lag]
+            out[rows, lag:] = u[source[rows], : n - lag]
     return out
 
 
@@ -454,32 +470,71 @@ def _merged(blocks: list[EffectBlock], rng: np.random.Generator, column: bool) -
     return merged
 
 
-def _stepping(continuous, discrete, chains, u, dt, y0, bias) -> OpenLoopResult:
-    """Sample-by-sample simulation of all rows, rows grouped by the classes of their blocks."""
-    batch, n = u.shape
-    order = discrete[0].order
-    if any(d.order != order for d in discrete):
-        raise ValueError("plant: every row must have the same number of poles")
-    rest = _prepare_rest(continuous, discrete, chains, u, y0, bias, dt, column=False)
-    continuous, discrete, groups, bias = rest.continuous, rest.discrete, rest.groups, rest.bias
-    x, v_rest, inverse = rest.x0, rest.v_rest, rest.inverse
-    u_delayed = np.ascontiguousarray(rest.u_delayed.T)  # (n, batch)
+def _stepping(continuous, discrete, chains, u, rows, dt, y0, bias, out) -> None:
+    """Sample-by-sample simulation of the rows ``rows``, grouped by the classes of their blocks.
 
+    The rows may have plants of different orders. The rest state and the blocks' start are
+    computed in Python (:func:`_prepare_rest`); the stepping runs in the compiled kernel
+    (:func:`gbo_envs.physics.kernels.open_loop_kernel`) when it knows every actuator and
+    sensor block of the rows, else in :func:`_step_numpy`, which gives the same numbers.
+    The results go into the rows ``rows`` of the outputs ``out``.
+    """
+    rest = _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt, column=False)
+    continuous, discrete, groups = rest.continuous, rest.discrete, rest.groups
+    batch, order = rest.x0.shape
+    # per row: [Phi Gamma0 Gamma1] of its order, padded with zeros to the largest order
+    transition = np.zeros((batch, order, order + 2))
+    c_rows = np.zeros((batch, order))
+    speed_rows = np.zeros((batch, order))
+    for row, (d, p) in enumerate(zip(discrete, continuous)):
+        m = d.order
+        transition[row, :m, :m] = d.phi
+        transition[row, :m, order] = d.gamma0
+        transition[row, :m, order + 1] = d.gamma1
+        c_rows[row, :m] = d.c
+        speed_rows[row, :m] = d.c if p.output != "position" else d.velocity_row()
+
+    from gbo_envs.physics import kernels  # numba is imported on the first stepping simulation
+
+    sides = {}
+    for side in ("sensor", "actuator"):
+        parts = [(j, block, _global(sl, part)) for sl, sensors, actuators in groups
+                 for j, stage in enumerate(sensors if side == "sensor" else actuators) for block, part in stage.parts]
+        sides[side] = kernels.pack_blocks(parts, batch, dt)
+    if sides["sensor"] is None or sides["actuator"] is None:
+        y, y_true, v = _step_numpy(groups, rest, u, transition, c_rows, speed_rows)
+        _scatter(out, rest, y=y, y_true=y_true, v=v)
+        return
+    sensors, actuators = sides["sensor"], sides["actuator"]
+    if not (u.flags.c_contiguous and u.flags.writeable):  # one compiled signature: a C-ordered writeable array
+        u = np.array(u, dtype=float, order="C")
+    kernels.open_loop_kernel(np.array([d.order for d in discrete], dtype=np.int64), transition, c_rows, speed_rows,
+                             u, rest.source, rest.lags, rest.u_rest, rest.bias, rest.x0, rest.v_rest,
+                             sensors.code, sensors.params, sensors.state, actuators.code, actuators.params,
+                             actuators.state, out["y"], out["y_true"], out["v"])
+    out["u_rest"][rest.source] = rest.u_rest
+    out["v_rest"][rest.source] = rest.v_rest
+
+
+def _step_numpy(groups, rest: _Rest, u, transition, c_rows, speed_rows):
+    """The stepping of :func:`_stepping` in numpy, vectorised over the rows (blocks the kernel does not know).
+
+    Every sum is accumulated from left to right, as the compiled kernel does; rows of a lower
+    order carry zero states. Returns ``(y, y_true, v)`` of shape (rows, n_steps) in the sorted
+    order of the rows.
+    """
+    batch, order = rest.x0.shape
+    n = u.shape[1]
+    bias = rest.bias
+    u_delayed = np.ascontiguousarray(_delayed(u, rest.source, rest.lags, rest.u_rest).T)  # (n, batch)
     # batch-last layout: every operation of a step is elementwise over the rows (a batched matmul of
     # tiny matrices costs 17 us with 360 rows, the elementwise products and sum 4.5 us)
-    transition = np.empty((order, order + 2, batch))
-    c_rows = np.empty((order, batch))
-    speed_rows = np.empty((order, batch))
-    for row, (d, p) in enumerate(zip(discrete, continuous)):
-        transition[:, :order, row] = d.phi
-        transition[:, order, row] = d.gamma0
-        transition[:, order + 1, row] = d.gamma1
-        c_rows[:, row] = d.c
-        speed_rows[:, row] = d.c if p.output != "position" else d.velocity_row()
+    transition = np.ascontiguousarray(transition.transpose(1, 2, 0))
+    c_rows, speed_rows = np.ascontiguousarray(c_rows.T), np.ascontiguousarray(speed_rows.T)
     same_speed = bool(np.array_equal(speed_rows, c_rows))
     stacked = np.empty((order + 2, batch))  # [state, v[k], v[k-1]]
-    stacked[:order] = x.T
-    stacked[order + 1] = v_rest
+    stacked[:order] = rest.x0.T
+    stacked[order + 1] = rest.v_rest
     state = stacked[:order]
     products = np.empty((order, order + 2, batch))
     weighted = np.empty((order, batch))
@@ -515,9 +570,8 @@ def _stepping(continuous, discrete, chains, u, dt, y0, bias) -> OpenLoopResult:
         np.add.reduce(products, axis=1, out=state)
         stacked[order + 1] = v
     if not sensor_ops:
-        y_rec = yt_rec
-    return OpenLoopResult(y=y_rec.T[inverse], y_true=yt_rec.T[inverse], v=v_rec.T[inverse],
-                          u_rest=rest.u_rest[inverse], v_rest=v_rest[inverse])
+        y_rec = yt_rec.copy()
+    return y_rec.T, yt_rec.T, v_rec.T
 
 
 def _global(group: slice, part):

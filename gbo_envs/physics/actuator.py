@@ -115,6 +115,11 @@ class Backlash(EffectBlock):
     def reset(self, batch, rng, dt, draws=None):
         self._state = np.zeros(batch)
 
+    @property
+    def transmitted(self) -> np.ndarray:
+        """Shape (batch,): the transmitted input ``v`` of each row now (the play operator's state), in input units."""
+        return self._state
+
     def command_for(self, u_applied, speed):
         self._state = np.array(u_applied, dtype=float, copy=True)
         return u_applied + np.sign(u_applied) * (self.width / 2.0)
@@ -262,6 +267,11 @@ class Cogging(EffectBlock):
         self._angle = np.zeros(batch)
         self._dt = float(dt)
         self._start = RowNoise(rng, batch, draws) if rng is not None and self.stochastic else None
+
+    @property
+    def position(self) -> np.ndarray:
+        """Shape (batch,): the position ``theta`` of each row now (its state), in position units."""
+        return self._angle
 
     def ripple(self, angle: np.ndarray, travel: np.ndarray) -> np.ndarray:
         """Mean ripple over an interval starting at phase ``angle`` and advancing by ``travel`` (both rad).

@@ -159,6 +159,16 @@ class RowNoise:
             raise ValueError(f"draws: expected one draw index per row, shape ({batch},), got {self._draws.shape}")
         self._size = batch if self._draws is None else int(self._draws.max(initial=-1)) + 1
 
+    @property
+    def size(self) -> int:
+        """Values drawn per call: the number of draws ``K`` (``max(draws) + 1``), or the rows if independent."""
+        return self._size
+
+    @property
+    def columns(self) -> np.ndarray:
+        """Shape (batch,): which of the ``size`` values of a call each row reads (its draw index, or its row)."""
+        return np.arange(self._size) if self._draws is None else self._draws
+
     def standard_normal(self, size: int | None = None) -> np.ndarray:
         """N(0, 1) values of shape (batch,), or (size, batch) when ``size`` is given."""
         values = self._rng.standard_normal(self._size if size is None else (size, self._size))

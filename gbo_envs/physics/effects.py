@@ -75,7 +75,7 @@ def build_effects(spec) -> tuple[EffectBlock, ...]:
     Examples
     --------
     >>> build_effects({"saturation": {"limit": 150.0}, "coulomb_friction": {"torque": 20.0}})
-    (Saturation(limit=150.0), CoulombFriction(torque=20.0, smoothing=0.0))
+    (Saturation(limit=150.0), CoulombFriction(torque=20.0, smoothing=0.0, asymmetry=0.0))
     """
     if spec is None:
         return ()

@@ -28,65 +28,64 @@ _MAX = MAGNITUDE_LIMIT
 
 
 class CoulombFriction(EffectBlock):
-    """Coulomb (dry, kinetic) friction of constant level opposing the motion, one level per direction.
+    """Coulomb (dry, kinetic) friction of constant level opposing the motion, possibly unequal in the two directions.
 
-    ``f = F+`` for ``speed > 0`` and ``f = -F-`` for ``speed < 0``, with the levels
-    ``F+ = torque (1 + asymmetry)`` and ``F- = torque (1 - asymmetry)``; at ``speed == 0``
-    ``f = clip(u, -F-, F+)`` (friction balances a drive below the level, so a body at rest
-    stays at rest). With ``smoothing > 0`` the sign is replaced by the ramp
-    ``clip(speed / smoothing, -1, 1)`` times the level of the speed's direction (no chattering
-    around zero speed, but a body at rest creeps under any drive). Real drives often break
-    away at different levels in the two directions (seals, preload, a gravity load on an
-    inclined axis); ``asymmetry = 0`` is the textbook symmetric friction.
+    The level is ``torque (1 + asymmetry)`` for positive speed and ``torque (1 - asymmetry)``
+    for negative speed. ``f = level * sign(speed)`` for ``speed != 0``; at ``speed == 0``
+    ``f = clip(u, -torque (1 - asymmetry), torque (1 + asymmetry))`` (friction balances a
+    drive below the level, so a body at rest stays at rest: Karnopp). With
+    ``smoothing > 0`` the sign is replaced by the ramp ``clip(speed / smoothing, -1, 1)``
+    times the level of the speed's sign (no chattering around zero speed, but a body at
+    rest creeps under any drive). Real drives often break away at different levels in the
+    two directions (seals, preload, a load on an inclined axis); ``asymmetry = 0`` is the
+    textbook symmetric friction.
 
     Parameters
     ----------
     torque : float
-        Mean friction level of the two directions as an equivalent input, in input units, ``>= 0`` (0: none).
+        Friction level as an equivalent input, in input units, ``>= 0`` (0: none).
     smoothing : float, default 0.0
         Speed below which friction ramps linearly, in speed units, ``>= 0``.
     asymmetry : float, default 0.0
-        ``(F+ - F-) / (F+ + F-)``, in [-1, 1] (dimensionless): 0.2 means 20 % more friction
-        moving forward than the mean, 20 % less moving backward.
+        Relative difference of the levels in the two directions, in ``[-1, 1]`` (0: equal;
+        0.2: 1.2 torque forwards, 0.8 torque backwards).
     """
 
     name = "coulomb_friction"
     side = "actuator"
     parameters = (
         EffectParameter("torque", "input units", 0.0, _MAX, None, 0.0,
-                        "mean friction level as an equivalent input opposing the speed"),
+                        "friction level as an equivalent input opposing the speed"),
         EffectParameter("smoothing", "speed units", 0.0, _MAX, 0.0, float("nan"),
                         "speed below which the friction ramps linearly (0: sign)"),
-        EffectParameter("asymmetry", "-", -1.0, 1.0, 0.0, float("nan"),
-                        "(F+ - F-) / (F+ + F-): the levels' difference between the directions"),
+        EffectParameter("asymmetry", "1", -1.0, 1.0, 0.0, float("nan"),
+                        "relative difference of the levels: torque (1 + a) forwards, torque (1 - a) backwards"),
     )
     magnitude_param = "torque"
 
     def __init__(self, torque: float, smoothing: float = 0.0, asymmetry: float = 0.0) -> None:
         self._set_params(torque=torque, smoothing=smoothing, asymmetry=asymmetry)
 
-    def _levels(self):
-        """``(F+, F-)``: the levels moving forward and backward, in input units."""
+    def _levels(self) -> tuple:
+        """Friction levels for positive and for negative speed, in input units."""
         return self.torque * (1.0 + self.asymmetry), self.torque * (1.0 - self.asymmetry)
 
     def friction(self, u: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Friction ``f`` of shape (batch,) in input units for drive ``u`` at ``speed``."""
-        forward, backward = self._levels()
+        forwards, backwards = self._levels()
+        level = np.where(speed > 0.0, forwards, backwards)
         if self.smoothing > 0.0:
-            ramp = np.clip(speed / self.smoothing, -1.0, 1.0)
-            return ramp * np.where(speed >= 0.0, forward, backward) if np.any(self.asymmetry) else \
-                self.torque * ramp
-        moving = np.where(speed > 0.0, forward, -backward) if np.any(self.asymmetry) else \
-            self.torque * np.sign(speed)
-        held = np.minimum(np.maximum(u, -backward), forward)
+            return level * np.clip(speed / self.smoothing, -1.0, 1.0)
+        moving = level * np.sign(speed)
+        held = np.minimum(np.maximum(u, -backwards), forwards)
         return np.where(speed == 0.0, held, moving)
 
     def command_for(self, u_applied, speed):
         if self.smoothing > 0.0:
             return u_applied + self.friction(u_applied, speed)
-        forward, backward = self._levels()
-        direction = np.where(speed == 0.0, np.sign(u_applied), np.sign(speed))
-        return u_applied + np.where(direction > 0.0, forward, np.where(direction < 0.0, -backward, 0.0))
+        forwards, backwards = self._levels()
+        direction = np.where(speed == 0.0, np.sign(u_applied), np.sign(speed))  # of the motion the drive holds
+        return u_applied + np.where(direction > 0.0, forwards, backwards) * direction
 
     def actuate(self, u, speed):
         return u - self.friction(u, speed)

@@ -1,0 +1,139 @@
+"""The compiled open-loop replay gives the numpy loop's numbers, bit for bit, also for rows of different orders.
+
+Rows with every actuator and sensor block the twin fits (one block per row, merged blocks
+with per-row parameters, chains of several blocks, memoryless blocks that take the direct
+path beside them), speed and position plants, whole and fractional delays, and plants of 2
+and 4 poles in one call: :func:`agents.twin.open_loop.simulate_open_loop` through the kernel
+equals the numpy stepping (blocks unknown to the kernel), and each row equals that row alone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agents.twin.open_loop import simulate_open_loop
+from gbo_envs.physics import ContinuousPlant, CoulombFriction, Saturation, kernels
+from gbo_envs.physics.effects import build_effects
+
+FAST = settings(max_examples=20, deadline=None, derandomize=True, database=None)
+SPEED = ContinuousPlant(num=(9.544,), den=(1.0, 4.145, 4.199), delay=0.002)
+SPEED_FRACTIONAL = ContinuousPlant(num=(9.544,), den=(1.0, 4.145, 4.199), delay=0.0051)
+POSITION = ContinuousPlant(num=(3.0,), den=(1.0, 2.5, 0.0), delay=0.0031, output="position")
+#: four poles (a two-mass resonance at 12 rad/s behind the motor), the same static gain as SPEED
+FOUR_POLES = ContinuousPlant(num=(9.544 * 144.0,), den=tuple(np.polymul([1.0, 4.145, 4.199], [1.0, 2.4, 144.0])),
+                             delay=0.002)
+COMPILED = kernels.open_loop_kernel
+
+#: one spec per row: every block the twin fits, alone, merged with others of its class and in chains
+SPECS = ([{"coulomb_friction": {"torque": t}} for t in (1.0, 2.5, 4.0)]
+         + [{"coulomb_friction": {"torque": 3.0, "smoothing": 0.5, "asymmetry": a}} for a in (-0.5, 0.5)]
+         + [{"backlash": {"width": w}} for w in (1.0, 3.0)]
+         + [{"cogging": {"amplitude": a, "period": 0.7, "phase": 0.3}} for a in (1.0, 2.0)]
+         + [{"stiction": {"breakaway": b, "threshold": 0.5}, "saturation": {"limit": 30.0}} for b in (2.0, 6.0)]
+         + [{"viscous_friction": {"coefficient": c}, "quantization": {"step": 0.37, "mode": m}}
+            for c, m in ((0.1, "round"), (0.2, "floor"))]
+         + [{"offset": {"value": 2.0}, "dead_zone": {"width": 3.0}, "backlash": {"width": 1.0}},
+            {"viscous_friction": {"coefficient": 0.1}, "offset": {"value": 0.5, "on": "sensor"}},
+            {"saturation": {"limit": 20.0}}, {"dead_zone": {"width": 2.0}}, {}])
+
+
+def _rows(plants, specs, seed=3, n=600):
+    rng = np.random.default_rng(seed)
+    chains = [build_effects(s) for s in specs]
+    u = np.cumsum(rng.normal(0.0, 2.0, (len(chains), n)), axis=1)  # drifting commands, speed reversals
+    return plants, chains, u, rng.normal(0.0, 5.0, len(chains)), rng.normal(0.0, 1.0, len(chains))
+
+
+def _both_paths(monkeypatch, plants, chains, u, y0, bias):
+    calls = []
+
+    def counted(*args):
+        calls.append(1)
+        COMPILED(*args)
+
+    monkeypatch.setattr(kernels, "open_loop_kernel", counted)
+    fast = simulate_open_loop(plants, u, 0.002, chains, y0=y0, bias=bias)
+    with monkeypatch.context() as m:
+        m.setattr(kernels, "KERNEL_CODES", {})
+        slow = simulate_open_loop(plants, u, 0.002, [build_effects(_spec(c)) for c in chains], y0=y0, bias=bias)
+    return fast, slow, len(calls)
+
+
+def _spec(chain) -> list:
+    """The effect spec of a chain of blocks (fresh blocks: the batch's have run)."""
+    return [(b.name, {**{p: getattr(b, p) for p in b.param_names}, **{o: getattr(b, o) for o in b.options}})
+            for b in chain]
+
+
+def _assert_same(fast, slow):
+    for name in ("y", "y_true", "v", "u_rest", "v_rest"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name), err_msg=name)
+
+
+def test_every_twin_block_replays_the_same_compiled(monkeypatch):
+    plants = [(SPEED, SPEED_FRACTIONAL, POSITION)[i % 3] for i in range(len(SPECS))]
+    fast, slow, calls = _both_paths(monkeypatch, *_rows(plants, SPECS))
+    assert calls == 1
+    _assert_same(fast, slow)
+    assert np.all(np.isfinite(fast.y)) and np.ptp(fast.y) > 10.0
+
+
+def test_rows_of_2_and_4_poles_replay_together(monkeypatch):
+    specs = [{"coulomb_friction": {"torque": 2.0}}, {"backlash": {"width": 2.0}}, {"saturation": {"limit": 25.0}},
+             {"cogging": {"amplitude": 1.0}}, {}]
+    plants = [SPEED, FOUR_POLES, FOUR_POLES, SPEED_FRACTIONAL, FOUR_POLES]
+    rows = _rows(plants, specs)
+    fast, slow, calls = _both_paths(monkeypatch, *rows)
+    assert calls == 1
+    _assert_same(fast, slow)
+    _, _, u, y0, bias = rows
+    for row, (plant, spec) in enumerate(zip(plants, specs)):
+        alone = simulate_open_loop(plant, u[row], 0.002, build_effects(spec), y0=y0[row], bias=bias[row])
+        for name in ("y", "y_true", "v"):
+            np.testing.assert_array_equal(getattr(fast, name)[row], getattr(alone, name)[0], err_msg=name)
+    # the resonance shows: the 4-pole rows differ from the 2-pole plant under the same input
+    two = simulate_open_loop(SPEED, u[1], 0.002, build_effects(specs[1]), y0=y0[1], bias=bias[1])
+    assert np.max(np.abs(two.y[0] - fast.y[1])) > 0.1
+
+
+@FAST
+@given(torques=st.lists(st.floats(0.0, 8.0), min_size=2, max_size=5), asymmetry=st.floats(-1.0, 1.0),
+       smoothing=st.sampled_from([0.0, 0.3]), seed=st.integers(0, 100))
+def test_merged_friction_blocks_replay_the_same_compiled(torques, asymmetry, smoothing, seed):
+    specs = [{"coulomb_friction": {"torque": t, "asymmetry": asymmetry, "smoothing": smoothing}} for t in torques]
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        fast, slow, calls = _both_paths(monkeypatch, *_rows([SPEED] * len(specs), specs, seed=seed, n=300))
+    assert calls == 1
+    _assert_same(fast, slow)
+
+
+def test_mixed_orders_replay_in_numpy_too(monkeypatch):
+    """The numpy loop (a block the kernel does not know) also takes rows of 2 and 4 poles in one call."""
+    monkeypatch.setattr(kernels, "KERNEL_CODES", {})
+    plants = [SPEED, FOUR_POLES]
+    _, chains, u, y0, bias = _rows(plants, [{"coulomb_friction": {"torque": 2.0}}] * 2)
+    both = simulate_open_loop(plants, u, 0.002, chains, y0=y0, bias=bias)
+    for row, plant in enumerate(plants):
+        alone = simulate_open_loop(plant, u[row], 0.002, (CoulombFriction(2.0),), y0=y0[row], bias=bias[row])
+        np.testing.assert_array_equal(both.y[row], alone.y[0])
+
+
+class _Leaky(Saturation):
+    """A user's block: a saturation that lets a tenth of the excess through."""
+
+    def actuate(self, u, speed):
+        clipped = super().actuate(u, speed)
+        return clipped + 0.1 * (u - clipped)
+
+
+def test_a_block_the_kernel_does_not_know_replays_in_numpy(monkeypatch):
+    calls = []
+    monkeypatch.setattr(kernels, "open_loop_kernel", lambda *args: calls.append(1))
+    plants, chains, u, y0, bias = _rows([SPEED] * 2, [{}, {}])
+    chains = [(_Leaky(5.0), CoulombFriction(1.0)), (CoulombFriction(1.0),)]
+    res = simulate_open_loop(plants, u, 0.002, chains, y0=y0, bias=bias)
+    assert calls == []
+    assert np.all(np.isfinite(res.y)) and np.max(np.abs(res.v[0])) > 5.0  # the leak passed the limit
