@@ -36,6 +36,8 @@ def unit_text(catalogue_unit: str, units: Mapping[str, str] | None = None, outpu
     speed = None if y is None else (y if output != "position" else f"{y}/s")
     words = {"input units": u, "output units": y, "speed units": speed,
              "input units per speed unit": None if u is None or speed is None else f"{u}/({speed})"}
+    if catalogue_unit in ("1", "-"):  # dimensionless: no unit after the number
+        return ""
     return words.get(catalogue_unit) or catalogue_unit
 
 
@@ -52,7 +54,7 @@ def format_interval(name: str, ci: Mapping, unit: str) -> str:
     half = ci["high"] - value
     digits = max(0, 1 - math.floor(math.log10(half))) if half > 0 else 3  # two significant digits of the half-width
     return (f"{name} {value:.{digits}f} ± {half:.2g} {unit}, 95 % CI [{ci['low']:.{digits}f}, "
-            f"{ci['high']:.{digits}f}]")
+            f"{ci['high']:.{digits}f}]").replace(" ,", ",")
 
 
 def rung_text(rung: Mapping, units: Mapping[str, str] | None = None, output: str = "speed") -> str:

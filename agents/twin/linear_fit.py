@@ -19,8 +19,9 @@ from agents.twin.data import GreyData
 from agents.twin.identify import LinearIdentification, identify_linear
 from agents.twin.least_squares import Problem, fit_problems, make_problem
 from agents.twin.model import GreyFit, ModelSpec, effect_offset
+from agents.twin.records import as_records, decimate_records
 
-__all__ = ["PROFILE_EFFECTS", "linear_fit", "profile", "step_start"]
+__all__ = ["PROFILE_EFFECTS", "PROFILE_SAMPLES", "STATEFUL_ACTUATORS", "linear_fit", "profile", "step_start"]
 
 
 @single_thread()
@@ -91,6 +92,15 @@ def step_start(data: GreyData, spec: ModelSpec) -> Problem:
 PROFILE_EFFECTS = ("saturation", "dead_zone", "coulomb_friction", "backlash", "stiction")
 
 
+#: Actuator blocks with a state (the play's position, the rotor's angle): stepped sample by sample through a
+#: record; the others are maps of the input and the speed, applied to the whole record at once.
+STATEFUL_ACTUATORS = frozenset({"backlash", "cogging"})
+#: Longest record (samples) that the profile identifies whole; longer records are decimated to it, the
+#: input averaged over each hold (:func:`agents.twin.records.decimate_records`): the profile ranks the
+#: starting values of a fit, which is then made on every sample.
+PROFILE_SAMPLES = 4096
+
+
 def _records_through(data: GreyData, blocks: Sequence, output: str) -> list[dict]:
     """Records whose ``u`` is replaced by the plant input of the actuator ``blocks`` (speed from the measured y).
 
@@ -103,16 +113,35 @@ def _records_through(data: GreyData, blocks: Sequence, output: str) -> list[dict
             u = u * np.array([block.factor(k)[0] for k in data.index])[:, None]
     speed = data.y if output != "position" else np.gradient(data.y, data.dt, axis=1)
     actuators = [b for b in blocks if b.side == "actuator"]
-    if actuators:
-        for block in actuators:
-            block.reset(data.n_records, None, data.dt)
+    for block in actuators:
+        block.reset(data.n_records, None, data.dt)
+    if any(b.name in STATEFUL_ACTUATORS for b in actuators):
         for k in range(data.u.shape[1]):
             v = u[:, k]
             for block in actuators:
                 v = block.actuate(v, speed[:, k])
             u[:, k] = v
+    else:  # maps of (u, speed): every sample at once, the same values
+        for block in actuators:
+            u = block.actuate(u, speed)
     return [{"t": data.t[k][data.mask[k]], "r": data.r[k][data.mask[k]], "u": u[k][data.mask[k]],
              "y": data.y[k][data.mask[k]]} for k in range(data.n_records)]
+
+
+def _rest_through(data: GreyData, blocks: Sequence, output: str) -> np.ndarray:
+    """``(y0, v0)`` per record: the pinned rest level and the plant input of the rest command through the
+    actuator ``blocks`` (at the rest's speed: ``y0``, or 0 for a position); ``NaN`` rows where estimated."""
+    rest = data.initial.rest_levels.copy()
+    pinned = data.initial.pinned
+    if pinned.any():
+        v = rest[:, 1].copy()
+        speed = rest[:, 0] if output != "position" else np.zeros(data.n_records)
+        for block in blocks:
+            if block.side == "actuator":
+                block.reset(data.n_records, None, data.dt)
+                v = block.actuate(np.where(pinned, v, 0.0), np.where(pinned, speed, 0.0))
+        rest[pinned, 1] = v[pinned]
+    return rest
 
 
 def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float | None = None,
@@ -149,13 +178,13 @@ def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float
     else:
         delay, max_delay = None, float(max_delay)
     records = _records_through(data, blocks, spec.output)
-    rest = data.initial.rest_levels.copy()  # pinned records: the plant input at their rest, through the blocks
-    for k in np.flatnonzero(data.initial.pinned):
-        rest[k, 1] = float(np.mean(records[k]["u"][: max(int(data.initial.quiet[k]), 1)]))
+    rest = _rest_through(data, blocks, spec.output)  # pinned records: their rest command through the blocks
+    if int(data.mask.sum(axis=1).max()) > PROFILE_SAMPLES:  # the mean input over each hold: the same impulse
+        records = decimate_records(as_records(records), PROFILE_SAMPLES, mean_input=True)
     try:
         fit: LinearIdentification = identify_linear(
             records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators, delay=delay,
-            max_delay=max_delay, max_iter=max_iter, tol=tol, rest_levels=rest)
+            max_delay=max_delay, max_iter=max_iter, tol=tol, rest_levels=rest, hold="zoh")
     except (ValueError, RuntimeError, np.linalg.LinAlgError):
         return np.inf, theta, np.zeros(data.n_records), np.zeros(data.n_records)
     out = theta.copy()
