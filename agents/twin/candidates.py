@@ -20,15 +20,22 @@ import numpy as np
 
 from agents.twin.data import GreyData
 from agents.twin.evidence import both_directions, excitation_notes, unobservable_effects
-from agents.twin.guesses import effect_starts, rest_command
+from agents.twin.guesses import effect_starts, residual_frequencies, rest_command
 from agents.twin.least_squares import Problem, make_problem
 from agents.twin.linear_fit import PROFILE_EFFECTS, profile
 from agents.twin.model import GreyFit, ModelSpec, fitted_parameters
 from agents.twin.simulation import simulate_sets
 from gbo_envs.physics.effects import EFFECT_NAMES
 
-__all__ = ["Candidate", "CandidatePlan", "candidate_plan", "candidate_problems", "effect_bounds", "forward_bias",
-           "refit_problem"]
+__all__ = ["MAX_POLES", "ORDER_CANDIDATES", "Candidate", "CandidatePlan", "OrderCandidate", "candidate_plan",
+           "candidate_problems", "effect_bounds", "forward_bias", "refit_problem"]
+
+#: The linear part's structure tried as candidates beside the catalogue's effects: name -> (extra poles,
+#: extra zeros). A lightly damped pole pair is a resonance (a flexible coupling, a belt, a mount); a real
+#: pole an unmodelled lag (a current loop, a sensor filter); a zero a lead or an anti-resonance's edge.
+ORDER_CANDIDATES: dict[str, tuple[int, int]] = {"pole_pair": (2, 0), "pole": (1, 0), "zero": (0, 1)}
+#: Most poles an order candidate grows the linear part to.
+MAX_POLES = 6
 
 
 @dataclass(frozen=True)
@@ -53,6 +60,87 @@ class Candidate:
         out = []
         for options in self.variants:
             out += candidate_problems(data, current, self.name, options, tag=self.name)
+        return out
+
+
+@dataclass(frozen=True)
+class OrderCandidate:
+    """The linear part's structure grown by ``poles`` poles and ``zeros`` zeros, its effects kept.
+
+    Attributes
+    ----------
+    name : str
+        A key of :data:`ORDER_CANDIDATES`.
+    poles, zeros : int
+        Added to the current model's orders.
+    """
+
+    name: str
+    poles: int
+    zeros: int
+
+    def spec(self, spec: ModelSpec) -> ModelSpec:
+        """``spec`` with the grown orders."""
+        return ModelSpec(spec.n_poles + self.poles, spec.n_zeros + self.zeros, spec.n_integrators, spec.output,
+                         spec.effects)
+
+    def problems(self, data: GreyData, current: GreyFit, n_keep: int = 2) -> list[Problem]:
+        """Starts of the grown structure: SRIVC at the new orders under the current effects
+        (:func:`agents.twin.linear_fit.profile`), and the current linear part times a factor of the
+        new poles or zeros (:meth:`factor_starts`), the best ``n_keep`` of them by simulation error."""
+        spec = self.spec(current.spec)
+        old = current.spec
+        n_eff = current.theta.size - old.n_linear - 1
+        effects = current.theta[old.n_linear + 1 :]
+        delay = current.theta[old.n_linear]
+        lower, upper, scale = effect_bounds(data, current, np.full(n_eff, -np.inf), np.full(n_eff, np.inf),
+                                            np.ones(n_eff))
+        rows = np.arange(data.n_records)
+        problems = []
+        cost, theta, y0, bias = profile(data, spec, np.concatenate([np.zeros(spec.n_linear), [delay], effects]),
+                                        max_iter=10, tol=1e-5)
+        if np.isfinite(cost):
+            problems.append(make_problem(data, spec, theta, y0, bias, rows, lower, upper, scale, tag=self.name))
+        thetas = [np.concatenate([linear, [delay], effects]) for linear in self.factor_starts(data, current)]
+        sims = simulate_sets(data, [(spec, np.concatenate([th, current.y0, current.bias]), rows) for th in thetas])
+        costs = [float(np.sum(np.where(data.mask, y - data.y, 0.0) ** 2)) for y in sims]
+        for i in np.argsort(np.where(np.isfinite(costs), costs, np.inf))[:n_keep]:
+            if np.isfinite(costs[i]):
+                problems.append(make_problem(data, spec, thetas[i], current.y0.copy(), current.bias.copy(), rows,
+                                             lower, upper, scale, tag=self.name))
+        return problems
+
+    def factor_starts(self, data: GreyData, current: GreyFit) -> list[np.ndarray]:
+        """Linear parameters ``[b_0..b_m, a_1..a_(n-k)]`` of the current plant times ``F(s)`` with ``F(0) = 1``.
+
+        A pole pair ``w^2 / (s^2 + 2 zeta w s + w^2)`` at the frequencies where the residual rings
+        (:func:`agents.twin.guesses.residual_frequencies`) and on a geometric grid, ``zeta`` 0.05 and
+        0.3; a pole ``p / (s + p)`` or a zero ``s / z + 1`` on the grid. The grid spans four times the
+        records' fundamental to a quarter of the Nyquist frequency (rad/s).
+        """
+        span = float(data.mask.sum(axis=1).min() * data.dt)
+        grid = list(np.geomspace(8.0 * np.pi / span, 0.25 * np.pi / data.dt, 8))
+        factors = []
+        if self.poles == 2:
+            for w in residual_frequencies(data, current) + grid:
+                for zeta in (0.05, 0.3):
+                    factors.append((np.array([w**2]), np.array([1.0, 2.0 * zeta * w, w**2])))
+        elif self.poles == 1:
+            factors = [(np.array([p]), np.array([1.0, p])) for p in grid]
+        else:
+            factors = [(np.array([1.0 / z, 1.0]), np.array([1.0])) for z in grid]
+        spec = current.spec
+        k = spec.n_integrators
+        num = np.asarray(current.plant.num, dtype=float)
+        den = np.asarray(current.plant.den, dtype=float)
+        free_den = den[: den.size - k] if k else den  # the integrators stay separate (fixed at s = 0)
+        out = []
+        for f_num, f_den in factors:
+            new_num, new_den = np.polymul(num, f_num), np.polymul(free_den, f_den)
+            new_num, new_den = new_num / new_den[0], new_den / new_den[0]
+            width = spec.n_zeros + self.zeros + 1
+            b = np.concatenate([np.zeros(max(width - new_num.size, 0)), new_num])[-width:]
+            out.append(np.concatenate([b, new_den[1:]]))
         return out
 
 
@@ -84,7 +172,7 @@ class CandidatePlan:
 
 
 def candidate_plan(data: GreyData, current: GreyFit, names: Sequence[str] | None = None,
-                   skip_unexcited: bool = True) -> CandidatePlan:
+                   skip_unexcited: bool = True, orders: bool = True) -> CandidatePlan:
     """The candidates of a diagnosis of ``current`` on ``data``.
 
     Parameters
@@ -96,12 +184,18 @@ def candidate_plan(data: GreyData, current: GreyFit, names: Sequence[str] | None
         Effects to try (default: the whole catalogue).
     skip_unexcited : bool, default True
         Leave out the effects the data cannot show (they are listed in ``skipped``).
+    orders : bool, default True
+        Also try the linear part's structure grown (:data:`ORDER_CANDIDATES`), up to :data:`MAX_POLES` poles.
     """
     names = [n for n in (names or EFFECT_NAMES) if n not in current.spec.effect_names]
     notes = excitation_notes(data, current.spec.output)
     unobservable = unobservable_effects({n: notes[n] for n in names if n in notes})
     skipped = [n for n in names if n in notes] if skip_unexcited else []
     candidates = [Candidate(n, _variants(n, data, current.spec)) for n in names if n not in skipped]
+    if orders:
+        spec = current.spec
+        candidates += [OrderCandidate(name, poles, zeros) for name, (poles, zeros) in ORDER_CANDIDATES.items()
+                       if spec.n_poles + poles <= MAX_POLES and spec.n_zeros + zeros < spec.n_poles + poles]
     return CandidatePlan(candidates, skipped, notes, unobservable)
 
 

@@ -134,7 +134,8 @@ class Diagnosis:
 def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
              current: GreyFit | None = None, n_folds: int | None = None, bic_margin: float = 10.0,
              min_gain: float = 0.02, max_iter: int = 20, *, noise_gain: float = 0.05, skip_unexcited: bool = True,
-             screen_iter: int = 8, progress: bool | None = False, _nested: bool = False) -> Diagnosis:
+             screen_iter: int = 8, orders: bool = True, progress: bool | None = False,
+             _nested: bool = False) -> Diagnosis:
     """Try every catalogued effect as an addition to the model and rank them on held-out experiments.
 
     Parameters
@@ -181,6 +182,9 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         model's (fitted with all ``max_iter``) stops: it cannot pass the decision rule
         without beating the current model. The candidates ahead of it are fitted again
         from their starts with all ``max_iter`` trial points.
+    orders : bool, default True
+        Also try the linear part's structure grown by a pole pair, a pole or a zero
+        (:data:`agents.twin.candidates.ORDER_CANDIDATES`), ranked as the effects are.
     progress : bool or None, default False
         A progress bar on stderr over the steps (each candidate's starts, the fits, the
         cross-validation); ``None``: only when stderr is a terminal.
@@ -215,7 +219,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         current = GreyBoxTwin(effects=() if effects is None else effects, **_orders(spec), max_iter=max_iter
                               ).fit(data).greybox_
     # -> candidates
-    plan = candidate_plan(data, current, candidates, skip_unexcited)
+    plan = candidate_plan(data, current, candidates, skip_unexcited, orders)
     bar = progress_bar(len(plan.candidates) + 2, f"diagnose {current.spec.label}", progress, unit="step",
                        leave=not _nested)
     try:

@@ -11,7 +11,7 @@ from agents.twin.model import GreyFit
 from agents.twin.residuals import residuals
 
 __all__ = ["DRIFT_MIN_RECORDS", "REVEALING_EXPERIMENTS", "SEPARATING_EXPERIMENTS", "both_directions",
-           "effect_evidence", "excitation_notes", "separating_experiment", "unobservable_effects"]
+           "effect_evidence", "excitation_notes", "order_change", "separating_experiment", "unobservable_effects"]
 
 
 #: Fewest experiments, in time order, from which a drift can be told from the differences between
@@ -185,6 +185,57 @@ def _corr(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sum(a * b) / den) if den > 0 else 0.0
 
 
+def order_change(name: str, current: GreyFit, fit: GreyFit) -> dict[str, dict]:
+    """What an order candidate (:data:`agents.twin.candidates.ORDER_CANDIDATES`) added, as parameters with units.
+
+    ``pole_pair``: the added pair's ``frequency`` (rad/s) and ``damping`` (the most lightly damped complex
+    pair of the grown plant); ``pole``: the added lag's ``time_constant`` (s); ``zero``: the added zero's
+    ``time_constant`` (s, ``1/|z|``, negative for a zero in the right half plane). ``{}`` when the grown
+    plant has no such root.
+    """
+    poles = np.roots(fit.plant.den)
+    zeros = np.roots(fit.plant.num) if len(fit.plant.num) > 1 else np.array([])
+    if name == "pole_pair":
+        pairs = poles[poles.imag > 1e-12]
+        if not pairs.size:
+            return {}
+        pair = pairs[np.argmin(-pairs.real / np.abs(pairs))]
+        return {"frequency": {"value": float(np.abs(pair)), "unit": "rad/s"},
+                "damping": {"value": float(-pair.real / np.abs(pair)), "unit": "1"}}
+    if name == "pole":
+        old = np.roots(current.plant.den)
+        new = [p for p in poles if p.imag == 0.0 and p.real < 0.0 and np.min(np.abs(old - p), initial=np.inf) > 1e-6]
+        fast = min(new, key=lambda p: abs(p.real), default=None)
+        return {} if fast is None else {"time_constant": {"value": float(-1.0 / fast.real), "unit": "s"}}
+    if name == "zero":
+        real = zeros[np.abs(zeros.imag) < 1e-12].real
+        if not real.size:
+            return {}
+        z = real[np.argmin(np.abs(real))]
+        return {"time_constant": {"value": float(-1.0 / z) if z != 0.0 else float("inf"), "unit": "s"}}
+    return {}
+
+
+def _order_evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit, tail: str) -> str:
+    from agents.twin.guesses import residual_frequencies
+
+    change = order_change(name, current, fit)
+    if name == "pole_pair" and change:
+        w, zeta = change["frequency"]["value"], change["damping"]["value"]
+        rings = residual_frequencies(data, current, n_peaks=1)
+        seen = f"residual rings at {rings[0]:.3g} rad/s" if rings else "residual oscillates"
+        kind = "a resonance" if zeta < 0.3 else "a second, damped mode"
+        return f"{seen}: {kind}, poles at {w:.3g} rad/s with damping {zeta:.2g}" + tail
+    if name == "pole" and change:
+        return f"the response lags the model: an extra lag of time constant {change['time_constant']['value']:.3g} s" \
+            + tail
+    if name == "zero" and change:
+        tau = change["time_constant"]["value"]
+        kind = "an inverse response (a right-half-plane zero)" if tau < 0 else "a lead"
+        return f"the response leads the model: {kind}, a zero of time constant {abs(tau):.3g} s" + tail
+    return f"a {name.replace('_', ' ')} in the linear part" + tail
+
+
 def effect_evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit) -> str:
     """The residual signature of effect ``name`` in the current model's residual.
 
@@ -211,6 +262,8 @@ def effect_evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit) -
     params = fit.effect_params.get(name, {})
     speed = data.y if current.spec.output != "position" else np.gradient(data.y, data.dt, axis=1)
     tail = f"; adding it explains {share:.0f} % of the residual power"
+    if fit.spec.n_linear != current.spec.n_linear:  # an order candidate: the linear part grew
+        return _order_evidence(name, data, current, fit, tail)
     if name == "saturation":
         limit = params.get("limit", np.inf)
         over = np.abs(data.u[m]) > limit
@@ -255,4 +308,11 @@ def effect_evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit) -
         return f"constant bias: no signature beyond the per-experiment rest levels (r={r:.2f})" + tail
     if name == "cogging":
         return f"residual periodic in position with period {params.get('period', 0.0):.4g} (r={r:.2f})" + tail
+    if name == "compliance":
+        from agents.twin.guesses import residual_frequencies
+
+        rings = residual_frequencies(data, current, n_peaks=1)
+        seen = f"residual rings at {rings[0]:.3g} rad/s" if rings else "residual oscillates"
+        return (f"{seen}: a flexible coupling resonating at {params.get('frequency', 0.0):.3g} rad/s with damping "
+                f"{params.get('damping', 0.0):.2g} (r={r:.2f})") + tail
     return f"r={r:.2f}" + tail

@@ -190,8 +190,8 @@ def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit
     """
     best = None
     for fit in fits.values():
-        if fit.rmse >= current.rmse * (1.0 - 1e-3):
-            continue
+        if fit.rmse >= current.rmse * (1.0 - 1e-3) or fit.spec.n_linear != current.spec.n_linear:
+            continue  # no gain, or a grown structure (no new effect to switch off)
         n_old = current.theta.size
         theta = fit.theta[:n_old].copy()
         problem = make_problem(data, current.spec, theta, fit.y0, fit.bias, np.arange(data.n_records),

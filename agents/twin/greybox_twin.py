@@ -18,7 +18,7 @@ from agents.twin.guesses import rest_command
 from agents.twin.identify import LINEAR_CONSTRAINTS, check_orders
 from agents.twin.least_squares import fit_problems, make_problem
 from agents.twin.linear_fit import linear_fit, profile
-from agents.twin.model import FITTED_PARAMETERS, GreyFit, ModelSpec, effect_items, output_error
+from agents.twin.model import GreyFit, ModelSpec, effect_items, fitted_parameters, output_error
 from agents.twin.simulation import simulate_sets
 from gbo_envs.physics.effects import build_effect
 
@@ -151,7 +151,7 @@ class GreyBoxTwin(BaseEstimator):
         spec = ModelSpec(orders.n, orders.m, orders.k, self.output)
         items = effect_items(self.effects)
         base = linear_fit(data, spec)
-        complete = all(all(p in given for p, _ in FITTED_PARAMETERS[name]) for name, given in items)
+        complete = all(all(p in given for p, _ in fitted_parameters(name, given)) for name, given in items)
         if complete and items:
             fit = self._fit_from_given_values(data, spec, items, base)
         else:
@@ -214,9 +214,9 @@ class GreyBoxTwin(BaseEstimator):
     def _fit_from_given_values(self, data: GreyData, spec: ModelSpec, items, base: GreyFit) -> GreyFit:
         """All effect values given: the linear part profiled at them, then everything refitted from there."""
         for name, given in items:
-            options = {k: v for k, v in given.items() if k not in dict(FITTED_PARAMETERS[name])}
+            options = {k: v for k, v in given.items() if k not in dict(fitted_parameters(name, given))}
             spec = spec.with_effect(name, options)
-        values = [float(given[p]) for name, given in items for p, _ in FITTED_PARAMETERS[name]]
+        values = [float(given[p]) for name, given in items for p, _ in fitted_parameters(name, given)]
         theta = np.concatenate([base.theta, values])
         cost, theta_p, y0, bias = profile(data, spec, theta)  # linear part consistent with the effects
         if np.isfinite(cost):

@@ -9,7 +9,8 @@ from agents.twin.model import GreyFit
 from agents.twin.noise_floor import quantization_step
 from gbo_envs.physics.effects import EFFECT_NAMES
 
-__all__ = ["data_scales", "effect_starts", "quantization_scan", "rest_command", "standstill_input"]
+__all__ = ["data_scales", "effect_starts", "quantization_scan", "residual_frequencies", "rest_command",
+           "standstill_input"]
 
 
 def data_scales(data: GreyData, output: str = "speed") -> dict[str, float]:
@@ -90,6 +91,17 @@ def effect_starts(name: str, data: GreyData, base: GreyFit, with_starts: bool = 
         return [np.array([g]) for g in grid], np.array([-0.9 / k]), np.array([1.0 / k]), np.array([0.01 / k])
     if name == "offset":
         return [np.array([f * us]) for f in (-0.05, 0.05)], np.array([-us]), np.array([us]), np.array([us])
+    if name == "compliance":
+        top = np.pi / dt  # the Nyquist frequency, rad/s
+        found = residual_frequencies(data, base) if with_starts else []
+        grid = sorted({*found, *np.geomspace(8.0 * np.pi / horizon, 0.25 * top, 6)})
+        starts = [np.array([w, zeta]) for w in grid for zeta in (0.05, 0.2)]
+        lower, upper, scale = np.array([2.0 * np.pi / horizon, 0.0]), np.array([0.5 * top, 2.0]), \
+            np.array([grid[0], 0.05])
+        if dict(options or {}).get("measured") == "motor":
+            starts = [np.append(s_, r) for s_ in starts for r in (0.5, 2.0)]
+            lower, upper, scale = np.append(lower, 0.0), np.append(upper, 100.0), np.append(scale, 1.0)
+        return starts, lower, upper, scale
     if name == "cogging":
         travel = float(np.median(np.sum(np.abs(data.y if base.spec.output != "position" else np.gradient(
             data.y, dt, axis=1)) * data.mask, axis=1) * dt))
@@ -166,6 +178,31 @@ def standstill_input(data: GreyData, output: str = "speed", hold: float = 0.02) 
         if drives.size:
             best = max(best or 0.0, float(drives.max()))
     return best
+
+
+def residual_frequencies(data: GreyData, fit: GreyFit, n_peaks: int = 2) -> list[float]:
+    """Angular frequencies (rad/s) at which the residual of ``fit`` rings: the peaks of its mean periodogram.
+
+    The residual ``y - y_sim`` of each record, its mean removed, is transformed (real FFT, the records'
+    common length), the power averaged over records, and the ``n_peaks`` largest local maxima above
+    four times the record's fundamental and below half the Nyquist frequency are returned, strongest
+    first. A resonance the model lacks shows as such a peak.
+    """
+    n = int(data.mask.sum(axis=1).min())
+    if n < 16:
+        return []
+    e = (data.y - fit.y_sim)[:, :n]
+    e = e - e.mean(axis=1, keepdims=True)
+    power = np.mean(np.abs(np.fft.rfft(e * np.hanning(n), axis=1)) ** 2, axis=0)
+    w = 2.0 * np.pi * np.fft.rfftfreq(n, data.dt)
+    band = (w > 4.0 * 2.0 * np.pi / (n * data.dt)) & (w < 0.5 * np.pi / data.dt)
+    idx = np.flatnonzero(band)
+    if idx.size < 3:
+        return []
+    p = power[idx]
+    peaks = [idx[i] for i in range(1, idx.size - 1) if p[i] >= p[i - 1] and p[i] >= p[i + 1]]
+    peaks.sort(key=lambda i: -power[i])
+    return [float(w[i]) for i in peaks[:n_peaks]]
 
 
 def rest_command(fit: GreyFit) -> np.ndarray:

@@ -86,7 +86,8 @@ class InitialConditions:
         """One line per kind of start, naming the experiments (``numbers``: as a person counts them)."""
         lines = []
         numbers = np.asarray(numbers)
-        groups = (("rest", ~self.assumed, "start{s} at a rest {it} show{s}: rest level and command measured and pinned"),
+        groups = (("rest", ~self.assumed,
+                   "start{s} at a rest {it} show{s}: rest level and command measured and pinned"),
                   ("rest", self.assumed, "start{s} from standstill with the input already on: taken at rest with the "
                                          "drive off before (u0 = 0), pinned; pass --initial steady if not"),
                   ("steady", True, "start{s} with {its} excitation: rest level and rest input estimated"),

@@ -48,6 +48,8 @@ def _y_unit(units: Mapping[str, str] | None) -> str:
 def format_interval(name: str, ci: Mapping, unit: str) -> str:
     """``"limit 159.9 ± 0.04 V, 95 % CI [159.9, 160]"``, or ``"step 0.77 rad/s (grid fit, no interval)"``."""
     value, std = ci.get("value"), ci.get("std")
+    if std == "n/a":  # a property of a grown structure (a resonance's frequency): no interval of its own
+        return f"{name} {value:.4g} {unit}".rstrip()
     if std is None or not math.isfinite(std):
         how = "grid fit, no interval" if std is None else "not determined by these data"
         return f"{name} {value:.4g} {unit} ({how})".replace("  ", " ")
@@ -93,6 +95,17 @@ def advice(diagnosis, effects: Sequence[str], data: str = "DATA.csv", stopped_at
         The ladder stopped at its ``max_steps`` although ``diagnosis.best`` still helps.
     """
     y = _y_unit(units)
+    best = next((c for c in diagnosis.candidates if c["effect"] == diagnosis.best), None)
+    if best is not None and best.get("kind") == "order":  # the linear part grows: its orders, not --effects
+        spec = diagnosis.fits[diagnosis.best].spec
+        flags = f"--poles {spec.n_poles} --zeros {spec.n_zeros}" + (f" --integrators {spec.n_integrators}"
+                                                                      if spec.n_integrators else "")
+        more = f" --effects {','.join(effects)}" if effects else ""
+        what = diagnosis.best.replace("_", " ")
+        if stopped_at_max:
+            return (f"next: a {what} still improves the model; raise --max-steps, or run "
+                    f"`gbo twin diagnose {data} {flags}{more}` to look for a further effect")
+        return f"next: grow the linear part by a {what}, then look further: `gbo twin diagnose {data} {flags}{more}`"
     if diagnosis.best is not None:
         more = ",".join([*effects, diagnosis.best])
         if stopped_at_max:

@@ -46,23 +46,28 @@ FITTED_PARAMETERS: dict[str, tuple[tuple[str, bool], ...]] = {
     "drift": (("rate", True),),
     "offset": (("value", True),),
     "cogging": (("amplitude", True), ("period", True), ("phase", True)),
+    "compliance": (("frequency", True), ("damping", True)),
 }
 
 
-#: Fitted parameters of an effect's variants (the pseudo-option ``variant`` of a structure's effect), where they
-#: differ from :data:`FITTED_PARAMETERS`: direction-dependent Coulomb friction fits its level and its asymmetry.
-VARIANT_PARAMETERS: dict[tuple[str, str], tuple[tuple[str, bool], ...]] = {
-    ("coulomb_friction", "asymmetric"): (("torque", True), ("asymmetry", True)),
+#: Fitted parameters of an effect's variants, where they differ from :data:`FITTED_PARAMETERS`, keyed by
+#: ``(effect, option, value)``: direction-dependent Coulomb friction (the pseudo-option ``variant``, which is
+#: not the block's) fits its level and its asymmetry; a coupling seen from the motor also its inertia ratio.
+VARIANT_PARAMETERS: dict[tuple[str, str, str], tuple[tuple[str, bool], ...]] = {
+    ("coulomb_friction", "variant", "asymmetric"): (("torque", True), ("asymmetry", True)),
+    ("compliance", "measured", "motor"): (("frequency", True), ("damping", True), ("inertia_ratio", True)),
 }
 
 
 def fitted_parameters(name: str, options=()) -> tuple[tuple[str, bool], ...]:
-    """``((parameter, smooth), ...)`` fitted for effect ``name`` with ``options`` (its ``variant``, if any).
+    """``((parameter, smooth), ...)`` fitted for effect ``name`` with ``options`` (its variant, if any).
 
     ``smooth`` says whether the gradient iteration moves the parameter (``False``: chosen on a grid).
     """
-    variant = dict(options).get("variant")
-    return FITTED_PARAMETERS[name] if variant is None else VARIANT_PARAMETERS[(name, variant)]
+    for key, value in dict(options).items():
+        if (name, key, value) in VARIANT_PARAMETERS:
+            return VARIANT_PARAMETERS[(name, key, value)]
+    return FITTED_PARAMETERS[name]
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from agents.jsonable import jsonable
 from agents.thread_limits import single_thread
 from agents.twin.candidates import refit_problem
 from agents.twin.data import GreyData
-from agents.twin.evidence import REVEALING_EXPERIMENTS, effect_evidence, separating_experiment
+from agents.twin.evidence import REVEALING_EXPERIMENTS, effect_evidence, order_change, separating_experiment
 from agents.twin.fidelity import rmse
 from agents.twin.least_squares import Problem, fit_problems
 from agents.twin.model import FITTED_PARAMETERS, GreyFit, effect_offset, fitted_parameters, output_error
@@ -237,8 +237,9 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
     RMSE is below ``(1 - min_gain)`` times the current model's and at least ``noise_gain``
     times the noise floor below it, its fit to all data is better than the current model's
     (a candidate that fits worse cannot be the missing physics, whatever a few held-out
-    experiments say), and its ``effect_rms`` is at least a fifth of the RMS it explains. The good candidates are ordered by ``delta_bic``; then a candidate whose fit
-    explains a much larger share of the residual power (:data:`SHARE_POINTS`, :data:`SHARE_RATIO`)
+    experiments say), and its ``effect_rms`` is at least a fifth of the RMS it explains. The
+    good candidates are ordered by ``delta_bic``; then a candidate whose fit explains a much larger
+    share of the residual power (:data:`SHARE_POINTS`, :data:`SHARE_RATIO`)
     moves ahead of one that explains little, unless the latter's held-out RMSE is lower by
     :data:`CLEAR_HELDOUT_GAIN`: the held-out error of a few experiments is itself uncertain,
     and a small effect that wins by a hair is not the physics that the residual shows.
@@ -258,18 +259,28 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
     cands = []
     for i, name in enumerate(order, start=1):
         fit = fits[name]
-        entry = {"effect": name, "rmse": float(np.sqrt(rss[i] / n)), "delta_bic": float(bic[i] - bic[0]),
-                 "params": jsonable(fit.effect_params.get(name, {}), finite=True) if name in fit.effect_params else {},
+        grown = fit.spec.n_linear != current.spec.n_linear  # an order candidate
+        if grown:
+            change = order_change(name, current, fit)
+            params = {key: value["value"] for key, value in change.items()}
+            intervals = {key: {**value, "std": "n/a"} for key, value in change.items()}
+            size = rmse(output_error(fit.y_sim, current.y_sim, data.mask, fit.spec), mask=data.mask)
+        else:
+            params = fit.effect_params.get(name, {})
+            intervals, size = effect_intervals(data, fit, name), effect_size(data, fit)
+        entry = {"effect": name, "kind": "order" if grown else "effect", "rmse": float(np.sqrt(rss[i] / n)),
+                 "delta_bic": float(bic[i] - bic[0]), "params": jsonable(params, finite=True),
                  "evidence": effect_evidence(name, data, current, fit), "train_rmse": float(fit.rmse),
                  "share": _share(current, fit), "extra_params": int(fit.n_params - current.n_params),
-                 "effect_rms": effect_size(data, fit), "fitted": True, "intervals": effect_intervals(data, fit, name)}
+                 "effect_rms": float(size) if np.isfinite(size) else 0.0, "fitted": True, "intervals": intervals}
         if name in plan.notes:
             entry["note"] = plan.notes[name]
         cands.append(entry)
     cur_rmse = float(np.sqrt(rss[0] / n))
     for name in plan.skipped:  # not fitted: absorbed by the rest levels, so its fit is the current model's
         extra = len(FITTED_PARAMETERS[name])
-        cands.append({"effect": name, "rmse": cur_rmse, "delta_bic": float(extra * np.log(n)), "params": {},
+        cands.append({"effect": name, "kind": "effect", "rmse": cur_rmse, "delta_bic": float(extra * np.log(n)),
+                      "params": {},
                       "evidence": f"not fitted: {plan.notes[name]}", "train_rmse": float(current.rmse), "share": 0.0,
                       "extra_params": extra, "effect_rms": 0.0, "note": plan.notes[name], "fitted": False})
     cands.sort(key=lambda c: c["delta_bic"])

@@ -6,6 +6,7 @@
 * :mod:`~gbo_envs.physics.friction`: Coulomb and viscous friction, stiction;
 * :mod:`~gbo_envs.physics.sensor`: quantization;
 * :mod:`~gbo_envs.physics.plant_effects`: time delay, drift;
+* :mod:`~gbo_envs.physics.compliance`: a flexible coupling (the two-mass resonance);
 * :mod:`~gbo_envs.physics.effects`: the catalogue ``EFFECTS`` and ``build_effects``.
 """
 
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 from gbo_envs.physics.actuator import Backlash, Cogging, DeadZone, Offset, Saturation
 from gbo_envs.physics.block import SIDES, EffectBlock, EffectParameter
+from gbo_envs.physics.compliance import Compliance
 from gbo_envs.physics.effects import EFFECT_NAMES, EFFECTS, build_effect, build_effects, describe_effect
 from gbo_envs.physics.friction import CoulombFriction, Stiction, ViscousFriction
 from gbo_envs.physics.lti import ContinuousPlant, DiscretePlant
@@ -22,6 +24,7 @@ from gbo_envs.physics.sensor import Quantization
 __all__ = [
     "Backlash",
     "Cogging",
+    "Compliance",
     "ContinuousPlant",
     "CoulombFriction",
     "DRIFT_MODES",

@@ -17,6 +17,7 @@ from typing import Any
 
 from gbo_envs.physics.actuator import Backlash, Cogging, DeadZone, Offset, Saturation
 from gbo_envs.physics.block import EffectBlock, EffectParameter
+from gbo_envs.physics.compliance import Compliance
 from gbo_envs.physics.friction import CoulombFriction, Stiction, ViscousFriction
 from gbo_envs.physics.plant_effects import Drift, TimeDelay
 from gbo_envs.physics.sensor import Quantization
@@ -27,7 +28,7 @@ __all__ = ["EFFECTS", "EFFECT_NAMES", "build_effect", "build_effects", "describe
 EFFECTS: dict[str, type[EffectBlock]] = {
     cls.name: cls
     for cls in (TimeDelay, Saturation, DeadZone, CoulombFriction, ViscousFriction, Stiction, Backlash,
-                Quantization, Drift, Offset, Cogging)
+                Quantization, Drift, Offset, Cogging, Compliance)
 }
 
 #: The catalogue names in the order of docs/design.md, "Effects catalogue".

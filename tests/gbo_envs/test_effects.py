@@ -58,7 +58,7 @@ def delayed(loop: ClosedLoop, u: np.ndarray, u_start: float) -> np.ndarray:
 # -- catalogue and description ------------------------------------------------------------------
 def test_catalogue_is_the_design_list():
     assert set(EFFECT_NAMES) == {"time_delay", "saturation", "dead_zone", "coulomb_friction", "viscous_friction",
-                                 "stiction", "backlash", "quantization", "drift", "offset", "cogging"}
+                                 "stiction", "backlash", "quantization", "drift", "offset", "cogging", "compliance"}
 
 
 @pytest.mark.parametrize("name", EFFECT_NAMES)

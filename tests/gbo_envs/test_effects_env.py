@@ -88,7 +88,7 @@ def test_spec_forms():
 @pytest.mark.parametrize(
     ("spec", "pattern"),
     [
-        ({"friction": {"torque": 1.0}}, r"unknown effect 'friction'; the catalogue is \('time_delay'.*'cogging'\)"),
+        ({"friction": {"torque": 1.0}}, r"unknown effect 'friction'; the catalogue is \('time_delay'.*'compliance'\)"),
         ({"saturation": {"limit": -1.0}}, r"saturation: parameter 'limit' must be in \[0, 1e\+09\]"),
         ({"saturation": {"limit": "big"}},
          r"saturation: parameter 'limit' must be a real number in \[0, 1e\+09\].*str"),
@@ -107,6 +107,9 @@ def test_spec_forms():
         ({"cogging": {"amplitude": 1.0, "period": 0.0}}, r"cogging: parameter 'period' must be in \[1e-12, 1e\+09\]"),
         ({"time_delay": {"delay": -0.001}}, r"time_delay: parameter 'delay' must be in \[0, 1000\]"),
         ({"drift": {"rate": -2.0}}, r"drift: parameter 'rate' must be in \[-1, 10\]"),
+        ({"compliance": {"frequency": 0.0}}, r"compliance: parameter 'frequency' must be in \[0.001, 1e\+09\]"),
+        ({"compliance": {"frequency": 10.0, "measured": "shaft"}},
+         r"compliance: parameter 'measured' must be one of \('load', 'motor'\)"),
         ({"drift": {"rate": 0.1, "parameter": "inertia"}}, r"drift: parameter 'parameter' must be .*'gain'"),
         ({"drift": {"rate": 0.1, "mode": "random"}}, r"drift: parameter 'mode' must be one of"),
         ({"drift": {"rate": 0.1, "start": -1}}, r"drift: parameter 'start' must be an integer"),
@@ -126,7 +129,8 @@ def test_every_catalogue_name_builds_from_gym_make():
     required = {"saturation": {"limit": 1e3}, "dead_zone": {"width": 1.0}, "coulomb_friction": {"torque": 1.0},
                 "viscous_friction": {"coefficient": 0.01}, "stiction": {"breakaway": 1.0},
                 "backlash": {"width": 0.5}, "quantization": {"step": 0.1}, "offset": {"value": 1.0},
-                "cogging": {"amplitude": 1.0}, "time_delay": {"delay": 0.001}, "drift": {"rate": -0.01}}
+                "cogging": {"amplitude": 1.0}, "time_delay": {"delay": 0.001}, "drift": {"rate": -0.01},
+                "compliance": {"frequency": 40.0}}
     assert set(required) == set(EFFECT_NAMES)
     env = gym.make("gbo_envs/DCMotor-v0", noise=False, effects=required)
     env.reset(seed=0)
