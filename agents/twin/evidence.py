@@ -32,6 +32,10 @@ SEPARATING_EXPERIMENTS: dict[frozenset, str] = {
     frozenset({"dead_zone", "stiction"}): "a reversal at speed separates dead_zone (still active while moving) "
                                           "from stiction",
     frozenset({"drift", "time_delay"}): "repeating the first experiment at the end separates drift from time_delay",
+    frozenset({"compliance", "pole_pair"}): "the same resonance: compliance is a coupling between two inertias "
+                                            "(its static gain kept, a zero from its damping), pole_pair any extra "
+                                            "mode; the speed measured on the motor's side of the coupling (an "
+                                            "anti-resonance) separates them",
 }
 _ONE_SIDED = {
     "saturation": "a larger step (commands beyond the fitted limit) separates saturation from {other}",
@@ -39,6 +43,8 @@ _ONE_SIDED = {
     "drift": "repeating the first experiment at the end of the session separates drift from {other}",
     "quantization": "a slow output ramp over many sensor levels separates quantization from {other}",
     "cogging": "a slow constant-speed run over several revolutions separates cogging from {other}",
+    "compliance": "a step with a faster controller, which rings the coupling's resonance, or the speed measured on "
+                  "the other side of the coupling, separates compliance from {other}",
 }
 
 

@@ -95,7 +95,7 @@ def advice(diagnosis, effects: Sequence[str], data: str = "DATA.csv", stopped_at
         The ladder stopped at its ``max_steps`` although ``diagnosis.best`` still helps.
     """
     y = _y_unit(units)
-    best = next((c for c in diagnosis.candidates if c["effect"] == diagnosis.best), None)
+    best = next((c for c in getattr(diagnosis, "candidates", ()) if c["effect"] == diagnosis.best), None)
     if best is not None and best.get("kind") == "order":  # the linear part grows: its orders, not --effects
         spec = diagnosis.fits[diagnosis.best].spec
         flags = f"--poles {spec.n_poles} --zeros {spec.n_zeros}" + (f" --integrators {spec.n_integrators}"

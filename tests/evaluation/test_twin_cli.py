@@ -14,6 +14,7 @@ import json
 import numpy as np
 import pytest
 
+from agents.twin.candidates import ORDER_CANDIDATES
 from agents.twin.csvio import write_csv
 from evaluation.cli import main
 from gbo_envs.physics import EFFECT_NAMES
@@ -36,7 +37,8 @@ def test_diagnose_json_is_exactly_one_object(csv_path, capsys):
     assert payload["model"] == "linear(2p0z)"
     assert isinstance(payload["rmse"], float) and isinstance(payload["fit_percent"], float)
     assert isinstance(payload["noise_rmse"], float)
-    assert {c["effect"] for c in payload["candidates"]} == set(EFFECT_NAMES)  # every catalogue effect ranked
+    # every catalogue effect ranked, and the linear part's orders
+    assert {c["effect"] for c in payload["candidates"]} == set(EFFECT_NAMES) | set(ORDER_CANDIDATES)
     first = payload["candidates"][0]
     assert set(first) >= {"effect", "rmse", "delta_bic", "params", "evidence"}
     assert payload["best"] in (None, first["effect"])
