@@ -325,7 +325,10 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
         if theta_start is None:
             theta_start = srivc.lssvf(orders, signals, tau, bandwidth, offset)
         result = srivc.srivc(orders, signals, tau, theta_start, iterations, tol, offset)
-        score = simulation_error(orders, result.theta, tau, signals, offset)[0]
+        try:
+            score = simulation_error(orders, result.theta, tau, signals, offset)[0]
+        except FloatingPointError:  # a start whose pole is too fast to simulate (srivc.srivc): no model here
+            score = np.inf
         cache[float(tau)] = (score, result)
         return score
 
@@ -378,7 +381,10 @@ def _polish(orders, theta, tau, signals, score, delay_bounds, offset):
         th = srivc.stabilised(orders, th)
         parts = []
         for sig in signals:
-            y_sim, y0 = srivc.simulate(orders, th, float(ta), sig, offset)[:2]
+            try:
+                y_sim, y0 = srivc.simulate(orders, th, float(ta), sig, offset)[:2]
+            except FloatingPointError:  # a pole too fast to simulate (srivc._Prefilter)
+                return np.full(sum(s.y.size for s in signals), 1e6)
             height = np.maximum(np.abs(sig.r2 - y0), 1e-12)
             parts.append((((sig.y + sig.y_ref[:, None]) - y_sim) / height[:, None]).ravel())
         res = np.concatenate(parts)

@@ -162,6 +162,10 @@ class _Prefilter:
         den_z = np.real(np.poly(np.exp(np.roots(den) * h)))  # eigenvalues of Phi = e^{A h}
         num0 = _state_numerators(plant.phi, plant.gamma0, den_z)
         num1 = _state_numerators(plant.phi, plant.gamma1, den_z)
+        if not (np.all(np.isfinite(num0)) and np.all(np.isfinite(num1)) and np.all(np.isfinite(den_z))):
+            # e^{A h} overflows: a pole of A(p) beyond about 1e35 / h (an iterate whose pole ran off to
+            # -infinity), which no sample can show; its NaN filters would reach LAPACK
+            raise FloatingPointError(f"A(p) = {den.tolist()}: poles too fast to discretise at h = {h:g} s")
         nums = np.zeros((n, d + n + 2))
         nums[:, d : d + n + 1] += num0  # x[k+1] = Phi x[k] + Gamma0 u[k-d] + Gamma1 u[k-d-1]
         nums[:, d + 1 : d + n + 2] += num1
@@ -300,7 +304,12 @@ def srivc(orders: Orders, batches: list[Signals], delay: float, theta0: np.ndarr
     """Iterate (S1)-(S4) from ``theta0`` at a fixed input delay ``delay`` (s)."""
     theta = stabilised(orders, np.asarray(theta0, dtype=float))
     for it in range(1, max_iter + 1):
-        gram, rhs = _equations(orders, batches, orders.den(theta), delay, theta, offset)
+        try:
+            gram, rhs = _equations(orders, batches, orders.den(theta), delay, theta, offset)
+        except FloatingPointError:
+            # the iterate's pole ran off to -infinity (the data want fewer poles than the model has):
+            # diverged, as a non-finite iterate
+            return SrivcResult(theta0, it, False)
         new = stabilised(orders, _solve(gram, rhs))
         change = np.linalg.norm(new - theta) / max(np.linalg.norm(new), 1e-300)
         theta = new
