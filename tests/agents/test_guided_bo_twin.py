@@ -10,10 +10,11 @@ import pytest
 
 import agents
 import gbo_envs  # noqa: F401
+from agents.guidance import TwinIterations
 from agents.guided_bo import GuidedBO
 from agents.twin import LinearTwin, make_twin_env
 
-FAST = {"grid_points": 40, "max_twin_iterations": 12}
+FAST = {"grid_points": 40}
 
 
 def _records(env, gains_list, seed=0):
@@ -85,7 +86,8 @@ def test_eta2_is_relative_to_the_noise_floor():
 
 def test_twin_changes_are_announced_logged_and_plotted(caplog):
     with caplog.at_level(logging.INFO, logger="agents.base"):
-        result = GuidedBO(guidance="iterations", **FAST).run(gym.make("gbo_envs/DCMotor-v0"), budget=3, seed=1)
+        result = GuidedBO(guidance=TwinIterations(max_twin_iterations=12), **FAST).run(
+            gym.make("gbo_envs/DCMotor-v0"), budget=3, seed=1)
     changes = result.info["twin_changes"]
     assert changes and changes[0]["experiment"] == 1
     assert any("twin: linear, RMSE" in message for message in caplog.messages)
@@ -120,7 +122,7 @@ def test_twin_env_averages_its_measurement_noise_deterministically():
 # -- trust -----------------------------------------------------------------------------------------------
 def test_a_broken_promise_stops_the_twin_until_a_refit_no_longer_makes_it():
     env = gym.make("gbo_envs/DCMotor-v0")
-    tuner = _setup(GuidedBO(**FAST), env)
+    tuner = _setup(GuidedBO(guidance="iterations", **FAST), env)  # trust guards the twin iterations
     info = _records(gym.make("gbo_envs/DCMotor-v0"), [[0.5, 1.2]])[0]
     tuner.tell(info["gains"], info["cost"], info)
     assert tuner._current_twin() is not None and tuner._activate(std=np.inf)
