@@ -301,14 +301,17 @@ def lssvf(orders: Orders, batches: list[Signals], delay: float, bandwidth: float
 
 def srivc(orders: Orders, batches: list[Signals], delay: float, theta0: np.ndarray, max_iter: int = 50,
           tol: float = 1e-8, offset: bool = True) -> SrivcResult:
-    """Iterate (S1)-(S4) from ``theta0`` at a fixed input delay ``delay`` (s)."""
+    """Iterate (S1)-(S4) from ``theta0`` at a fixed input delay ``delay`` (s).
+
+    An iterate that is not finite, or whose pole ran off to -infinity so far that its
+    prefilter cannot be discretised (the data want fewer poles than the model has), is
+    divergence: the result is ``theta0``, not converged.
+    """
     theta = stabilised(orders, np.asarray(theta0, dtype=float))
     for it in range(1, max_iter + 1):
         try:
             gram, rhs = _equations(orders, batches, orders.den(theta), delay, theta, offset)
-        except FloatingPointError:
-            # the iterate's pole ran off to -infinity (the data want fewer poles than the model has):
-            # diverged, as a non-finite iterate
+        except FloatingPointError:  # a pole too fast to discretise (_Prefilter)
             return SrivcResult(theta0, it, False)
         new = stabilised(orders, _solve(gram, rhs))
         change = np.linalg.norm(new - theta) / max(np.linalg.norm(new), 1e-300)
@@ -316,8 +319,19 @@ def srivc(orders: Orders, batches: list[Signals], delay: float, theta0: np.ndarr
         if not np.all(np.isfinite(theta)):
             return SrivcResult(theta0, it, False)
         if change <= tol:
-            return SrivcResult(theta, it, True)
-    return SrivcResult(theta, max_iter, False)
+            return _simulatable(SrivcResult(theta, it, True), orders, batches, delay, theta0)
+    return _simulatable(SrivcResult(theta, max_iter, False), orders, batches, delay, theta0)
+
+
+def _simulatable(result: SrivcResult, orders: Orders, batches: list[Signals], delay: float,
+                 theta0: np.ndarray) -> SrivcResult:
+    """``result``, or divergence (``theta0``) if its last iterate cannot be discretised (see :func:`srivc`)."""
+    try:
+        for h in {sig.h for sig in batches}:
+            _Prefilter(orders.den(result.theta), h, delay)
+    except FloatingPointError:
+        return SrivcResult(theta0, result.n_iter, False)
+    return result
 
 
 def simulate(orders: Orders, theta: np.ndarray, delay: float, sig: Signals, offset: bool):
