@@ -342,8 +342,15 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
         lo = grid[max(best - 1, 0)]
         hi = grid[min(best + 1, grid.size - 1)]
         warm = cache[float(grid[best])][1].theta
-        minimize_scalar(lambda tau: evaluate(tau, warm, max_iter), bounds=(lo, hi), method="bounded",
-                        options={"xatol": 1e-3 * dt})
+        # a delay without a model (inf) goes to Brent as a finite value worse than every model's: its parabolic
+        # steps subtract the values, and inf - inf warned "invalid value"
+        worst = 2.0 * max([s for s in scores if np.isfinite(s)], default=0.5) or 1.0
+
+        def refined(tau: float) -> float:
+            score = evaluate(tau, warm, max_iter)
+            return score if np.isfinite(score) else worst
+
+        minimize_scalar(refined, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3 * dt})
     tau_best = min(cache, key=lambda tau: cache[tau][0])
     if not cache[tau_best][1].converged and grid.size > 1:  # finish the iterations at the chosen delay
         evaluate(tau_best, cache[tau_best][1].theta, max_iter)
