@@ -334,3 +334,18 @@ def test_a_time_invariant_plant_with_an_effect_is_not_read_as_a_change():
 
 def _effect_names(tuner):
     return set(getattr(tuner.twin_, "effect_params_", None) or {})
+
+
+def test_guided_bo_identifies_a_twin_of_a_resonant_external_plant(capfd):
+    """The DC motor behind a flexible coupling, wrapped as a user wraps a rig (ExternalPlantEnv): SRIVC's iterates
+    ran a pole off to -infinity on this first record, NaN reached LAPACK and guided BO was left without a twin."""
+    from tests.support import flexible_coupling_env
+
+    env = flexible_coupling_env(omega=15.0, zeta=0.06, noise_std=0.05, seed=2)
+    env.reset(seed=2)
+    info = env.step(np.array([0.5, 1.8]))[4]
+    tuner = _setup(GuidedBO(**FAST), env)
+    tuner.tell((0.5, 1.8), info["cost"], info)
+    tuner.ask()
+    assert tuner.twin_ is not None and np.all(np.isfinite(tuner.twin_.params_))
+    assert "DLASCL" not in "".join(capfd.readouterr())
