@@ -41,7 +41,7 @@ class TwinPrior:
     """The twin's metrics as the prior mean of the default BO's metric GPs (``GuidedBO``'s default).
 
     Each metric GP models the plant's discrepancy from the twin, and EI runs on that
-    posterior on every ``ask``, with no twin iterations (see "guidance="prior"" in
+    posterior on every ``ask``, with no twin iterations (see ``guidance="prior"`` in
     :class:`~agents.guided_bo.GuidedBO`). The guidance has no parameters: the twin's
     activation threshold ``eta2`` (eq. (DT_rmse1)) and the re-initialisation threshold
     ``delta`` (eq. (reinit_DTdataset)) act in both guidances and are ``GuidedBO``'s.
@@ -67,7 +67,7 @@ class TwinIterations:
     activates the twin when ``sqrt(v_n(theta+)) > eta1 sigma_eps`` (eq. (eta1)) and the
     twin fits (``GuidedBO``'s ``eta2``, eq. (DT_rmse1)); BO then runs on the twin until
     for ``n_ei`` consecutive iterations ``a_EI,i <= eta3 max_j a_EI,j`` (eq. (DT_stop_a)),
-    or for ``max_twin_iterations`` (eq. (DT_stop_b)). See "guidance="iterations"" in
+    or for ``max_twin_iterations`` (eq. (DT_stop_b)). See ``guidance="iterations"`` in
     :class:`~agents.guided_bo.GuidedBO` for the choices where the paper leaves room.
 
     Parameters
