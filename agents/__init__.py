@@ -36,6 +36,8 @@ _LAZY = {
     "OptunaTPE": "agents.optuna_tuner",
     "estimate_noise": "agents.cost_noise",
     "GuidedBO": "agents.guided_bo",
+    "TwinIterations": "agents.guidance",
+    "TwinPrior": "agents.guidance",
     "MultiFidelityBO": "agents.mf_bo",
     "BoTorchTuner": "agents.peers.botorch_tuner",
     "SkoptTuner": "agents.peers.skopt_tuner",

@@ -13,21 +13,20 @@ the real plant.
 from __future__ import annotations
 
 import json
+import warnings
+from dataclasses import fields
 from typing import Any
 
 import numpy as np
 
 from agents.bo import BayesianOptimization
+from agents.guidance import ACTIVATION_RULES, GUIDANCE_RULES, TwinIterations, TwinPrior, as_guidance
 from agents.parameters import HasMethods, Interval, Options, validate_params
 from agents.thread_limits import single_thread
 from gbo_envs import METRIC_NAMES
 
 __all__ = ["GuidedBO", "ACTIVATION_RULES", "GUIDANCE_RULES", "MIN_TWIN_ITERATIONS", "TWIN_CHOICES",
-           "TWIN_REFIT_EVERY"]
-
-#: How the twin is switched on: the paper's uncertainty test eq. (DT_activation), or every
-#: ``period`` plant experiments for ``n_ei`` twin iterations (the twin-fidelity study, Sec. V-A).
-ACTIVATION_RULES = ("uncertainty", "periodic")
+           "TWIN_REFIT_EVERY", "TwinIterations", "TwinPrior"]
 
 #: Twin iterations per activation before eq. (DT_stop_a) may stop them.
 MIN_TWIN_ITERATIONS = 10
@@ -38,10 +37,6 @@ TWIN_REFIT_EVERY = 5
 
 #: ``twin`` by name: the workbench-diagnosed grey-box twin, or the paper's linear SRIVC twin.
 TWIN_CHOICES = ("auto", "linear")
-
-#: How the twin guides BO: as the prior mean of the default BO's metric GPs, or by the paper's
-#: twin iterations on the cost GP (Algorithm 1, lines 9-16).
-GUIDANCE_RULES = ("prior", "iterations")
 
 #: Effects at most in a diagnosed twin (the workbench's ladder, two rungs).
 MAX_TWIN_EFFECTS = 2
@@ -85,8 +80,7 @@ class GuidedBO(BayesianOptimization):
     simulated once per grid point and fitted twin (10^4 simulations, cached; a noisy twin's
     noise draws only near its expected optimum, see :class:`~agents.twin.prior.TwinMetrics`).
     Otherwise the metric GPs have their constant prior mean and guided BO is the default BO. A diverging plant
-    experiment enters with the metrics of ``J = unstable_cost``. ``eta1``, ``eta3``,
-    ``n_ei``, ``max_twin_iterations``, ``activation`` and ``period`` are not used.
+    experiment enters with the metrics of ``J = unstable_cost``.
     Which choice buys what is measured in benchmarks/guided_bo_ablation.py.
 
     **guidance="iterations"**, Algorithm 1 of the paper, on one GP on the cost
@@ -222,41 +216,39 @@ class GuidedBO(BayesianOptimization):
         measurement of five repeated experiments (:func:`agents.cost_noise.estimate_noise`
         measures it on a real plant); if the env declares none (or zero), 1 % of the mean
         measured cost. (The GP then learns its noise.)
-    eta1 : float, default 3.0
-        Activation threshold of eq. (eta1), in units of ``sigma_eps``: the twin is
-        used when the GP's posterior std at the next query exceeds
-        ``eta1 * sigma_eps``. (The paper states ``eta1 = 3`` without a unit; tying
-        it to the noise level makes the same value work on every plant.)
     eta2 : float, optional
         Twin RMSE threshold of eq. (DT_rmse1) for the twin's ``rmse_`` (normalised
-        by the step height). Default: ``3 max(s, 10^-3)`` with ``s`` the normalised
-        noise floor of the records; with ``twin="linear"``, ``3 sigma_eps`` as in the paper.
-    eta3 : float, default 0.2
-        Stopping threshold of eq. (DT_stop_a); ``inf`` runs exactly ``n_ei`` iterations.
-    n_ei : int, default 3
-        ``n~_EI`` of eq. (DT_stop_a).
+        by the step height, dimensionless): the twin guides only while ``rmse_ < eta2``.
+        Default: ``3 max(s, 10^-3)`` with ``s`` the normalised noise floor of the records;
+        with ``twin="linear"``, ``3 sigma_eps`` as in the paper. Used by both guidances
+        (it gates the prior as it gates the iterations), so it is the tuner's, not the guidance's.
     delta : float, default 2.0
-        Re-initialisation threshold ``delta~`` of eq. (reinit_DTdataset).
-    max_twin_iterations : int, default 20
-        Cap of eq. (DT_stop_b) on twin iterations per activation.
+        Re-initialisation threshold ``delta~`` of eq. (reinit_DTdataset), a relative cost
+        error (dimensionless): ``D~`` restarts when ``|J - J~| / J > delta``. Used by both
+        guidances (the twin data set is the same), so it is the tuner's.
     n_samples : int, default 100
         Samples per experiment kept for identification, the paper's ``n~`` of eq. (Ds);
         ``None`` keeps every sample. Records whose command moves within the hold
         intervals (a near bang-bang move) keep more, or all
-        (:func:`agents.twin.records.decimate_records`).
-    activation : {"uncertainty", "periodic"}, default "uncertainty"
-        ``"periodic"`` activates the twin every ``period`` plant experiments for
-        exactly ``n_ei`` iterations, subject only to ``eta2`` (Sec. V-A).
-    period : int, default 1
-        ``N_G`` of the periodic rule.
+        (:func:`agents.twin.records.decimate_records`). The twin's, in both guidances.
     twin_poles : int, default 2
         Poles of the twin's transfer function, which has no zeros (the paper's
         high-fidelity twin has 2 poles, the low-fidelity one 5).
     twin : {"auto", "linear"} or estimator, default "auto"
         The digital twin, see "Which twin" above.
-    guidance : {"prior", "iterations"}, default "prior"
-        How the twin guides BO (see above): as the prior mean of the metric GPs, or by
-        the paper's twin iterations on the cost GP (Algorithm 1).
+    guidance : TwinPrior, TwinIterations, str or dict, default "prior"
+        How the twin guides BO (see above), as an object of :mod:`agents.guidance`:
+        :class:`~agents.guidance.TwinPrior` (the twin as prior mean of the metric GPs)
+        or :class:`~agents.guidance.TwinIterations` (the paper's twin iterations on the
+        cost GP, Algorithm 1, with ``eta1``, ``eta3``, ``n_ei``, ``max_twin_iterations``,
+        ``activation`` and ``period``). A name, ``"prior"`` or ``"iterations"``, stands
+        for its defaults; ``{"iterations": {"eta1": 2.0}}`` for its parameters (the
+        form of a study file, ``guidance = {iterations = {eta1 = 2.0}}``).
+    **deprecated
+        ``eta1``, ``eta3``, ``n_ei``, ``max_twin_iterations``, ``activation``, ``period``:
+        the former spelling of :class:`~agents.guidance.TwinIterations`'s parameters,
+        accepted for one release with a ``FutureWarning`` (beside ``guidance="prior"``
+        they had, and have, no effect).
 
     Attributes
     ----------
@@ -290,45 +282,30 @@ class GuidedBO(BayesianOptimization):
 
     _parameter_constraints: dict[str, list] = {
         **BayesianOptimization._parameter_constraints,
-        "eta1": [Interval(float, 0.0, None)],
         "eta2": [None, Interval(float, 0.0, None, closed="neither")],
-        "eta3": [Interval(float, 0.0, None)],
-        "n_ei": [Interval(int, 1, None)],
         "delta": [Interval(float, 0.0, None)],
-        "max_twin_iterations": [Interval(int, 1, None)],
         "n_samples": [None, Interval(int, 10, None)],
-        "activation": [Options(ACTIVATION_RULES)],
-        "period": [Interval(int, 1, None)],
         "twin_poles": [Interval(int, 1, None)],
         "twin": [Options(TWIN_CHOICES), HasMethods(("fit", "get_params"))],
-        "guidance": [Options(GUIDANCE_RULES)],
     }
 
     def __init__(self, *, n_initial: int = 1, grid_points: int = 100, noise_std: float | None = None,
-                 eta1: float = 3.0, eta2: float | None = None, eta3: float = 0.2, n_ei: int = 3,
-                 delta: float = 2.0, max_twin_iterations: int = 20, n_samples: int | None = 100,
-                 activation: str = "uncertainty", period: int = 1, twin_poles: int = 2, twin="auto",
-                 guidance: str = "prior") -> None:
-        validate_params({"guidance": self._parameter_constraints["guidance"]}, {"guidance": guidance})
-        # "iterations": one GP on the cost, the twin's points enter D as costs (Algorithm 1, line D_in_DT);
-        # "prior": the default BO's metric GPs, with the twin's metrics as their prior mean
-        super().__init__(n_initial=n_initial, grid_points=grid_points, noise_std=noise_std,
-                         model="metrics" if guidance == "prior" else "cost")
+                 eta2: float | None = None, delta: float = 2.0, n_samples: int | None = 100, twin_poles: int = 2,
+                 twin="auto", guidance: TwinPrior | TwinIterations | str | dict = "prior", **deprecated) -> None:
+        guidance = _guidance(guidance, deprecated)
+        # iterations: one GP on the cost, the twin's points enter D as costs (Algorithm 1, line D_in_DT);
+        # prior: the default BO's metric GPs, with the twin's metrics as their prior mean
+        super().__init__(n_initial=n_initial, grid_points=grid_points, noise_std=noise_std, model=guidance.model)
         params = validate_params(self._parameter_constraints, {
-            "eta1": eta1, "eta2": eta2, "eta3": eta3, "n_ei": n_ei, "delta": delta,
-            "max_twin_iterations": max_twin_iterations, "n_samples": n_samples, "activation": activation,
-            "period": period, "twin_poles": twin_poles, "twin": twin, "guidance": guidance})
+            "eta2": eta2, "delta": delta, "n_samples": n_samples, "twin_poles": twin_poles, "twin": twin})
         self.guidance = guidance
-        self.eta1, self.eta2, self.eta3 = params["eta1"], params["eta2"], params["eta3"]
-        self.n_ei, self.delta = params["n_ei"], params["delta"]
-        self.max_twin_iterations = params["max_twin_iterations"]
+        self.eta2, self.delta = params["eta2"], params["delta"]
         self.n_samples = params["n_samples"]
-        self.activation, self.period = params["activation"], params["period"]
         self.twin_poles = params["twin_poles"]
         self.twin = twin
         self._params = {"n_initial": self.n_initial, "grid_points": self.grid_points, "noise_std": self.noise_std,
                         **{name: value for name, value in params.items() if name != "twin"},
-                        "twin": twin if isinstance(twin, str) else type(twin).__name__}
+                        "twin": twin if isinstance(twin, str) else type(twin).__name__, "guidance": guidance}
 
     # -- Tuner hooks ---------------------------------------------------------------------------------
     def _setup(self) -> None:
@@ -363,14 +340,14 @@ class GuidedBO(BayesianOptimization):
         if self.twin_ is not None:
             self._record_twin_change(None)
         # periodic rule (Sec. V-A): the twin is used right after the initial data, then every N_G experiments
-        self._since_activation = self.period
+        self._since_activation = getattr(self.guidance, "period", 1)
         self._prior = None  # the twin's metrics while they are the metric GPs' prior mean (guidance="prior")
         self._twin_metrics = None  # the current twin's metrics (simulated gains cached)
 
     def _ask(self) -> np.ndarray:
         if self.n_observations < self.n_initial:
             return super()._ask()
-        if self.guidance == "prior":
+        if isinstance(self.guidance, TwinPrior):
             return self._ask_with_twin_prior()
         with single_thread():  # small matrices, as in BayesianOptimization._ask
             gains, ei, std = self.propose()
@@ -383,7 +360,7 @@ class GuidedBO(BayesianOptimization):
 
     def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:
         super()._tell(gains, cost, record)
-        if self.guidance == "prior" and record is not None and record.get("unstable", False):
+        if isinstance(self.guidance, TwinPrior) and record is not None and record.get("unstable", False):
             # a diverging experiment keeps the metric GPs (and the twin prior) in use: its metrics are
             # those of J = unstable_cost, as the twin's diverging points (agents.twin.prior.TwinMetrics)
             from agents.twin.prior import unstable_metrics
@@ -408,7 +385,7 @@ class GuidedBO(BayesianOptimization):
                 self._cost_missed = True  # the twin was wrong, not the plant changed: refit on every record
             elif missed:
                 self._reinitialise(len(self._twin_records))
-            elif self.guidance == "prior" and abs(cost - predicted) > 3.0 * self.sigma_eps:
+            elif isinstance(self.guidance, TwinPrior) and abs(cost - predicted) > 3.0 * self.sigma_eps:
                 self._cost_missed = True  # the twin's cost is off by more than the cost noise explains
         self._twin_records.append(new)  # eq. (Ds): D~ <- D~ u {(u_i, y_i)}
         self._twin_costs.append((np.asarray(gains, dtype=float), float(cost)))
@@ -522,10 +499,11 @@ class GuidedBO(BayesianOptimization):
 
     def _activate(self, std: float) -> bool:
         """Twin activation test, eq. (DT_activation) (or the periodic rule), and trust."""
-        if self.activation == "periodic":
-            due = self._since_activation >= self.period
+        iterations = self.guidance
+        if iterations.activation == "periodic":
+            due = self._since_activation >= iterations.period
         else:
-            due = std > self.eta1 * self.sigma_eps  # eq. (eta1)
+            due = std > iterations.eta1 * self.sigma_eps  # eq. (eta1)
         if not due:
             return False
         twin = self._current_twin()
@@ -538,8 +516,8 @@ class GuidedBO(BayesianOptimization):
         self.activations_ += 1
         self._since_activation = 0
         twin_env = self._current_twin_env()
-        periodic = self.activation == "periodic"
-        cap = self.n_ei if periodic else self.max_twin_iterations
+        periodic = self.guidance.activation == "periodic"
+        cap = self.guidance.n_ei if periodic else self.guidance.max_twin_iterations
         saved = self.incumbent_rule, self.polish
         # twin iterations: posterior-mean incumbent (the plant data in D are noisy), polished EI maximiser
         self.incumbent_rule, self.polish = "posterior_mean", True
@@ -578,9 +556,9 @@ class GuidedBO(BayesianOptimization):
             gains, ei, _ = self.propose()
             if not periodic:
                 # eq. (DT_stop_a), against the largest EI realised since the activation
-                calm = calm + 1 if ei <= self.eta3 * max(eis) else 0
+                calm = calm + 1 if ei <= self.guidance.eta3 * max(eis) else 0
                 eis.append(ei)
-                if calm >= self.n_ei and iteration >= MIN_TWIN_ITERATIONS:
+                if calm >= self.guidance.n_ei and iteration >= MIN_TWIN_ITERATIONS:
                     break
         # line theta_plus: the twin point of this activation with the lowest twin cost
         best = int(np.argmin(twin_J))
@@ -850,3 +828,44 @@ def _format_values(values: dict[str, float]) -> str:
 def _json_params(twin) -> str:
     """The twin's linear parameters and effect values as one compact JSON string (one per twin row)."""
     return json.dumps({"linear": [float(p) for p in twin.params_], **_effect_values(twin)})
+
+
+#: ``GuidedBO``'s former keywords of the twin iterations, now :class:`~agents.guidance.TwinIterations`'s.
+_DEPRECATED = tuple(f.name for f in fields(TwinIterations))
+
+
+def _guidance(guidance, deprecated: dict) -> TwinPrior | TwinIterations:
+    """The guidance object of ``GuidedBO(guidance=..., **deprecated)``, with a ``FutureWarning`` for the old keywords.
+
+    ``GuidedBO(guidance="iterations", eta1=2)`` is ``guidance=TwinIterations(eta1=2)``. Beside
+    ``guidance="prior"`` the old keywords are checked and, as before, have no effect.
+    """
+    unknown = [name for name in deprecated if name not in _DEPRECATED]
+    if unknown:
+        raise TypeError(f"GuidedBO.__init__() got an unexpected keyword argument {unknown[0]!r}")
+    named = as_guidance(guidance)
+    if not deprecated:
+        return named
+    iterations = TwinIterations(**deprecated)  # checked in either case, as the keywords were
+    given = ", ".join(f"{name}={value!r}" for name, value in deprecated.items())
+    if not isinstance(guidance, str):
+        raise ValueError(f"{', '.join(deprecated)}: give them in the guidance, TwinIterations({given}, ...), not "
+                         f"beside guidance={guidance!r}")
+    if isinstance(named, TwinPrior):
+        warnings.warn(f"GuidedBO({given}) is deprecated: these keywords belong to the twin iterations and have no "
+                      f"effect with guidance='prior'; for twin iterations write guidance=TwinIterations({given})",
+                      FutureWarning, stacklevel=3)
+        return named
+    table = ", ".join(f"{name} = {_toml(value)}" for name, value in deprecated.items())
+    warnings.warn(f"GuidedBO(guidance='iterations', {given}) is deprecated: write guidance=TwinIterations({given}) "
+                  f"(in a study file: guidance = {{iterations = {{{table}}}}})", FutureWarning, stacklevel=3)
+    return iterations
+
+
+def _toml(value) -> str:
+    """``value`` as a TOML value (for the deprecation message)."""
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, float) and not np.isfinite(value):
+        return "inf" if value > 0 else "-inf"
+    return repr(value)

@@ -8,9 +8,13 @@ line passes ``None`` (a bar only when stderr is a terminal) unless ``--quiet``.
 
 from __future__ import annotations
 
+import os
 import sys
 
-__all__ = ["env_id", "progress_bar", "progress_enabled"]
+__all__ = ["FALLBACK_COLUMNS", "FALLBACK_ROWS", "env_id", "progress_bar", "progress_enabled"]
+
+#: The size taken for a terminal that reports 0 columns or rows (some pseudo-terminals, editors' shells).
+FALLBACK_COLUMNS, FALLBACK_ROWS = 80, 24
 
 
 def env_id(env) -> str:
@@ -71,4 +75,23 @@ def progress_bar(total: int, desc: str, enabled: bool | None, initial: int = 0, 
         return _NoBar()
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, initial=initial, desc=desc, unit=unit, leave=leave, file=sys.stderr, dynamic_ncols=True)
+    # tqdm's dynamic_ncols, with a size of our own: tqdm takes a terminal's reported 0 rows as no room for
+    # any bar and 0 columns as a bar 1 character wide (a 0 x 0 pseudo-terminal got no bar at all)
+    columns, rows = _terminal_shape(sys.stderr)
+    bar = tqdm(total=total, initial=initial, desc=desc, unit=unit, leave=leave, file=sys.stderr, ncols=columns,
+               nrows=rows)
+    bar.dynamic_ncols = _terminal_shape  # re-read on every refresh, as dynamic_ncols=True does
+    return bar
+
+
+def _terminal_shape(stream) -> tuple[int | None, int | None]:
+    """tqdm's ``(ncols, nrows)`` of the terminal behind ``stream`` (one less than its size, as tqdm's own).
+
+    A reported size of 0 (some pseudo-terminals) is taken as :data:`FALLBACK_COLUMNS` columns and
+    :data:`FALLBACK_ROWS` rows; ``(None, None)`` when ``stream`` is no terminal.
+    """
+    try:
+        columns, rows = os.get_terminal_size(stream.fileno())
+    except (AttributeError, OSError, ValueError):  # no file descriptor, or not a terminal
+        return None, None
+    return (columns if columns > 0 else FALLBACK_COLUMNS) - 1, (rows if rows > 0 else FALLBACK_ROWS) - 1

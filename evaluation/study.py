@@ -26,9 +26,11 @@ same noise. Example (``evaluation/studies/smoke.toml``)::
     [[tuners]]
     name = "guided-bo"
     label = "guided BO eta1={eta1}"      # {param} is filled from the sweep point
-    params = {eta3 = 0.2}
-    sweep = {eta1 = [1e-6, 3, 20]}       # Cartesian product -> one entry per point,
-    # or sweep = [{n_ei = 5, period = 1}, {n_ei = 10, period = 3}]  (explicit points)
+    params = {twin = "linear", guidance = {iterations = {eta3 = 0.2}}}
+    sweep = {guidance.iterations.eta1 = [1e-6, 3, 20]}   # Cartesian product -> one entry per point,
+    # or sweep = [{delta = 1.0, eta2 = 0.1}, {delta = 2.0, eta2 = 0.2}]  (explicit points)
+    # a dotted key sweeps a parameter inside a table of params (merged into it); labels and
+    # the report name it by its last part (eta1)
 
     [[thresholds]]                # optimality ratios J / J*
     ratio = 1.05                  # label defaults to "phi=1.05"
@@ -53,6 +55,7 @@ same noise. Example (``evaluation/studies/smoke.toml``)::
 
 from __future__ import annotations
 
+import copy
 import itertools
 import json
 import math
@@ -412,32 +415,63 @@ def _tuner_entries(raw: Any, where: str) -> list[TunerEntry]:
         return [TunerEntry(name=name, label=label, params=params, sweep={}, group=label)]
     entries = []
     for point in points:
-        merged = {**params, **point}
+        merged = _merged(params, point)
+        swept = {path[-1]: value for path, value in point.items()}  # by the last part of a dotted key
+        if len(swept) < len(point):
+            raise StudySpecError(f"{where} sweep: two swept parameters end in the same name "
+                                 f"({sorted('.'.join(path) for path in point)})")
         if "{" in label:
+            fields = {path[-1]: value for path, value in _paths(merged).items()}
             try:
-                text = label.format(**{k: _fmt(v) for k, v in merged.items()})
+                text = label.format(**{k: _fmt(v) for k, v in {**fields, **swept}.items()})
             except (KeyError, IndexError, ValueError) as exc:
                 raise StudySpecError(f"{where} label: placeholder {exc} is neither a param nor a swept "
-                                     f"parameter ({sorted(merged)})") from None
+                                     f"parameter ({sorted(fields)})") from None
         else:
-            text = f"{label} " + " ".join(f"{k}={_fmt(v)}" for k, v in point.items())
-        entries.append(TunerEntry(name=name, label=text, params=merged, sweep=dict(point), group=label))
+            text = f"{label} " + " ".join(f"{k}={_fmt(v)}" for k, v in swept.items())
+        entries.append(TunerEntry(name=name, label=text, params=merged, sweep=swept, group=label))
     return entries
 
 
-def _sweep_points(sweep: Any, where: str) -> list[dict]:
+def _paths(table: dict, prefix: tuple = ()) -> dict[tuple, Any]:
+    """``{("guidance", "iterations", "eta1"): 3.0}`` from ``{"guidance": {"iterations": {"eta1": 3.0}}}``."""
+    out = {}
+    for key, value in table.items():
+        if isinstance(value, dict) and value:
+            out.update(_paths(value, (*prefix, key)))
+        else:
+            out[(*prefix, key)] = value
+    return out
+
+
+def _merged(params: dict, point: dict[tuple, Any]) -> dict:
+    """``params`` with each swept value set at its path (a copy: the entries of a sweep share no table)."""
+    merged = copy.deepcopy(params)
+    for path, value in point.items():
+        table = merged
+        for key in path[:-1]:
+            if not isinstance(table.get(key, {}), dict):
+                raise StudySpecError(f"sweep {'.'.join(path)}: params {key} = {table[key]!r} is not a table")
+            table = table.setdefault(key, {})
+        table[path[-1]] = value
+    return merged
+
+
+def _sweep_points(sweep: Any, where: str) -> list[dict[tuple, Any]]:
+    """The sweep's points, each ``{path: value}`` (a path is a dotted key's parts, ``("eta1",)`` for a plain one)."""
     if sweep is None:
         return []
     if isinstance(sweep, dict):
         if not sweep:
             raise StudySpecError(f"{where}: expected at least one parameter, e.g. {{eta1 = [1, 3]}}")
-        for key, values in sweep.items():
+        lists = _paths(sweep)
+        for path, values in lists.items():
             if not isinstance(values, list) or not values:
-                raise StudySpecError(f"{where} {key}: expected a non-empty list of values, got {values!r}")
-        keys = list(sweep)
-        return [dict(zip(keys, combo)) for combo in itertools.product(*(sweep[k] for k in keys))]
+                raise StudySpecError(f"{where} {'.'.join(path)}: expected a non-empty list of values, got {values!r}")
+        paths = list(lists)
+        return [dict(zip(paths, combo)) for combo in itertools.product(*(lists[p] for p in paths))]
     if isinstance(sweep, list) and sweep and all(isinstance(p, dict) and p for p in sweep):
-        return [dict(p) for p in sweep]
+        return [_paths(p) for p in sweep]
     raise StudySpecError(f"{where}: expected a table of value lists ({{eta1 = [1, 3]}}, Cartesian product) or a "
                          f"list of parameter tables ([{{n_ei = 5, period = 1}}, ...]), got {sweep!r}")
 

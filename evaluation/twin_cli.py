@@ -13,13 +13,14 @@ terminal). ``DATA.csv`` has the header ``experiment,t,r,u,y`` (extra columns
 allowed; experiments numbered from 1); see :mod:`agents.twin.csvio`.
 ``compare`` writes its plot to ``out/twin/<data name>/`` unless ``--out`` says
 where, and prints the path. ``diagnose --json`` prints exactly one JSON object
-on stdout. Bad data exits with status 2 and a message naming the row and the
-column.
+on stdout. Bad data exits with status 2 and one line naming the file, and the
+row and column, or the experiment, where one is at fault.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import warnings
 from pathlib import Path
@@ -143,13 +144,45 @@ def _fit(data, spec, effects):
 
 
 def _run(handler):
-    """The handler without the fitting's numerical warnings; bad input ends in :func:`evaluation.cli.main`."""
+    """The handler without the fitting's numerical warnings; bad input ends in :func:`evaluation.cli.main`.
+
+    ``--effects`` is checked first, so that every ``ValueError`` after it is about the data: it is raised
+    again naming the file (:func:`_naming_the_file`).
+    """
     def wrapped(args: argparse.Namespace) -> int:
-        with warnings.catch_warnings():
+        _check_effects(args.effects)
+        with warnings.catch_warnings(), _naming_the_file(args.data):
             warnings.simplefilter("ignore")
             return handler(args)
 
     return wrapped
+
+
+def _check_effects(effects: str) -> None:
+    from gbo_envs.physics import EFFECT_NAMES
+
+    unknown = [e.strip() for e in effects.split(",") if e.strip() and e.strip() not in EFFECT_NAMES]
+    if unknown:
+        raise ValueError(f"--effects: unknown effect {unknown[0]!r}; the catalogue is {', '.join(EFFECT_NAMES)}")
+
+
+@contextlib.contextmanager
+def _naming_the_file(path: str):
+    """A ``ValueError`` of the data (the records, their fit) raised again as ``PATH: message``.
+
+    The CSV reader names the file, row and column itself; the twin's checks of the records
+    ("records: the input u is constant in every experiment ...") do not know the file.
+    """
+    try:
+        yield
+    except UnicodeDecodeError:
+        raise  # the reader's: evaluation.cli_args.error_message names the codec and the byte
+    except ValueError as exc:
+        text = str(exc)
+        if text.startswith(str(path)):
+            raise
+        text = text.removeprefix("records: ")  # the records are the file's
+        raise ValueError(f"{path}: {text}") from exc
 
 
 def _print_unobservable(result) -> None:

@@ -271,12 +271,15 @@ def _profile_problems(data, current, spec, name, starts, lo, hi, lower, upper, s
             b = values[min(best + 1, len(values) - 1)]
             if b > a:
                 cache = {}
+                # an effect value the profile cannot fit (inf) goes to Brent as a finite value worse than every
+                # fitted one: its parabolic steps subtract the values, and inf - inf warned "invalid value"
+                worst = 2.0 * max(r[1][0] for r in results if np.isfinite(r[1][0])) or 1.0
 
                 def cost(x: float) -> float:
                     th = results[best][0].copy()
                     th[g0] = x
                     cache[x] = profile(data, spec, th, **settings)
-                    return cache[x][0]
+                    return cache[x][0] if np.isfinite(cache[x][0]) else worst
 
                 minimize_scalar(cost, bounds=(a, b), method="bounded", options={"maxiter": 6,
                                                                                  "xatol": 1e-3 * (b - a)})

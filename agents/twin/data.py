@@ -73,7 +73,9 @@ class GreyData:
         data = as_records(records, min_steps=3)
         dts = np.array([rec.dt for rec in data])
         if np.any(np.abs(dts - dts[0]) > 1e-6 * dts[0]):
-            raise ValueError(f"records: every experiment must have the same sample time, got {sorted(set(dts))}")
+            k = int(np.argmax(np.abs(dts - dts[0]) > 1e-6 * dts[0]))  # numbered from 1, as in the CSV
+            raise ValueError(f"records: every experiment must have the same sample time; experiment "
+                             f"{data[0].index + 1} has {dts[0]:g} s, experiment {data[k].index + 1} {dts[k]:g} s")
         if experiment_index is None:
             experiment_index = [rec.index for rec in data]
         index = np.asarray(list(experiment_index), dtype=int)

@@ -336,7 +336,10 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
         if theta_start is None:
             theta_start = srivc.lssvf(orders, signals, tau, bandwidth, offset)
         result = srivc.srivc(orders, signals, tau, theta_start, iterations, tol, offset)
-        score = simulation_error(orders, result.theta, tau, signals, offset)[0]
+        try:
+            score = simulation_error(orders, result.theta, tau, signals, offset)[0]
+        except FloatingPointError:  # a start whose pole is too fast to simulate (srivc.srivc): no model here
+            score = np.inf
         cache[float(tau)] = (score, result)
         return score
 
@@ -350,8 +353,15 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
         lo = grid[max(best - 1, 0)]
         hi = grid[min(best + 1, grid.size - 1)]
         warm = cache[float(grid[best])][1].theta
-        minimize_scalar(lambda tau: evaluate(tau, warm, max_iter), bounds=(lo, hi), method="bounded",
-                        options={"xatol": 1e-3 * dt})
+        # a delay without a model (inf) goes to Brent as a finite value worse than every model's: its parabolic
+        # steps subtract the values, and inf - inf warned "invalid value"
+        worst = 2.0 * max([s for s in scores if np.isfinite(s)], default=0.5) or 1.0
+
+        def refined(tau: float) -> float:
+            score = evaluate(tau, warm, max_iter)
+            return score if np.isfinite(score) else worst
+
+        minimize_scalar(refined, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3 * dt})
     tau_best = min(cache, key=lambda tau: cache[tau][0])
     if not cache[tau_best][1].converged and grid.size > 1:  # finish the iterations at the chosen delay
         evaluate(tau_best, cache[tau_best][1].theta, max_iter)
@@ -389,7 +399,10 @@ def _polish(orders, theta, tau, signals, score, delay_bounds, offset):
         th = srivc.stabilised(orders, th)
         parts = []
         for sig in signals:
-            y_sim, y0 = srivc.simulate(orders, th, float(ta), sig, offset)[:2]
+            try:
+                y_sim, y0 = srivc.simulate(orders, th, float(ta), sig, offset)[:2]
+            except FloatingPointError:  # a pole too fast to simulate (srivc._Prefilter)
+                return np.full(sum(s.y.size for s in signals), 1e6)
             height = np.maximum(np.abs(sig.r2 - y0), 1e-12)
             parts.append((((sig.y + sig.y_ref[:, None]) - y_sim) / height[:, None]).ravel())
         res = np.concatenate(parts)

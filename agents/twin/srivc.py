@@ -173,6 +173,10 @@ class _Prefilter:
         den_z = np.real(np.poly(np.exp(np.roots(den) * h)))  # eigenvalues of Phi = e^{A h}
         num0 = _state_numerators(plant.phi, plant.gamma0, den_z)
         num1 = _state_numerators(plant.phi, plant.gamma1, den_z)
+        if not (np.all(np.isfinite(num0)) and np.all(np.isfinite(num1)) and np.all(np.isfinite(den_z))):
+            # e^{A h} overflows: a pole of A(p) beyond about 1e35 / h (an iterate whose pole ran off to
+            # -infinity), which no sample can show; its NaN filters would reach LAPACK
+            raise FloatingPointError(f"A(p) = {den.tolist()}: poles too fast to discretise at h = {h:g} s")
         nums = np.zeros((n, d + n + 2))
         nums[:, d : d + n + 1] += num0  # x[k+1] = Phi x[k] + Gamma0 u[k-d] + Gamma1 u[k-d-1]
         nums[:, d + 1 : d + n + 2] += num1
@@ -314,18 +318,37 @@ def lssvf(orders: Orders, batches: list[Signals], delay: float, bandwidth: float
 
 def srivc(orders: Orders, batches: list[Signals], delay: float, theta0: np.ndarray, max_iter: int = 50,
           tol: float = 1e-8, offset: bool = True) -> SrivcResult:
-    """Iterate (S1)-(S4) from ``theta0`` at a fixed input delay ``delay`` (s)."""
+    """Iterate (S1)-(S4) from ``theta0`` at a fixed input delay ``delay`` (s).
+
+    An iterate that is not finite, or whose pole ran off to -infinity so far that its
+    prefilter cannot be discretised (the data want fewer poles than the model has), is
+    divergence: the result is ``theta0``, not converged.
+    """
     theta = stabilised(orders, np.asarray(theta0, dtype=float))
     for it in range(1, max_iter + 1):
-        gram, rhs = _equations(orders, batches, orders.den(theta), delay, theta, offset)
+        try:
+            gram, rhs = _equations(orders, batches, orders.den(theta), delay, theta, offset)
+        except FloatingPointError:  # a pole too fast to discretise (_Prefilter)
+            return SrivcResult(theta0, it, False)
         new = stabilised(orders, _solve(gram, rhs))
         change = np.linalg.norm(new - theta) / max(np.linalg.norm(new), 1e-300)
         theta = new
         if not np.all(np.isfinite(theta)):
             return SrivcResult(theta0, it, False)
         if change <= tol:
-            return SrivcResult(theta, it, True)
-    return SrivcResult(theta, max_iter, False)
+            return _simulatable(SrivcResult(theta, it, True), orders, batches, delay, theta0)
+    return _simulatable(SrivcResult(theta, max_iter, False), orders, batches, delay, theta0)
+
+
+def _simulatable(result: SrivcResult, orders: Orders, batches: list[Signals], delay: float,
+                 theta0: np.ndarray) -> SrivcResult:
+    """``result``, or divergence (``theta0``) if its last iterate cannot be discretised (see :func:`srivc`)."""
+    try:
+        for h in {sig.h for sig in batches}:
+            _Prefilter(orders.den(result.theta), h, delay)
+    except FloatingPointError:
+        return SrivcResult(theta0, result.n_iter, False)
+    return result
 
 
 def simulate(orders: Orders, theta: np.ndarray, delay: float, sig: Signals, offset: bool):

@@ -42,3 +42,36 @@ def test_tuning_run_bar_goes_to_stderr_and_is_off_by_default(capsys):
     agents.make("random").run(env, budget=2, seed=0, progress=True)
     captured = capsys.readouterr()
     assert "random on gbo_envs/DCMotor-v0" in captured.err and "2/2" in captured.err and captured.out == ""
+
+
+class _Terminal(_Stream):
+    """A terminal stream with a file descriptor, whose size the test sets through ``os.get_terminal_size``."""
+
+    def __init__(self) -> None:
+        super().__init__(tty=True)
+
+    def fileno(self) -> int:
+        return 2
+
+
+@pytest.mark.parametrize(("columns", "rows"), [(0, 0), (0, 24), (100, 0), (100, 24)])
+def test_a_terminal_of_zero_columns_gets_an_80_column_bar(columns, rows, monkeypatch):
+    """Some pseudo-terminals (editors' shells) report a size of 0 x 0; the bar then has 80 columns.
+
+    tqdm took 0 rows as no room for any bar (nothing drawn) and 0 columns as a bar 1 character wide.
+    """
+    import os
+    import re
+
+    stream = _Terminal()
+    monkeypatch.setattr("sys.stderr", stream)
+    monkeypatch.setattr(os, "get_terminal_size", lambda fd=None: os.terminal_size((columns, rows)))
+    bar = progress_bar(10, "work", True, unit="step")
+    bar.update(5)
+    bar.refresh()
+    bar.close()
+    lines = [line for line in re.split(r"[\r\n]", stream.getvalue()) if "5/10" in line]
+    assert lines, stream.getvalue()
+    width = 80 if columns == 0 else columns
+    assert len(lines[-1]) == width - 1  # tqdm leaves the last column free
+    assert re.search(r"\|\S{5,}\s{5,}\|", lines[-1]), lines[-1]  # half a bar, drawn

@@ -88,3 +88,16 @@ def test_constructor_is_keyword_only_and_params_are_stored(name):
     if params:
         with pytest.raises(TypeError):
             type(tuner)(*params.values())
+
+
+#: Keywords a tuner's constructor may take at most: beyond that, compose (``GuidedBO(guidance=TwinIterations(...))``).
+MAX_KEYWORDS = 12
+
+
+@pytest.mark.parametrize("name", TUNERS)
+def test_at_most_twelve_keywords(name):
+    import inspect
+
+    tuner = _make(name)
+    keywords = [p.name for p in inspect.signature(type(tuner)).parameters.values() if p.kind is p.KEYWORD_ONLY]
+    assert len(keywords) <= MAX_KEYWORDS, (name, keywords)

@@ -172,6 +172,38 @@ def test_all_zero_data_says_there_is_no_excitation(capsys, tmp_path):
     refused(capsys, ["twin", "compare", str(path)], "no excitation")
 
 
+def _workbench_csv(path, experiments) -> str:
+    """A workbench CSV of ``{number: (t, r, u, y)}``."""
+    lines = ["experiment,t,r,u,y"] + [f"{number},{t},{r},{u},{y}" for number, signals in experiments.items()
+                                      for t, r, u, y in zip(*signals)]
+    path.write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+@pytest.mark.parametrize("command", ["compare", "resid", "diagnose", "report"])
+def test_data_errors_of_the_workbench_name_the_file(capsys, tmp_path, command):
+    """Every data error of ``gbo twin`` names the file (the records' checks do not know it), and the experiment
+    where one is at fault; an unknown ``--effects`` is an argument error, not the file's."""
+    t = np.arange(200) * 0.01
+    step, zero = np.r_[0.0, np.ones(199)], np.zeros(200)
+    response, command_u = 1.0 - np.exp(-t), 0.5 + np.exp(-t)
+    out = ["--out", str(tmp_path / "out")] if command in ("compare", "report") else []
+    zeros = _workbench_csv(tmp_path / "zero.csv", {1: (t, zero, zero, zero), 2: (t, zero, zero, zero)})
+    err = refused(capsys, ["twin", command, zeros, *out], "no excitation")
+    assert err.startswith(f"gbo twin {command}: error: {zeros}: the input u is constant"), err
+    flat = _workbench_csv(tmp_path / "flat.csv", {1: (t, step, command_u, zero), 2: (t, step, command_u, zero)})
+    refused(capsys, ["twin", command, flat, *out], f"{flat}: the output y is constant")
+    mixed = _workbench_csv(tmp_path / "mixed.csv", {3: (t, step, command_u, response),
+                                                    4: (2 * t, step, command_u, response)})
+    refused(capsys, ["twin", command, mixed, *out], f"{mixed}: every experiment must have the same sample time",
+            "experiment 3 has 0.01 s, experiment 4 0.02 s")
+    few = _workbench_csv(tmp_path / "few.csv", {1: (t[:4], step[:4], command_u[:4], response[:4])})
+    refused(capsys, ["twin", command, few, *out], f"{few}: 4 samples in all are too few")
+    err = refused(capsys, ["twin", command, mixed, "--effects", "saturation,friction", *out], "--effects",
+                  "'friction'")
+    assert str(mixed) not in err
+
+
 def test_debug_shows_the_traceback(tmp_path):
     with pytest.raises(ValueError, match="is a folder"):
         main(["--debug", "twin", "compare", str(tmp_path)])

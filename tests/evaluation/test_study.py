@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -44,20 +46,54 @@ def test_minimal_spec_defaults():
 
 
 def test_cartesian_sweep_expands_with_label_template():
-    study = parse_study(spec(tuners=[{"name": "guided-bo", "label": "gbo n_ei={n_ei} N_G={period}",
-                                      "params": {"eta3": 0.2}, "sweep": {"n_ei": [5, 10], "period": [1, 3, 5]}}]))
+    study = parse_study(spec(tuners=[{"name": "guided-bo", "label": "gbo delta={delta} n={n_samples}",
+                                      "params": {"eta2": 0.2}, "sweep": {"delta": [1.0, 2.0],
+                                                                         "n_samples": [50, 100, 200]}}]))
     assert len(study.tuners) == 6
-    assert study.labels[0] == "gbo n_ei=5 N_G=1" and study.labels[-1] == "gbo n_ei=10 N_G=5"
-    entry = study.tuner("gbo n_ei=10 N_G=3")
-    assert entry.params == {"eta3": 0.2, "n_ei": 10, "period": 3}
-    assert entry.sweep == {"n_ei": 10, "period": 3}
-    assert entry.group == "gbo n_ei={n_ei} N_G={period}"
+    assert study.labels[0] == "gbo delta=1 n=50" and study.labels[-1] == "gbo delta=2 n=200"
+    entry = study.tuner("gbo delta=2 n=100")
+    assert entry.params == {"eta2": 0.2, "delta": 2.0, "n_samples": 100}
+    assert entry.sweep == {"delta": 2.0, "n_samples": 100}
+    assert entry.group == "gbo delta={delta} n={n_samples}"
+
+
+def test_dotted_sweep_keys_set_parameters_inside_a_table():
+    """``sweep = {guidance.iterations.eta1 = [...]}`` (TOML's dotted keys) merges into the guidance table."""
+    import tomllib
+
+    raw = tomllib.loads("""
+        [[tuners]]
+        name = "guided-bo"
+        label = "gbo n_ei={n_ei} N_G={period} eta3={eta3}"
+        params = { twin = "linear", guidance = { iterations = { eta3 = inf, activation = "periodic" } } }
+        sweep = [{ guidance.iterations = { n_ei = 5, period = 1 } }, { guidance.iterations.n_ei = 10, period = 3 }]
+        [[tuners]]
+        name = "guided-bo"
+        label = "eta1"
+        params = { guidance = { iterations = { n_ei = 3 } } }
+        sweep = { guidance.iterations.eta1 = [1e-6, 3.0] }
+    """)
+    study = parse_study(spec(tuners=raw["tuners"]))
+    assert study.labels == ["gbo n_ei=5 N_G=1 eta3=inf", "gbo n_ei=10 N_G=3 eta3=inf", "eta1 eta1=1e-06", "eta1 eta1=3"]
+    first, second, low, high = study.tuners
+    assert first.params == {"twin": "linear", "guidance": {"iterations": {"eta3": math.inf, "activation": "periodic",
+                                                                          "n_ei": 5, "period": 1}}}
+    assert first.sweep == {"n_ei": 5, "period": 1}
+    assert second.params == {"twin": "linear", "period": 3,
+                             "guidance": {"iterations": {"eta3": math.inf, "activation": "periodic", "n_ei": 10}}}
+    assert low.params == {"guidance": {"iterations": {"n_ei": 3, "eta1": 1e-6}}} and low.sweep == {"eta1": 1e-6}
+    assert [low.label, high.label] == ["eta1 eta1=1e-06", "eta1 eta1=3"]
+    assert "eta1" not in raw["tuners"][1]["params"]["guidance"]["iterations"]  # the spec's table is not changed
+    import agents
+
+    assert agents.make(first.name, **first.params).guidance == agents.TwinIterations(
+        eta3=math.inf, activation="periodic", n_ei=5, period=1)
 
 
 def test_point_list_sweep_and_default_label():
-    study = parse_study(spec(tuners=[{"name": "guided-bo", "sweep": [{"eta1": 1e-6}, {"eta1": 3.0}]}]))
-    assert study.labels == ["guided-bo eta1=1e-06", "guided-bo eta1=3"]
-    assert study.tuners[1].params == {"eta1": 3.0}
+    study = parse_study(spec(tuners=[{"name": "guided-bo", "sweep": [{"delta": 1.0}, {"delta": 3.0}]}]))
+    assert study.labels == ["guided-bo delta=1", "guided-bo delta=3"]
+    assert study.tuners[1].params == {"delta": 3.0}
 
 
 @pytest.mark.parametrize("changes, message", [
@@ -110,6 +146,32 @@ def test_shipped_studies_load_and_are_package_data():
     assert linear.env_id == "gbo_envs/LinearMotor-v0" and linear.threshold_offset == 1
     performance = load_study("performance")
     assert (performance.batches, performance.budget, performance.n_initial) == (100, 35, 1)
+
+
+def test_shipped_studies_pin_the_paper_guidance_in_the_current_spelling():
+    """Every tuner of every shipped study is built without the FutureWarning of ``GuidedBO``'s former keywords;
+    the paper studies pin the twin iterations (their parameters in ``TwinIterations``) and the linear twin."""
+    import warnings
+
+    import agents
+    from evaluation.study_runner import resolve_params
+
+    for name in shipped_studies():
+        study = load_study(name)
+        for entry in study.tuners:
+            if entry.name == "rl":
+                continue  # stable-baselines3 is an extra
+            with warnings.catch_warnings():
+                warnings.simplefilter("error", FutureWarning)
+                tuner = agents.make(entry.name, **resolve_params(entry, study.n_initial))
+            if name in PAPER_STUDIES and entry.name == "guided-bo":
+                assert isinstance(tuner.guidance, agents.TwinIterations) and tuner.twin == "linear", entry.label
+    sweep = load_study("eta1_sweep")
+    assert [agents.make("guided-bo", **e.params).guidance.eta1 for e in sweep.tuners[1:]] == [
+        1e-6, 1.0, 2.0, 3.0, 5.0, 8.0, 20.0]
+    fidelity = load_study("twin_fidelity").tuner("low-fidelity n_EI=10 N_G=3")
+    assert agents.make("guided-bo", **fidelity.params).guidance == agents.TwinIterations(
+        activation="periodic", eta3=math.inf, max_twin_iterations=50, n_ei=10, period=3)
 
 
 def test_paths_names_and_yaml(tmp_path):

@@ -77,3 +77,24 @@ def test_residual_panels_have_units_and_bad_panels_are_named(data_and_fit):
     with pytest.raises(ValueError, match="experiments"):
         compare_figure(data, [fit], experiments=[5])
     assert RESIDUAL_PANELS[0] == "acf"
+
+
+def test_figures_number_the_experiments_as_the_csv_does(data_and_fit):
+    """Titles and the residual panel count from 1 (docs/design.md, "Experiment numbers"): the records of
+    ``data_and_fit`` are experiments 2 and 3 of their CSV, and the same records numbered from 1 read 1 and 2."""
+    from dataclasses import replace
+
+    from agents.twin.report import residual_figure
+    from agents.twin.workbench import residuals
+
+    data, fit = data_and_fit
+    assert data.numbers.tolist() == [2, 3] and data.index.tolist() == [0, 1]
+    for shown, numbers in ((data, [2, 3]), (replace(data, first_index=0), [1, 2]),
+                           (replace(data, first_index=9), [10, 11])):
+        fig = compare_figure(shown, [fit])
+        titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+        assert [title.split(":")[0] for title in titles] == [f"experiment {n}" for n in numbers], titles
+        pyplot().close(fig)
+        fig = residual_figure(residuals(shown, fit), panels=["experiment"])
+        assert fig.axes[0].get_lines()[0].get_xdata().tolist() == numbers
+        pyplot().close(fig)

@@ -226,3 +226,20 @@ def test_the_noise_free_twin_of_a_speed_loop_with_cogging_is_deterministic():
            [b.params["amplitude"] for b in twin_env.loop.effects if b.name == "cogging"]
     gains = np.array([[0.5, 1.2], [0.55, 1.21]])
     assert np.array_equal(plain.evaluate(gains)[1], plain.evaluate(gains)[1])
+
+
+@pytest.mark.parametrize("gains", [(0.5, 1.8), (0.6, 2.0)])  # NaN into svd; into lstsq, which printed DLASCL
+def test_a_pole_run_off_to_infinity_is_divergence_not_a_nan_in_lapack(gains, capfd):
+    """A flexible coupling (a resonance the 2-pole twin lacks): on one record SRIVC's iterates walked a pole off to
+    -infinity (a1 = 1e42); e^{A h} of that iterate overflowed, and its NaN filters reached LAPACK ("SVD did not
+    converge", or "On entry to DLASCL parameter number 4 had an illegal value" printed from lstsq). Such an iterate
+    is divergence, as a non-finite one: the fit goes on at the other delays and starts."""
+    from agents.twin import srivc
+    from tests.support import FlexibleCouplingRig
+
+    t, r, u, y = FlexibleCouplingRig(omega=15.0, zeta=0.06, noise_std=0.05, seed=0)(np.array(gains))
+    twin = LinearTwin(n_poles=2, n_samples=100, warm_start=True).fit([{"t": t, "r": r, "u": u, "y": y}])
+    assert np.all(np.isfinite(twin.params_)) and np.isfinite(twin.delay_) and twin.rmse_ < 0.01
+    assert "DLASCL" not in "".join(capfd.readouterr())
+    with pytest.raises(FloatingPointError, match="too fast to discretise"):
+        srivc._Prefilter(np.array([1.0, 1.06e42, 2.09e40]), 0.005, 0.1)
