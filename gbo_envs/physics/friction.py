@@ -60,7 +60,9 @@ class CoulombFriction(EffectBlock):
     def friction(self, u: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Friction ``f`` of shape (batch,) in input units for drive ``u`` at ``speed``."""
         if self.smoothing > 0.0:
-            return self.torque * np.clip(speed / self.smoothing, -1.0, 1.0)
+            # the ramp clip(speed / smoothing, -1, 1), clipped before the division: the same values, and no
+            # overflow (a RuntimeWarning) where a tiny smoothing puts |speed| / smoothing beyond double range
+            return self.torque * (np.clip(speed, -self.smoothing, self.smoothing) / self.smoothing)
         moving = self.torque * np.sign(speed)
         held = np.minimum(np.maximum(u, -self.torque), self.torque)
         return np.where(speed == 0.0, held, moving)
