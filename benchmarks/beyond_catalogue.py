@@ -180,6 +180,14 @@ class SimulatedRig(ExternalPlantEnv):
             self._rig_rng = np.random.default_rng(seed)
         return super().reset(seed=seed, options=options)
 
+    def step(self, action):
+        """One experiment on the rig; ``info["true_cost"]`` is the simulated rig's expected cost (:meth:`evaluate`),
+        which the optimality ratio of the studies reads (a real rig's record has none)."""
+        obs, reward, terminated, truncated, info = super().step(action)
+        if not info.get("failed") and "gains" in info:
+            info["true_cost"] = float(self.evaluate(np.asarray(info["gains"], dtype=float))[1][0])
+        return obs, reward, terminated, truncated, info
+
     def evaluate(self, gains, experiment_index=None):
         """Metrics of shape (batch, 4) and expected cost of shape (batch,) over ``draws`` fixed noise draws."""
         gains = np.atleast_2d(np.asarray(gains, dtype=float))

@@ -1,6 +1,6 @@
 """Keep freed memory for reuse: glibc's allocator settings for the twin's fitting passes.
 
-The grey-box fits (:func:`agents.twin.greybox.fit_problems`) allocate and free arrays
+The grey-box fits (:func:`agents.twin.least_squares.fit_problems`) allocate and free arrays
 of 1-25 MB several hundred times per diagnosis (simulation batches of up to 1,266 rows
 of 2,501 samples). With glibc's defaults such blocks go back to the kernel (``mmap``
 above a moving threshold, heap trimming, one arena per thread), so every new block is

@@ -32,11 +32,11 @@ class GreyBoxTwin(BaseEstimator):
     r"""A linear transfer function with delay plus physical effects, all fitted by simulation error.
 
     The model of a record is the open-loop replay of its command ``u``
-    (:mod:`agents.twin.greybox`): ``B(s)/A(s) e^{-s tau}`` with ``A`` monic of degree
+    (:mod:`agents.twin.model`): ``B(s)/A(s) e^{-s tau}`` with ``A`` monic of degree
     ``n_poles`` and an input delay of at most one sample (a longer dead time is the
     ``time_delay`` effect), the catalogue's effect blocks, and per record a rest level
     and a plant-input bias. ``fit`` starts from the SRIVC fit of the linear part
-    (:func:`agents.twin.fitting.linear_fit`), adds the effects one at a time from
+    (:func:`agents.twin.linear_fit.linear_fit`), adds the effects one at a time from
     data-based starts and refits all parameters (:func:`agents.twin.fitting.fit_model`).
 
     Parameters

@@ -1,6 +1,6 @@
 """The Jacobian of a grey-box simulation error: dense for small problems, compressed record by record for large ones.
 
-The residual of a grey-box problem (:func:`agents.twin.greybox.residual`) has
+The residual of a grey-box problem (:func:`agents.twin.least_squares.residual`) has
 one row per sample of each record (record-major) and one column per free
 parameter. A model (global) parameter moves every record, so its column is
 dense; a record's rest level ``y0_k`` or input bias ``b_k`` moves only that

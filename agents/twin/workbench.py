@@ -1,6 +1,6 @@
 """Twin workbench: compare a twin with measurements, analyse its residuals, diagnose the missing effect.
 
-* :func:`fit_model`: grey-box fit of a model structure (:mod:`agents.twin.greybox`),
+* :func:`fit_model`: grey-box fit of a model structure (:mod:`agents.twin.model`, :mod:`agents.twin.least_squares`),
   started from the SRIVC fit of the linear part and data-based effect guesses
   (:mod:`agents.twin.fits`, :mod:`agents.twin.linear_fit`, :mod:`agents.twin.guesses`);
 * :func:`compare`: fit % (NRMSE as MATLAB's ``compare``) and RMSE per experiment and overall

@@ -75,7 +75,9 @@ class CoulombFriction(EffectBlock):
         forwards, backwards = self._levels()
         level = np.where(speed > 0.0, forwards, backwards)
         if self.smoothing > 0.0:
-            return level * np.clip(speed / self.smoothing, -1.0, 1.0)
+            # the ramp clip(speed / smoothing, -1, 1), clipped before the division: the same values, and no
+            # overflow (a RuntimeWarning) where a tiny smoothing puts |speed| / smoothing beyond double range
+            return level * (np.clip(speed, -self.smoothing, self.smoothing) / self.smoothing)
         moving = level * np.sign(speed)
         held = np.minimum(np.maximum(u, -backwards), forwards)
         return np.where(speed == 0.0, held, moving)

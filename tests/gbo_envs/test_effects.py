@@ -359,3 +359,19 @@ def test_blocks_are_vectorised_and_keep_no_state_between_simulations():
     for i in range(DC_GAINS.shape[0]):
         single = loop.simulate(DC_GAINS[i])
         assert np.max(np.abs(single.y[0] - batch.y[i])) < 1e-9
+
+
+def test_a_tiny_friction_smoothing_ramps_without_an_overflow_warning():
+    """``clip(speed / smoothing, -1, 1)`` overflowed (a RuntimeWarning) where |speed| / smoothing passed double
+    range; clipped before the division it gives the same values and no warning."""
+    import warnings
+
+    from gbo_envs.physics.friction import CoulombFriction
+
+    speed = np.array([1e10, -5.0, 0.0, 3e-301, -1e-300])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_array_equal(CoulombFriction(20.0, smoothing=1e-300).friction(np.zeros(5), speed),
+                                      [20.0, -20.0, 0.0, 6.0, -20.0])
+    block, speed = CoulombFriction(20.0, smoothing=0.7), np.linspace(-3.0, 3.0, 101)
+    np.testing.assert_array_equal(block.friction(np.zeros(101), speed), 20.0 * np.clip(speed / 0.7, -1.0, 1.0))

@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import warnings
 
+import agents.twin.fitting as fitting
 import gymnasium as gym
 import numpy as np
 import pytest
+from agents.twin.greybox import GreyData, ModelSpec
 
 import agents
-import agents.twin.fitting as fitting
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin.greybox import GreyData, ModelSpec
 from gbo_envs.physics import ContinuousPlant
 
 #: The README's effect plant: a 150-unit drive limit and Coulomb friction of 20.
