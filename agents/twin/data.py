@@ -53,6 +53,10 @@ class GreyData:
     def __post_init__(self) -> None:
         if self.initial is None:
             object.__setattr__(self, "initial", initial_conditions(self.r, self.u, self.y, self.mask))
+        closed = np.array([not np.array_equal(self.r[k][self.mask[k]], self.u[k][self.mask[k]])
+                           for k in range(self.u.shape[0])])
+        closed.setflags(write=False)
+        object.__setattr__(self, "_closed", closed)
 
     @classmethod
     def decimated(cls, records, n_samples: int | None, initial: str = "auto") -> GreyData:
@@ -97,6 +101,11 @@ class GreyData:
             array.setflags(write=False)
         start = initial_conditions(arrays["r"], arrays["u"], arrays["y"], mask, initial)
         return cls(**arrays, mask=mask, dt=float(dts[0]), index=index, first_index=first, initial=start)
+
+    @property
+    def closed_loop(self) -> np.ndarray:
+        """Records with a controller (``r`` not equal to ``u``), bool of shape (n_records,) (read-only)."""
+        return self._closed
 
     @property
     def n_records(self) -> int:

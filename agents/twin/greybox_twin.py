@@ -285,7 +285,7 @@ class GreyBoxTwin(BaseEstimator):
         at_rest = fit.plant.discretize(data.dt).equilibrium(y0)[1] - data.u[:, 0]
         starts = [at_rest, np.full(data.n_records, float(np.median(fit.bias)))]
         sims = simulate_sets(data, [(fit.spec, np.concatenate([fit.theta, y0, b]), rows) for b in starts])
-        costs = [np.sum(output_error(data.y, y, data.mask, fit.spec) ** 2, axis=1) for y in sims]
+        costs = [np.sum(output_error(data.y, y, data.mask, fit.spec, data.closed_loop) ** 2, axis=1) for y in sims]
         costs = [np.where(np.isfinite(c), c, np.inf) for c in costs]
         return np.where(costs[1] < costs[0], starts[1], starts[0])
 
@@ -293,4 +293,4 @@ class GreyBoxTwin(BaseEstimator):
 def _normalised_rmse(data: GreyData, fit: GreyFit) -> float:
     """Eq. (RMSE) of ``fit`` on ``data`` normalised by each record's step height ``|r2 - y0|``."""
     height = np.abs(data.r[np.arange(data.n_records), data.mask.sum(axis=1) - 1] - fit.y0)
-    return rmse(output_error(data.y, fit.y_sim, data.mask, fit.spec), mask=data.mask, height=height)
+    return rmse(output_error(data.y, fit.y_sim, data.mask, fit.spec, data.closed_loop), mask=data.mask, height=height)

@@ -154,7 +154,12 @@ def prepare_signals(records, orders: srivc.Orders, n_samples: int | None = None,
         One per batch.
     """
     raw = as_records(records, min_steps=3)
-    _check_excitation(raw)
+    if rest_levels is not None:
+        rest_levels = np.asarray(rest_levels, dtype=float)
+        if rest_levels.shape != (len(raw), 2):
+            raise ValueError(f"rest_levels: expected shape ({len(raw)}, 2), one (y0, u0) row per record, "
+                             f"got {rest_levels.shape}")
+    _check_excitation(raw, rest_levels)
     data = decimate_records(raw, n_samples)
     total = sum(rec.n_steps for rec in data)
     if total < orders.n_params + 3:
@@ -162,26 +167,26 @@ def prepare_signals(records, orders: srivc.Orders, n_samples: int | None = None,
     if hold == "auto":
         hold = "foh" if any(d.n_steps < r.n_steps for d, r in zip(data, raw)) else "zoh"
     batches = make_batches(data)
-    if rest_levels is not None:
-        rest_levels = np.asarray(rest_levels, dtype=float)
-        if rest_levels.shape != (len(data), 2):
-            raise ValueError(f"rest_levels: expected shape ({len(data)}, 2), one (y0, u0) row per record, "
-                             f"got {rest_levels.shape}")
     signals = [srivc.prepare(b.dt, b.u, b.y, b.r2, offset, hold, int(oversample),
                              None if rest_levels is None else rest_levels[b.index]) for b in batches]
     return data, batches, signals
 
 
-def _check_excitation(records) -> None:
+def _check_excitation(records, rest_levels: np.ndarray | None = None) -> None:
     """Refuse records without excitation: a constant input, or a constant output, in every experiment.
+
+    A record whose pinned rest command (``rest_levels``) differs from its input is excited by that
+    step, even if the input is constant over the record (a step at its first sample from a rest).
 
     Raises
     ------
     ValueError
         Naming the signal; SRIVC would otherwise diverge at every delay.
     """
+    stepped = [rest_levels is not None and np.isfinite(rest_levels[k, 1]) and np.any(rec.u != rest_levels[k, 1])
+               for k, rec in enumerate(records)]
     for name in ("u", "y"):
-        if all(np.ptp(getattr(rec, name)) == 0.0 for rec in records):
+        if all(np.ptp(getattr(rec, name)) == 0.0 and not (name == "u" and step) for rec, step in zip(records, stepped)):
             what = "input u" if name == "u" else "output y"
             raise ValueError(f"records: the {what} is constant in every experiment (e.g. all zero), so the data has "
                              "no excitation to identify a model from; record experiments with a reference step")

@@ -121,7 +121,7 @@ def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarra
     diverged = ~np.isfinite(err)
     np.clip(err, -penalty, penalty, out=err)
     err[diverged] = penalty
-    return to_increments(err, mask) if increments else err
+    return to_increments(err, mask, data.closed_loop[rows]) if increments else err
 
 
 def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7, *,

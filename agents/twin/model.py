@@ -155,22 +155,36 @@ def _valid(name: str, params: dict) -> dict:
 
 
 def residual_in_increments(spec: ModelSpec) -> bool:
-    """Whether the fit of ``spec`` takes the simulation error on the output's increments: a position output."""
+    """Whether the fit of ``spec`` takes the simulation error on the output's increments: a position output
+    (of the closed-loop records, :func:`output_error`)."""
     return spec.output == "position"
 
 
-def to_increments(err: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """``err`` (records by samples, 0 on padding) replaced in place by its first sample and its increments."""
-    err[:, 1:] -= err[:, :-1].copy()
+def to_increments(err: np.ndarray, mask: np.ndarray, rows=None) -> np.ndarray:
+    """``err`` (records by samples, 0 on padding) replaced in place by its first sample and its increments.
+
+    ``rows`` (bool, one per record) limits it to those records (default every record).
+    """
+    if rows is None or np.all(rows):
+        err[:, 1:] -= err[:, :-1].copy()
+    elif np.any(rows):
+        err[rows, 1:] -= err[rows, :-1].copy()
     err[~mask] = 0.0
     return err
 
 
-def output_error(y: np.ndarray, y_sim: np.ndarray, mask: np.ndarray, spec: ModelSpec) -> np.ndarray:
-    """Measured minus simulated output, 0 on padding; on the increments for a position output
-    (:func:`residual_in_increments`): the error every RMSE of a grey-box fit is taken on."""
+def output_error(y: np.ndarray, y_sim: np.ndarray, mask: np.ndarray, spec: ModelSpec, closed=None) -> np.ndarray:
+    """Measured minus simulated output, 0 on padding: the error every RMSE of a grey-box fit is taken on.
+
+    For a position output the error of a closed-loop record is taken on its increments
+    (:func:`residual_in_increments`): in an open-loop replay of a closed loop, a slider that sticks a
+    moment earlier than the plant's stays off for the rest of the record, an offset the loop itself,
+    whose controller sees it, does not keep. An open-loop record has no controller to correct it: its
+    position error is the error. ``closed`` (bool, one per record; default all) says which records are
+    closed-loop (:attr:`agents.twin.data.GreyData.closed_loop`).
+    """
     err = np.where(mask, y - y_sim, 0.0)
-    return to_increments(err, mask) if residual_in_increments(spec) else err
+    return to_increments(err, mask, closed) if residual_in_increments(spec) else err
 
 
 @dataclass(frozen=True, eq=False)
@@ -211,7 +225,7 @@ class GreyFit:
         y, mask = (data.y, data.mask) if data.is_all(p.rows) else (data.y[p.rows], data.mask[p.rows])  # no copies
         return cls(p.spec, p.theta[:g].copy(), p.spec.plant(p.theta[:g]), p.spec.blocks(p.theta[:g]),
                    p.theta[g : g + k].copy(), p.theta[g + k :].copy(), p.y_sim,
-                   rmse(output_error(y, p.y_sim, mask, p.spec), mask=mask))
+                   rmse(output_error(y, p.y_sim, mask, p.spec, data.closed_loop[p.rows]), mask=mask))
 
     @property
     def effect_params(self) -> dict[str, dict]:

@@ -186,7 +186,7 @@ def effect_size(data: GreyData, fit: GreyFit) -> float:
     rows = np.arange(data.n_records)
     sims = simulate_sets(data, [(fit.spec, np.concatenate([th, fit.y0, fit.bias]), rows) for th in (fit.theta, theta0)],
                          true_output=cls.side != "sensor")  # a sensor effect only shows in the measurement
-    size = rmse(output_error(sims[0], sims[1], data.mask, fit.spec), mask=data.mask)  # in the fit's error
+    size = rmse(output_error(sims[0], sims[1], data.mask, fit.spec, data.closed_loop), mask=data.mask)  # the fit's
     return size if np.isfinite(size) else 0.0
 
 
@@ -264,7 +264,7 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
             change = order_change(name, current, fit)
             params = {key: value["value"] for key, value in change.items()}
             intervals = {key: {**value, "std": "n/a"} for key, value in change.items()}
-            size = rmse(output_error(fit.y_sim, current.y_sim, data.mask, fit.spec), mask=data.mask)
+            size = rmse(output_error(fit.y_sim, current.y_sim, data.mask, fit.spec, data.closed_loop), mask=data.mask)
         else:
             params = fit.effect_params.get(name, {})
             intervals, size = effect_intervals(data, fit, name), effect_size(data, fit)

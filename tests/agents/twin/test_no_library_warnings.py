@@ -9,14 +9,18 @@ from __future__ import annotations
 
 import warnings
 
-import agents.twin.fitting as fitting
 import gymnasium as gym
 import numpy as np
 import pytest
-from agents.twin.greybox import GreyData, ModelSpec
 
 import agents
+import agents.twin.candidates as candidates
 import gbo_envs  # noqa: F401  (registers the envs)
+from agents.twin.data import GreyData
+from agents.twin.fits import fit_model
+from agents.twin.guesses import effect_starts
+from agents.twin.linear_fit import PROFILE_EFFECTS
+from agents.twin.model import ModelSpec
 from gbo_envs.physics import ContinuousPlant
 
 #: The README's effect plant: a 150-unit drive limit and Coulomb friction of 20.
@@ -42,11 +46,11 @@ def test_a_zero_gain_model_is_realised_without_a_warning():
 
 def test_the_effect_profiles_of_a_saturated_record_emit_no_warning():
     data = GreyData.decimated([_saturated_record()], 100)
-    base = fitting.fit_model(data, spec=ModelSpec(n_poles=2))
+    base = fit_model(data, spec=ModelSpec(n_poles=2))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        for name in fitting.PROFILE_EFFECTS:
-            fitting.candidate_problems(data, base, name)
+        for name in PROFILE_EFFECTS:
+            candidates.candidate_problems(data, base, name)
 
 
 def test_brent_gets_no_inf_from_a_profile_that_fails_on_part_of_its_interval(monkeypatch):
@@ -55,9 +59,9 @@ def test_brent_gets_no_inf_from_a_profile_that_fails_on_part_of_its_interval(mon
     records = [gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 138.0}}).unwrapped
                .step(np.array(gains))[4]["experiment"] for gains in ([0.9, 1.5], [0.4, 1.9])]
     data = GreyData.decimated(records, 100)
-    base = fitting.fit_model(data, spec=ModelSpec(n_poles=2))
-    n_starts = len(fitting.effect_starts("saturation", data, base)[0])
-    real, starts, searched = fitting.profile, [], []
+    base = fit_model(data, spec=ModelSpec(n_poles=2))
+    n_starts = len(effect_starts("saturation", data, base)[0])
+    real, starts, searched = candidates.profile, [], []
 
     def failing_below_the_middle(data, spec, theta, **kwargs):
         limit = float(theta[-1])
@@ -71,10 +75,10 @@ def test_brent_gets_no_inf_from_a_profile_that_fails_on_part_of_its_interval(mon
             return np.inf, theta, np.zeros(data.n_records), np.zeros(data.n_records)  # below the rest input)
         return real(data, spec, theta, **kwargs)
 
-    monkeypatch.setattr(fitting, "profile", failing_below_the_middle)
+    monkeypatch.setattr(candidates, "profile", failing_below_the_middle)
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
-        problems = fitting.candidate_problems(data, base, "saturation")
+        problems = candidates.candidate_problems(data, base, "saturation")
     assert len(searched) > 1 and len(problems) == 1  # Brent ran, and a fitted value was kept
 
 
