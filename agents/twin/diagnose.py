@@ -224,10 +224,10 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
                        leave=not _nested)
     try:
         # -> fits
-        fitted = fit_candidates(data, current, plan, max_iter, screen_iter, progress=bar)
+        noise = noise_floor_estimate(data)
+        fitted = fit_candidates(data, current, plan, max_iter, screen_iter, progress=bar, noise=noise.rmse)
         bar.update(1)
         # -> ranking
-        noise = noise_floor_estimate(data)
         ranking = rank(data, fitted.current, fitted.fits, plan, noise, n_folds, bic_margin, min_gain, noise_gain,
                        progress=bar)
         bar.update(1)

@@ -94,7 +94,7 @@ class CandidateFits:
 
 
 def fit_candidates(data: GreyData, current: GreyFit, plan: CandidatePlan, max_iter: int = 20,
-                   screen_iter: int = 8, progress=None) -> CandidateFits:
+                   screen_iter: int = 8, progress=None, noise: float | None = None) -> CandidateFits:
     """Fit the current model and every candidate of ``plan`` to all data.
 
     The current model gets the same iteration budget as the candidates that can win, so
@@ -114,6 +114,8 @@ def fit_candidates(data: GreyData, current: GreyFit, plan: CandidatePlan, max_it
     plan : CandidatePlan
     max_iter, screen_iter : int
         Trial points of the full and of the screening fits.
+    noise : float, optional
+        The measurement's noise floor (units of ``y``): a variant's gain must be resolvable.
     progress : tqdm bar, optional
         Advanced once per candidate's starts and once per round of fits.
     """
@@ -139,7 +141,7 @@ def fit_candidates(data: GreyData, current: GreyFit, plan: CandidatePlan, max_it
         for candidate in plan.candidates:
             mine = [p for p in problems if p.tag == candidate.name and np.isfinite(p.cost)]
             if mine:
-                fits[candidate.name] = refine_grid_parameters(data, _best_variant(data, mine))
+                fits[candidate.name] = refine_grid_parameters(data, _best_variant(data, mine, noise))
         better = _without_new_effect(data, current, fits)
         if better is None or restarted:
             return CandidateFits(current, fits, restarted)
@@ -147,18 +149,28 @@ def fit_candidates(data: GreyData, current: GreyFit, plan: CandidatePlan, max_it
     raise AssertionError("unreachable")
 
 
-def _best_variant(data: GreyData, problems: list[Problem]) -> GreyFit:
+def _best_variant(data: GreyData, problems: list[Problem], floor: float | None = None, margin: float = 10.0,
+                  noise_gain: float = 0.05) -> GreyFit:
     """The fit of lowest training BIC, ``n log(RSS / n) + k log n``, among a candidate's problems.
 
     Variants of one effect differ in their fitted parameters (a Coulomb friction with one level or
-    two); starts of one variant have the same ``k``, so among them the lowest cost wins.
+    two): a variant with more parameters is kept only when its BIC is lower by ``margin`` ("very
+    strong" evidence, as a candidate needs against the current model) and its RMSE lower by
+    ``noise_gain`` times the noise ``floor`` (a gain the measurement resolves: with tens of thousands
+    of correlated samples, BIC alone credits an asymmetry of a few percent that fits the noise).
+    Starts of one variant have the same ``k``, so among them the lowest cost wins.
     """
     n = data.n_samples
 
     def bic(p: Problem) -> float:
         return n * np.log(max(p.cost, 1e-300) / n) + p.n_global * np.log(n)
 
-    return GreyFit.from_problem(data, min(problems, key=bic))
+    fewest = min(p.n_global for p in problems)
+    simplest = min((p for p in problems if p.n_global == fewest), key=bic)
+    best = min(problems, key=bic)
+    gain = np.sqrt(simplest.cost / n) - np.sqrt(best.cost / n)
+    resolved = floor is None or gain >= noise_gain * floor
+    return GreyFit.from_problem(data, best if bic(best) < bic(simplest) - margin and resolved else simplest)
 
 
 def _screened_fit(data: GreyData, problems: list[Problem], max_iter: int, screen_iter: int) -> None:
