@@ -804,14 +804,28 @@ class GuidedBO(BayesianOptimization):
     def _record_twin_change(self, previous_rmse: float | None) -> None:
         twin = self.twin_
         effects = _effect_values(twin)
-        change = {"experiment": self.n_observations, "effects": effects, "params": [float(p) for p in twin.params_],
-                  "rmse": float(twin.rmse_), "previous_rmse": previous_rmse}
+        model = _model_label(twin)
+        change = {"experiment": self.n_observations, "model": model, "effects": effects,
+                  "params": [float(p) for p in twin.params_], "rmse": float(twin.rmse_), "previous_rmse": previous_rmse}
         named = ", ".join(f"+ {name} ({_format_values(values)})" for name, values in effects.items()) or "linear"
+        spec = getattr(getattr(twin, "greybox_", None), "spec", None)
+        if spec is not None and (spec.n_poles > self.twin_poles or spec.n_zeros > 0):  # the linear part grew
+            named = f"{spec.n_poles} poles, {spec.n_zeros} zero{'s' if spec.n_zeros != 1 else ''}" + \
+                (f", {named}" if effects else "")
         before = f"{previous_rmse:.3g} -> " if previous_rmse is not None else ""
         after = f"{self.n_observations} experiment" + ("" if self.n_observations == 1 else "s")
         change["text"] = f"twin: {named}, RMSE {before}{twin.rmse_:.3g} (after {after})"
         self.twin_changes_.append(change)
         self.log_event(change["text"])
+
+
+def _model_label(twin) -> str:
+    """The twin's structure, e.g. ``"linear(4p0z)+compliance"`` (a linear twin: its orders)."""
+    fit = getattr(twin, "greybox_", None)
+    if fit is not None:
+        return fit.spec.label
+    den, num = np.asarray(twin.den_), np.asarray(twin.num_)
+    return f"linear({den.size - 1}p{num.size - 1}z)"
 
 
 def _effect_values(twin) -> dict[str, dict[str, float]]:

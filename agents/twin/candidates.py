@@ -253,9 +253,10 @@ def _profile_problems(data, current, spec, name, starts, lo, hi, lower, upper, s
     settings = {"max_iter": 10, "tol": 1e-5}
     rows = np.arange(data.n_records)
     g0 = current.theta.size
-    if name == "time_delay":
+    if name == "time_delay":  # 16 delays up to the longest, then the bounded search between the best's neighbours
         theta = np.concatenate([current.theta, [0.0]])
-        res = profile(data, spec, theta, max_delay=float(hi[0]), **settings)
+        res = profile(data, spec, theta, max_delay=float(hi[0]), delay_step=max(data.dt, float(hi[0]) / 16),
+                      **settings)
     elif not starts:
         return []
     else:

@@ -53,6 +53,8 @@ def effect_starts(name: str, data: GreyData, base: GreyFit, with_starts: bool = 
         grid = np.unique(np.concatenate([q, u_max * np.array([0.6, 0.7, 0.8, 0.9, 0.95, 0.99])]))
         lo = min(rest * 1.0001, 0.5 * u_max)  # the base model's rest input is only a rough guide
         grid = grid[(grid > lo) & (grid < u_max)]
+        if grid.size > 1:  # limits within 2 % of each other profile alike: keep one (Brent refines between them)
+            grid = grid[np.concatenate([[True], np.diff(grid) > 0.02 * grid[1:]])]
         if grid.size == 0:
             grid = np.array([0.5 * (lo + u_max)]) if u_max > lo else np.array([1.001 * lo])
         return [np.array([g]) for g in grid], np.array([lo]), np.array([1.05 * u_max]), np.array([us])

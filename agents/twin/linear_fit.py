@@ -145,7 +145,8 @@ def _rest_through(data: GreyData, blocks: Sequence, output: str) -> np.ndarray:
 
 
 def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float | None = None,
-            max_iter: int = 20, tol: float = 1e-6) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+            max_iter: int = 20, tol: float = 1e-6,
+            delay_step: float | None = None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """SRIVC fit of the linear part on the plant input implied by ``spec``'s actuator blocks at ``theta``.
 
     Parameters
@@ -158,6 +159,8 @@ def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float
         Search the delay up to this many s (default: the delay of ``theta`` plus any ``time_delay``, fixed).
     max_iter, tol
         SRIVC iterations and tolerance (:func:`agents.twin.identify.identify_linear`).
+    delay_step : float, optional
+        Spacing of the delay search in s (default one sample), refined between the best's neighbours.
 
     Returns
     -------
@@ -184,7 +187,7 @@ def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float
     try:
         fit: LinearIdentification = identify_linear(
             records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators, delay=delay,
-            max_delay=max_delay, max_iter=max_iter, tol=tol, rest_levels=rest, hold="zoh")
+            max_delay=max_delay, max_iter=max_iter, tol=tol, rest_levels=rest, hold="zoh", delay_step=delay_step)
     except (ValueError, RuntimeError, np.linalg.LinAlgError):
         return np.inf, theta, np.zeros(data.n_records), np.zeros(data.n_records)
     out = theta.copy()
