@@ -20,6 +20,7 @@ from agents.twin.guesses import quantization_scan
 from agents.twin.least_squares import Problem, fit_problems, make_problem
 from agents.twin.linear_fit import linear_fit
 from agents.twin.model import GreyFit, ModelSpec, effect_items, effect_offset, fitted_parameters
+from agents.twin.noise_floor import quantization_step
 from agents.twin.simulation import simulate_sets
 
 __all__ = ["CandidateFits", "fit_candidates", "fit_model", "refine_grid_parameters"]
@@ -52,8 +53,12 @@ def fit_model(data: GreyData, effects: Sequence | Mapping | None = None, spec: M
 
 
 def refine_grid_parameters(data: GreyData, fit: GreyFit) -> GreyFit:
-    """Refine the quantization step of a fit on a fine grid around its value (other parameters fixed)."""
-    if "quantization" not in fit.spec.effect_names:
+    """Refine the quantization step of a fit on a fine grid around its value (other parameters fixed).
+
+    Where the output's changes show its resolution (:func:`agents.twin.noise_floor.quantization_step`), the
+    step is that resolution and is kept.
+    """
+    if "quantization" not in fit.spec.effect_names or quantization_step(data.y, data.mask)[0] is not None:
         return fit
     rows = np.arange(data.n_records)
     theta = np.concatenate([fit.theta, fit.y0, fit.bias])

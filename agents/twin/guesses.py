@@ -79,9 +79,9 @@ def effect_starts(name: str, data: GreyData, base: GreyFit, with_starts: bool = 
         return starts, np.array([0.0, 0.0]), np.array([us, 0.2 * speed]), np.array([us, 0.05 * speed])
     if name == "quantization":
         q, _ = quantization_step(data.y, data.mask)
+        if q is not None:  # the data show their resolution: that is the step, nothing to search
+            return [np.array([q])], np.array([q]), np.array([q]), np.array([q])
         grid = quantization_scan(data, base, sc["y_span"]) if with_starts else []
-        if q is not None:
-            grid = [q] + grid
         grid = grid or [0.01 * sc["y_span"]]
         return [np.array([g]) for g in grid], np.array([0.0]), np.array([0.2 * sc["y_span"]]), \
             np.array([sc["y_span"] * 0.01])
