@@ -106,14 +106,18 @@ def _git_show(commit: str, relative: str) -> bytes | None:
     return done.stdout if done.returncode == 0 else None
 
 
-def git_commit() -> str | None:
-    """The commit checked out in :data:`REPO_ROOT` (``"<hash>-dirty"`` with uncommitted changes to tracked
-    files), or None outside a git checkout."""
+def git_commit(modules=None) -> str | None:
+    """The commit checked out in :data:`REPO_ROOT`, or None outside a git checkout.
+
+    ``"<hash>-dirty"`` when the sources of ``modules`` (default: every tracked file) differ from it.
+    """
     head = subprocess.run(["git", "-C", str(REPO_ROOT), "rev-parse", "HEAD"], capture_output=True, text=True)
     if head.returncode != 0:
         return None
-    dirty = subprocess.run(["git", "-C", str(REPO_ROOT), "status", "--porcelain", "--untracked-files=no"],
-                           capture_output=True, text=True)
+    tree = _working_tree()
+    paths = None if modules is None else [found[0] for found in map(tree.read, modules) if found is not None]
+    dirty = subprocess.run(["git", "-C", str(REPO_ROOT), "status", "--porcelain", "--untracked-files=all", "--",
+                            *(paths or ["."])], capture_output=True, text=True)
     return head.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
 
 

@@ -314,7 +314,10 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
         from evaluation.curves import load_curves
 
         new = load_curves(out / slugify(entry.label), part, optima=optima)
-        stamp = fingerprint.git_commit() or "unknown"
+        modules = set(fingerprint.tuner_modules(entry.name))
+        for plant in plants:
+            modules.update(fingerprint.plant_modules(study.plant(plant).env_id))
+        stamp = fingerprint.git_commit(sorted(modules)) or "unknown"
         again = current_fingerprints(part, optima)
         changed = [p for p in plants if again[(entry.label, p)] != before[p]]
         if changed:
