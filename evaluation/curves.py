@@ -43,7 +43,7 @@ __all__ = ["CURVE_COLUMNS", "CURVES_FILE", "change_at", "curves_from_results", "
 CURVES_FILE = "curves.parquet"
 CURVE_COLUMNS = ["study", "plant", "tuner", "tuner_name", "params", "env_id", "env_kwargs", "budget", "batch", "seed",
                  "key", "file", "curve", "instant", "optimum", "seconds", "cpu_seconds", "plant_cpu_seconds", "summary",
-                 "source"]
+                 "source", "commit"]
 #: Keys of a result's ``info`` kept in a run's summary.
 SUMMARY_KEYS = ("activations", "distrusts", "repeats", "reinitializations", "twin_evaluations", "fidelity")
 

@@ -47,7 +47,7 @@ PLANTS_FILE = "plants.json"
 #: Relative tolerance on ``J*`` below which two optima are the same (floating-point noise of the grid search).
 OPTIMUM_RTOL = 1e-9
 #: Curves columns of a reference run beyond :data:`evaluation.curves.CURVE_COLUMNS`.
-FINGERPRINT_COLUMNS = ["commit", "tuner_hash", "plant_hash"]
+FINGERPRINT_COLUMNS = ["tuner_hash", "plant_hash"]
 
 
 @dataclass(frozen=True)

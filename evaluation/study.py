@@ -126,7 +126,7 @@ ANALYSIS_KEYS = ("count_initial",)
 #: experiment at which best gains are tabulated, histogram bins / upper ratio limit,
 #: the swept parameter of the sweep figure, and whether to draw percentile bands.
 REPORT_KEYS = ("surface_batch", "surface_tuners", "gains_at", "histogram_bins", "histogram_max", "sweep_param",
-               "bands", "table", "reference", "columns", "caption", "csv")
+               "bands", "table", "reference", "columns", "caption", "csv", "ratio", "ratio_label", "phases", "headers")
 #: ``[paper]`` entries: free ``source``/``text``, ``thresholds`` rows ``{tuner, threshold, mean, best,
 #: worst}``, ``gains`` rows ``{label, <gain names>, cost}``, ``metrics`` rows ``{tuner, metric, value}``.
 PAPER_KEYS = ("source", "text", "thresholds", "gains", "metrics")
@@ -722,6 +722,11 @@ def _check_report(report: dict, labels: list[str]) -> None:
         "columns": lambda v: isinstance(v, list) and all(isinstance(x, str) for x in v),
         "caption": lambda v: isinstance(v, str),
         "csv": lambda v: isinstance(v, bool),
+        "ratio": lambda v: isinstance(v, list) and len(v) == 2 and all(x in labels for x in v),
+        "ratio_label": lambda v: isinstance(v, str),
+        "phases": lambda v: isinstance(v, bool),
+        "headers": lambda v: isinstance(v, dict) and set(v) <= {"plant", "tuner", "seeds"}
+        and all(isinstance(x, str) for x in v.values()),
     }
     allowed = {
         "surface_batch": "an integer >= 0",
@@ -736,6 +741,10 @@ def _check_report(report: dict, labels: list[str]) -> None:
         "columns": "a list of column names (see evaluation.comparison.COLUMNS)",
         "caption": "a string (the line above the table)",
         "csv": "true or false",
+        "ratio": f"two tuner labels from {labels} (compared, reference)",
+        "ratio_label": "a string (the ratio column's header)",
+        "phases": "true or false",
+        "headers": "a table with 'plant', 'tuner' or 'seeds' (new column headers; seeds = '' drops it)",
     }
     for key, value in report.items():
         if not checks[key](value):

@@ -31,7 +31,7 @@ from evaluation.references import REFERENCES_DIR, ReferenceSet, describe, load_r
 from evaluation.study import Study, TunerEntry, load_study, slugify
 from evaluation.study_runner import StudyRun, plan_batches, run_study
 
-__all__ = ["SUITES", "SuiteResult", "load_suite", "plant_targets", "run_suite", "tuner_study"]
+__all__ = ["SUITES", "SuiteResult", "load_suite", "plant_targets", "run_suite", "study_leaderboard", "tuner_study"]
 
 #: The suites: the standard one and its quick subset.
 SUITES = ("standard", "quick")
@@ -96,7 +96,7 @@ class SuiteResult:
     label: str = ""
 
 
-def run_suite(tuner: str, *, params: dict | None = None, label: str | None = None, suite: str = "standard",
+def run_suite(tuner: str, *, params: dict | None = None, label: str | None = None, suite: str | Study = "standard",
               seeds: int | None = None, imports=(), out: Path | str = Path("out") / "suite", backend: str = "local",
               address: str | None = None, workers: int | None = None, progress: bool | None = False,
               references: Path | str = REFERENCES_DIR, report_only: bool = False, log=None) -> SuiteResult:
@@ -110,7 +110,8 @@ def run_suite(tuner: str, *, params: dict | None = None, label: str | None = Non
         Constructor keyword arguments.
     label : str, optional
         Its name in the leaderboard (default: ``tuner``).
-    suite : {"standard", "quick"}
+    suite : {"standard", "quick"} or Study
+        The suite, or a study of several plants with its reference tuners in the suite's format.
     seeds : int, optional
         Seeds per plant (default: the suite's, 30 or 3).
     imports : sequence of str
@@ -130,7 +131,8 @@ def run_suite(tuner: str, *, params: dict | None = None, label: str | None = Non
     """
     log = log or (lambda message: print(message, file=sys.stderr))
     out = Path(out)
-    base = load_suite(suite)
+    base = suite if isinstance(suite, Study) else load_suite(suite)
+    suite = base.name if isinstance(suite, Study) else suite
     study = tuner_study(base, tuner, params, label, seeds, imports)
     entry = study.tuners[0]
     try:
@@ -191,3 +193,16 @@ def _commits(refs: ReferenceSet) -> dict:
     for (tuner, commit), n in counts.items():
         out.setdefault(tuner, {})[str(commit)] = int(n)
     return out
+
+
+def study_leaderboard(study: Study, out: Path | str) -> dict[str, Path]:
+    """The leaderboard of every tuner of a ``[[plants]]`` study from its runs under ``out``
+    (``gbo bench suite.toml`` runs every reference tuner on the suite)."""
+    out = Path(out)
+    tasks = plan_batches(study)
+    budgets = {task.plant: task.budget for task in tasks}
+    optima = suite_optima(study, budgets, cache=out / "optima.json")
+    curves = load_curves(out, study, optima=optima)
+    reference = study.report.get("reference", study.labels[0])
+    board = Leaderboard(reference=reference).fit(curves, plant_targets(study, budgets), order=study.labels)
+    return write_leaderboard(board, out, title=f"Leaderboard: {study.title}", intro=[study.description.strip()])
