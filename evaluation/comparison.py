@@ -344,7 +344,7 @@ def _sections(study, index, levels, context) -> tuple[list[str], list[dict]]:
     lines = []
     frame = pd.DataFrame(records)
     for (plant, level), group in frame.groupby(["plant", "ratio"], sort=False) if len(frame) else []:
-        lines.append(f"### {plant}, ratio {level} ({int(group['seeds'].max())} seeds)\n")
+        lines += [f"### {plant}, ratio {level} ({int(group['seeds'].max())} seeds)", ""]
         lines.append(f"| {_header(study, 'tuner', 'tuner')} | experiments to ratio, mean [95 % CI] (misses) | "
                      f"/ {ref} (same seeds) | seeds | "
                      + " | ".join(h for h, _ in extras) + " |")
