@@ -183,7 +183,7 @@ def references(converted: dict[str, pd.DataFrame]) -> None:
 
 def check(study_name: str, frame: pd.DataFrame, seeds: int) -> list[dict]:
     """Rerun ``seeds`` seeds of every plant and tuner of the study and compare the curves with the logged ones."""
-    from evaluation.study_runner import run_batch, best_true_cost_now  # noqa: F401
+    from evaluation.study_runner import best_true_cost_now, run_batch  # noqa: F401
 
     study = load_study(study_name)
     tasks = {(t.plant, t.label, t.seed): t for t in plan_batches(study)}

@@ -51,6 +51,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--out", help="output folder (default: out/studies/<study>)")
     parser.add_argument("--no-report", action="store_true", help="only run the batches")
     parser.add_argument("--report-only", action="store_true", help="only write the report from saved batches")
+    parser.add_argument("--rerun", action="append", default=[], metavar="LABEL",
+                        help="delete the saved runs of this tuner entry first, so that they run again with the current "
+                             "code (repeatable)")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress bar (without it, a bar on stderr when stderr is a terminal)")
     suite = parser.add_argument_group("gbo bench suite")
@@ -78,7 +81,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 _SUITE_ONLY = {"tuner": ("--tuner", []), "tuner_kwargs": ("--tuner-kwargs", {}), "label": ("--label", None),
                "imports": ("--import", []), "seeds": ("--seeds", None),
                "rebuild_references": ("--rebuild-references", False), "force": ("--force", False)}
-_STUDY_ONLY = {"batches": ("--batches", None), "list": ("--list", False), "no_report": ("--no-report", False)}
+_STUDY_ONLY = {"batches": ("--batches", None), "list": ("--list", False), "no_report": ("--no-report", False),
+               "rerun": ("--rerun", [])}
 
 
 def bench(args: argparse.Namespace) -> int:
@@ -118,6 +122,10 @@ def bench(args: argparse.Namespace) -> int:
     if args.batches is not None:
         study = study.with_batches(args.batches)
     out = Path(args.out) if args.out else default_out_dir(study)
+    if args.rerun:
+        from evaluation.study_runner import forget
+
+        print(f"{study.name}: deleted {forget(study, out, args.rerun)} saved runs of {', '.join(args.rerun)}")
     status = 0
     if not args.report_only:
         run = run_study(study, out, backend=args.backend, address=args.address, workers=args.workers,

@@ -52,7 +52,7 @@ from gbo_envs.atomic_write import atomic_write
 from gbo_envs.physics.block import validated_count
 
 __all__ = ["BatchTask", "StudyRun", "BACKENDS", "default_out_dir", "plan_batches", "finished_files",
-           "kept_files", "run_batch", "run_study", "resolve_params", "import_study_modules", "plant_budget"]
+           "forget", "kept_files", "run_batch", "run_study", "resolve_params", "import_study_modules", "plant_budget"]
 
 #: Execution backends of :func:`run_study`.
 BACKENDS = ("local", "dask")
@@ -273,6 +273,41 @@ def finished_files(out: Path) -> set[str]:
     """Names of the result files already written under ``out/results``."""
     folder = Path(out) / RESULTS_DIR
     return {p.name for p in folder.glob("*.parquet")} if folder.is_dir() else set()
+
+
+def forget(study: Study, out: Path | str, labels) -> int:
+    """Delete the finished runs of the tuner entries ``labels`` under ``out`` (batch files and kept curves), so
+    that the next run makes them again with the current code (``gbo bench STUDY --rerun LABEL``).
+
+    Returns
+    -------
+    int
+        Runs deleted.
+
+    Raises
+    ------
+    ValueError
+        A label that is no tuner entry of the study.
+    """
+    from evaluation.curves import CURVES_FILE, read_curves, write_curves
+
+    unknown = [label for label in labels if label not in study.labels]
+    if unknown:
+        raise ValueError(f"--rerun: {unknown} are not tuner labels of {study.name}; labels: {study.labels}")
+    out = Path(out)
+    names = {task.filename for task in plan_batches(study) if task.label in set(labels)}
+    deleted = 0
+    for name in names:
+        path = out / RESULTS_DIR / name
+        if path.is_file():
+            path.unlink()
+            deleted += 1
+    curves = read_curves(out / CURVES_FILE)
+    drop = curves["file"].isin(names)
+    if drop.any():
+        write_curves(curves[~drop], out / CURVES_FILE)
+        deleted += int(drop.sum())
+    return deleted
 
 
 def kept_files(out: Path) -> set[str]:

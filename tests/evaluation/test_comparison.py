@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
+import agents
 from evaluation.comparison import comparison_lines, effects_column
 from evaluation.curves import read_curves
 from evaluation.references import suite_optima
@@ -89,7 +91,8 @@ def test_versus_rows_beside_the_reference_with_the_twins_effects():
     runs = {("DC+backlash", "bo", s): ([1.2, 1.2, 1.04, 1.0], {"activations": None, "effects": None}) for s in (0, 1)}
     runs.update({("DC+backlash", "guided-bo", 0): ([1.04] * 4, guided),
                  ("DC+backlash", "guided-bo", 1): ([1.2, 1.0, 1.0, 1.0], {"activations": 1, "effects": []})})
-    spec = study(["bo", "guided-bo"], "versus", reference="bo", columns=["seconds", "tuner_cpu", "activations", "effects"],
+    spec = study(["bo", "guided-bo"], "versus", reference="bo",
+                 columns=["seconds", "tuner_cpu", "activations", "effects"],
                  plants=[{"label": "DC+backlash", "id": ENV, "thresholds": [1.05]}])
     lines, _ = comparison_lines(spec, curves(runs), OPTIMA)
     assert lines[0] == ("| plant | threshold | variant | seeds | variant: real experiments | bo, same seeds | "
@@ -111,6 +114,8 @@ COMMITTED = ["guided_bo_ablation", "time_varying", "peers", "mf_bo", "effect_awa
 @pytest.mark.parametrize("name", COMMITTED)
 def test_the_committed_reports_are_what_the_engine_computes_from_the_committed_curves(name, monkeypatch):
     monkeypatch.chdir(REPO_ROOT)  # the studies import benchmarks/study_tuners.py from the repository root
+    monkeypatch.setattr(agents.registry, "_REGISTRY", dict(agents.registry._REGISTRY))
+    monkeypatch.delitem(sys.modules, "benchmarks.study_tuners", raising=False)
     spec = load_study(name)
     folder = REPO_ROOT / "docs" / "reports" / name
     budgets = {}

@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import agents
 import evaluation.study_runner as study_runner
 from evaluation.cli import main
 from evaluation.curves import CURVES_FILE, load_curves, read_curves
@@ -138,6 +139,7 @@ agents.register("stale-test-tuner", Mine)
 
 
 def test_references_go_stale_when_a_fingerprint_input_changes_and_rebuild_fixes_them(tmp_path, monkeypatch):
+    monkeypatch.setattr(agents.registry, "_REGISTRY", dict(agents.registry._REGISTRY))  # the module registers
     monkeypatch.syspath_prepend(str(tmp_path))
     (tmp_path / "stale_test_tuner.py").write_text(TUNER_MODULE)
     import stale_test_tuner  # noqa: F401  (registers the tuner)
@@ -221,6 +223,7 @@ def _digest(folder) -> str:
 @pytest.mark.slow
 def test_a_tuner_from_the_users_module_gets_a_leaderboard_with_the_references(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(agents.registry, "_REGISTRY", dict(agents.registry._REGISTRY))  # the module registers
     (tmp_path / "my_tuner.py").write_text(USER_MODULE)
     before = _digest(REFERENCES_DIR)
     argv = ["bench", "suite", "--import", "my_tuner", "--tuner", "local-random", "--tuner-kwargs", '{"step": 0.05}',
