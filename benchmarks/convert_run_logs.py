@@ -196,12 +196,15 @@ def check(study_name: str, frame: pd.DataFrame, seeds: int) -> list[dict]:
         for row in rows:
             result = run_batch(tasks[(plant, label, row["seed"])])
             part = result[result["source"] == "plant"].sort_values("experiment")
-            curve = part["best_true_cost_now"].to_numpy(dtype=float) / row["optimum"]
+            best = np.asarray(MOVING[plant], dtype=float)[: len(part)] if plant in MOVING else row["optimum"]
+            curve = part["best_true_cost_now"].to_numpy(dtype=float) / best
             logged = np.asarray(row["curve"], dtype=float)
             same = curve.shape == logged.shape and bool(np.array_equal(curve, logged))
+            gap = float(np.max(np.abs(curve - logged))) if curve.shape == logged.shape else None
             out.append({"study": study_name, "plant": plant, "tuner": label, "seed": row["seed"],
                         "commit": row["commit"][:10], "identical": same,
-                        "max_abs_diff": float(np.max(np.abs(curve - logged))) if curve.shape == logged.shape else None})
+                        "within_1e-12": gap is not None and gap < 1e-12, "max_abs_diff": gap,
+                        "seconds": round(float(part["batch_wall_time"].iloc[0]), 1)})
             print(json.dumps(out[-1]), flush=True)
     return out
 
@@ -212,12 +215,14 @@ def main() -> None:
     parser.add_argument("--references", action="store_true", help="also add the logged reference runs")
     parser.add_argument("--check", type=int, default=0, metavar="N", help="rerun N seeds per plant and tuner")
     parser.add_argument("--check-tuners", nargs="*", help="only these tuner labels in --check")
+    parser.add_argument("--check-plants", nargs="*", help="only these plant labels in --check")
+    parser.add_argument("--no-write", action="store_true", help="do not write the studies' curves (with --check)")
     args = parser.parse_args()
     converted = {}
     for name in dict.fromkeys([*args.studies, *(s for v in REFERENCE_LOGS.values() for s, _ in v)]
                               if args.references else args.studies):
         converted[name] = convert(name)
-        if name in args.studies:
+        if name in args.studies and not args.no_write:
             print(f"{name}: {len(converted[name])} runs -> {write_study(name, converted[name]).relative_to(ROOT)}")
     if args.references:
         references(converted)
@@ -227,8 +232,11 @@ def main() -> None:
             frame = converted[name]
             if args.check_tuners:
                 frame = frame[frame["tuner"].isin(args.check_tuners)]
+            if args.check_plants:
+                frame = frame[frame["plant"].isin(args.check_plants)]
             results += check(name, frame, args.check)
-        print(json.dumps({"checked": len(results), "identical": sum(r["identical"] for r in results)}))
+        print(json.dumps({"checked": len(results), "identical": sum(r["identical"] for r in results),
+                          "within_1e-12": sum(r["within_1e-12"] for r in results)}))
 
 
 if __name__ == "__main__":

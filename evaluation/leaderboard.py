@@ -251,9 +251,14 @@ class Leaderboard:
                 kwargs = dict(MEASURED, lw=2.4) if tuner == highlight else {"color": cmap(i % 10), "lw": 1.3}
                 ax.step(mine["experiments"], mine["fraction"], where="post", label=tuner, **kwargs)
             ax.set_xscale("log")
+            top = int(data["experiments"].max()) if len(data) else 1
+            ticks = [t for t in (1, 2, 3, 5, 10, 20) if t < top] + [top]
+            ax.set_xticks(ticks, [str(t) for t in ticks])
+            ax.minorticks_off()
             ax.set_ylim(-0.02, 1.02)
             ax.set_xlabel(axis_label("real experiments to the target", "count"))
-            ax.set_ylabel(axis_label("fraction of (plant, seed) pairs at the target", "-"))
+            pairs = "(plant, seed) pairs" if plant is None else "seeds"
+            ax.set_ylabel(axis_label(f"fraction of {pairs} at the target", "-"))
             where = "all plants" if plant is None else plant
             ax.set_title(f"Runtime ECDF, {where}")
             legend_outside(ax)
@@ -377,12 +382,16 @@ def _plant_grid(board: Leaderboard, highlight: str | None):
     rows = math.ceil(n / cols)
     with style():
         fig, axes = pyplot().subplots(rows, cols, figsize=(4.2 * cols, 2.9 * rows), squeeze=False)
-        for ax, plant in zip(axes.flat, board.plants_):
+        for i, (ax, plant) in enumerate(zip(axes.flat, board.plants_)):
             board.plot(plant=plant.label, highlight=highlight, ax=ax)
             ax.set_title(f"{plant.label} (ratio {plant.target:g})", fontsize=9)
             legend = ax.get_legend()
-            if legend is not None and ax is not axes.flat[cols - 1]:
+            if legend is not None and i != cols - 1:
                 legend.remove()
+            if i % cols:
+                ax.set_ylabel("")
+            if i < n - cols:
+                ax.set_xlabel("")
         for ax in list(axes.flat)[n:]:
             ax.set_visible(False)
     return fig

@@ -89,6 +89,7 @@ def test_leaderboard_files_hold_the_ranking_the_plants_and_units(tmp_path):
     assert ax.get_xscale() == "log"
     assert ax.get_xlabel() == "real experiments to the target (count)"
     assert ax.get_ylabel() == "fraction of (plant, seed) pairs at the target (-)"
+    assert board.plot(plant="A").axes[0].get_ylabel() == "fraction of seeds at the target (-)"
 
 
 # -- resume -------------------------------------------------------------------------------------------
