@@ -348,8 +348,23 @@ def write_references(curves: pd.DataFrame, path: Path) -> Path:
 
 
 def describe(refs: ReferenceSet) -> list[str]:
-    """One line per stale or missing reference, for the command's output and the leaderboard."""
-    lines = [f"stale reference: {tuner} on {plant}: {'; '.join(reasons)}" for (tuner, plant), reasons in
-             sorted(refs.stale.items())]
-    lines += [f"missing reference: {tuner} on {plant}" for tuner, plant in refs.missing]
+    """One line per reference tuner with stale or missing plants, for the command's output and the leaderboard:
+    ``"stale reference: botorch on DCMotor-v0, LinearMotor-v0: the tuner's source changed since a30627b13b"``."""
+    stale: dict = {}
+    for (tuner, plant), reasons in refs.stale.items():
+        plants, kinds = stale.setdefault(tuner, ([], {}))
+        plants.append(plant)
+        for reason in reasons:
+            kind, since, commit = reason.rpartition(" since ")
+            commits = kinds.setdefault(kind if since else reason, [])
+            if since and commit not in commits:
+                commits.append(commit)
+    lines = [f"stale reference: {tuner} on {', '.join(plants)}: "
+             + "; ".join(f"{kind} since {', '.join(commits)}" if commits else kind
+                         for kind, commits in sorted(kinds.items()))
+             for tuner, (plants, kinds) in stale.items()]
+    missing: dict = {}
+    for tuner, plant in refs.missing:
+        missing.setdefault(tuner, []).append(plant)
+    lines += [f"missing reference: {tuner} on {', '.join(plants)}" for tuner, plants in missing.items()]
     return lines
