@@ -38,7 +38,7 @@ from functools import cache, lru_cache
 from pathlib import Path
 
 __all__ = ["PRESENTATION_MODULES", "PROJECT_PACKAGES", "REPO_ROOT", "SourceTree", "git_commit", "module_closure",
-           "plant_modules", "source_hash", "truth_table_path", "tuner_modules"]
+           "plant_modules", "reread_sources", "source_hash", "truth_table_path", "tuner_modules"]
 
 #: Top-level packages whose modules count as source (third-party libraries are pinned by the environment).
 PROJECT_PACKAGES = ("gbo_envs", "agents", "evaluation")
@@ -153,6 +153,11 @@ def module_closure(roots, tree: SourceTree | None = None, packages=PROJECT_PACKA
 def _working_tree() -> SourceTree:
     """One reader of the working tree per process (the sources do not change while a command runs)."""
     return SourceTree()
+
+
+def reread_sources() -> None:
+    """Forget the working tree's sources read so far (a long-lived process whose sources were edited)."""
+    _working_tree.cache_clear()
 
 
 def _imports(module: str, tree: SourceTree, packages: tuple[str, ...]) -> set[str]:

@@ -280,13 +280,14 @@ def leaderboard_markdown(board: Leaderboard, title: str, intro: list[str], figur
                          notes: list[str]) -> list[str]:
     """The lines of ``leaderboard.md``."""
     ref = board.reference
+    level = f"{100 * board.confidence:.0f} %"
     lines = [f"# {title}", "", *intro, ""]
     lines += ["## Ranking", "",
               f"Aggregate: the geometric mean over the plants of each tuner's mean real experiments to the target "
               f"over `{ref}`'s on the same seeds (below 1: fewer experiments than `{ref}`), with its "
-              f"{100 * board.confidence:.0f} % bootstrap interval ({board.n_bootstrap} resamples of the seeds); solved: the "
+              f"{level} bootstrap interval ({board.n_bootstrap} resamples of the seeds); solved: the "
               "share of (plant, seed) pairs whose target was reached within the budget.", "",
-              f"| rank | tuner | vs {ref} (geometric mean) | {100 * board.confidence:.0f} % interval | solved | plants | "
+              f"| rank | tuner | vs {ref} (geometric mean) | {level} interval | solved | plants | "
               "status |", "|---|---|---|---|---|---|---|"]
     for row in board.aggregate_.to_dict("records"):
         lines.append(f"| {row['rank']} | {row['tuner']} | {_number(row['geo_mean_vs_reference'])} | "
@@ -302,7 +303,7 @@ def leaderboard_markdown(board: Leaderboard, title: str, intro: list[str], figur
         if "ecdf_plants" in figures:
             lines += [f"![runtime ECDF per plant]({figures['ecdf_plants']})", ""]
     lines += ["## Per plant", "",
-              f"Mean real experiments to the target with its {100 * board.confidence:.0f} % Student-t interval; a miss "
+              f"Mean real experiments to the target with its {level} Student-t interval; a miss "
               f"counts as the experiments counted + 1; `/ {ref}`: the mean over `{ref}`'s on the same seeds.", ""]
     for plant in board.plants_:
         part = board.table_[board.table_["plant"] == plant.label]

@@ -124,12 +124,16 @@ def plant_table(folder: Path | str = REFERENCES_DIR) -> dict:
 
 
 def suite_optima(study: Study, budgets: dict[str, int], folder: Path | str = REFERENCES_DIR,
-                 cache: Path | str | None = None) -> dict[str, np.ndarray]:
+                 cache: Path | str | None = None, progress: bool | None = False) -> dict[str, np.ndarray]:
     """``J*_k`` per plant of ``study``: from the references' plant table while the plant is unchanged, else
-    computed (:func:`evaluation.curves.plant_optima`, cached in ``cache``)."""
+    computed (:func:`evaluation.curves.plant_optima`, cached in ``cache``; a bar per plant with ``progress``)."""
+    from agents.run_display import progress_bar
+
     table = plant_table(folder)
     optima = {}
+    bar = progress_bar(len(study.plants), "ground truths", progress, unit="plant")
     for plant in study.plants:
+        bar.update(1)
         known = table.get(plant.label)
         budget = budgets[plant.label]
         if (known and known["env_id"] == plant.env_id
@@ -139,6 +143,7 @@ def suite_optima(study: Study, budgets: dict[str, int], folder: Path | str = REF
             optima[plant.label] = np.asarray(known["optima"][:budget], dtype=float)
         else:
             optima[plant.label] = plant_optima(plant.env_id, plant.env_kwargs, budget, study.resolution, cache)
+    bar.close()
     return optima
 
 
@@ -292,7 +297,7 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
     folder, out = Path(folder), Path(out)
     tasks = plan_batches(study)
     budgets = {task.plant: task.budget for task in tasks}
-    optima = suite_optima(study, budgets, folder, out / "optima.json")
+    optima = suite_optima(study, budgets, folder, out / "optima.json", progress=progress)
     current = current_fingerprints(study, optima)
     refs = load_references(study, optima, folder)
     done: dict = {}

@@ -147,7 +147,7 @@ def run_suite(tuner: str, *, params: dict | None = None, label: str | None = Non
         if run.interrupted or run.failed:
             return SuiteResult(run=run, label=entry.label)
     budgets = {task.plant: task.budget for task in tasks}
-    optima = suite_optima(study, budgets, references, out / "optima.json")
+    optima = suite_optima(study, budgets, references, out / "optima.json", progress=progress)
     mine = load_curves(folder, study, optima=optima)
     batches = min(study.batches, base.batches)
     refs = load_references(base, optima, references, batches=batches)

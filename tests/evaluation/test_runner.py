@@ -225,5 +225,6 @@ def _spec(tmp_path, study):
     path.write_text('[study]\nname = "plants"\nbatches = 2\nbudget = 2\nresolution = 5\n'
                     '[[plants]]\nlabel = "DC"\nid = "gbo_envs/DCMotor-v0"\nthresholds = [1.5]\n'
                     '[[plants]]\nlabel = "Lin"\nid = "gbo_envs/LinearMotor-v0"\nthresholds = [1.5]\nbatches = 1\n'
-                    'budget = 3\n[[tuners]]\nname = "random"\n[[tuners]]\nname = "grid"\nplants = ["DC"]\nbatches = 1\n')
+                    'budget = 3\n[[tuners]]\nname = "random"\n[[tuners]]\nname = "grid"\nplants = ["DC"]\n'
+                    'batches = 1\n')
     return path

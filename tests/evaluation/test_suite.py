@@ -12,6 +12,7 @@ import pytest
 
 import agents
 import evaluation.study_runner as study_runner
+from evaluation import fingerprint
 from evaluation.cli import main
 from evaluation.curves import CURVES_FILE, load_curves, read_curves
 from evaluation.leaderboard import Leaderboard, PlantTarget, write_leaderboard
@@ -157,16 +158,20 @@ def test_references_go_stale_when_a_fingerprint_input_changes_and_rebuild_fixes_
     assert rebuild(suite, out=tmp_path / "work", folder=refs, workers=1) == {"bo": []}  # current: nothing rerun
 
     # the plant's kwargs
-    other = tiny_suite([{"name": "stale-test-tuner", "label": "bo"}], kwargs={"noise_std": 0.02})
+    other = tiny_suite([{"name": "stale-test-tuner", "label": "bo"}], kwargs={"output_noise_std": 0.1})
     changed = load_references(other, suite_optima(other, budgets, refs, tmp_path / "optima.json"), refs)
-    assert changed.stale == {("bo", "DC"): ["the plant's env or kwargs changed"]}
+    assert list(changed.stale) == [("bo", "DC")]  # its output noise changes J* too
+    assert changed.stale[("bo", "DC")][-1] == "the plant's env or kwargs changed"
+    assert changed.stale[("bo", "DC")][0].startswith("J* changed (0.2695")
     # the tuner's source
     (tmp_path / "stale_test_tuner.py").write_text(TUNER_MODULE + "\n# an edit\n")
+    fingerprint.reread_sources()  # a new command would read them anew
     stale = load_references(suite, optima, refs)
     assert set(stale.stale) == {("bo", "DC"), ("bo", "DCStep")}
     assert all(reasons[0].startswith("the tuner's source changed since") for reasons in stale.stale.values())
     # J* of one plant (a truth table that changed)
     (tmp_path / "stale_test_tuner.py").write_text(TUNER_MODULE)
+    fingerprint.reread_sources()
     frame = pd.read_parquet(reference_file("bo", refs))
     frame.loc[frame["plant"] == "DC", "optimum"] *= 1.01
     frame.to_parquet(reference_file("bo", refs))
