@@ -130,13 +130,9 @@ def bench(args: argparse.Namespace) -> int:
     if not args.report_only:
         run = run_study(study, out, backend=args.backend, address=args.address, workers=args.workers,
                         progress=False if args.quiet else None)  # ValueError before anything is written
-        print(f"{study.name}: {run.skipped + run.completed} of {run.total} batches finished "
-              f"({run.completed} now, {run.wall_time:.1f} s); results in {out / 'results'}")
-        if run.interrupted:
-            return 130
-        if run.failed:
-            print(f"gbo bench: {len(run.failed)} batch(es) failed; rerun to retry them", file=sys.stderr)
-            status = 1
+        status = _finished(run, f"{study.name}: ", "batches", f"results in {out / 'results'}", "gbo bench")
+        if status == 130:
+            return status
     if not args.no_report:
         from evaluation.report import write_report
 
@@ -200,13 +196,10 @@ def suite(args: argparse.Namespace) -> int:
                        address=args.address, workers=args.workers, progress=progress, report_only=args.report_only)
     run = result.run
     if run is not None:
-        print(f"suite {args.suite}: {run.skipped + run.completed} of {run.total} runs of {result.label} finished "
-              f"({run.completed} now, {run.wall_time:.1f} s); runs in {Path(args.out or 'out/suite')}")
-        if run.interrupted:
-            return 130
-        if run.failed:
-            print(f"gbo bench suite: {len(run.failed)} run(s) failed; rerun to retry them", file=sys.stderr)
-            return 1
+        status = _finished(run, f"suite {args.suite}: ", f"runs of {result.label}",
+                           f"runs in {Path(args.out or 'out/suite')}", "gbo bench suite")
+        if status:
+            return status
     board = result.leaderboard
     for line in (result.references and _stale_lines(result.references)) or []:
         print(line)
@@ -215,6 +208,18 @@ def suite(args: argparse.Namespace) -> int:
               f"[{row['ci_low']:.2f}, {row['ci_high']:.2f}], solved {100 * row['solved']:.0f} % of {row['pairs']}"
               + (f" ({row['status']})" if row["status"] else ""))
     print(f"leaderboard: {result.paths['md']} (.csv, .html)")
+    return 0
+
+
+def _finished(run, head: str, what: str, where: str, command: str) -> int:
+    """Print what a run of batches did; its exit status (130 after Ctrl-C, 1 if a batch failed, else 0)."""
+    print(f"{head}{run.skipped + run.completed} of {run.total} {what} finished ({run.completed} now, "
+          f"{run.wall_time:.1f} s); {where}")
+    if run.interrupted:
+        return 130
+    if run.failed:
+        print(f"{command}: {len(run.failed)} batch(es) failed; rerun to retry them", file=sys.stderr)
+        return 1
     return 0
 
 

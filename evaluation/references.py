@@ -25,6 +25,7 @@ ones (:func:`rebuild`).
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -262,9 +263,10 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
     """Rerun the stale and missing references of ``study`` and write them into ``folder``.
 
     Each reference tuner's plants that are stale or missing (all of them with ``force``) run through
-    :func:`evaluation.study_runner.run_study` in ``out/<tuner>`` (resumable: an interrupted rebuild
-    goes on where it stopped), then replace that tuner's rows of those plants in its curves file,
-    stamped with the current commit and hashes.
+    :func:`evaluation.study_runner.run_study` in ``out/<tuner>/<version>`` (``version`` hashes the
+    sources: an interrupted rebuild goes on where it stopped, a rebuild of changed code starts anew),
+    then replace that tuner's rows of those plants in its curves file, stamped with the current
+    commit and hashes.
 
     Parameters
     ----------
@@ -288,6 +290,7 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
         and ``"interrupted"`` / ``"failed"`` (batch files of failed runs) when that happened.
     """
     from evaluation import fingerprint
+    from evaluation.curves import load_curves
     from evaluation.study_runner import plan_batches, run_study
 
     labels = study.labels
@@ -311,18 +314,20 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
             continue
         part = study.subset(plants=plants, tuners=(entry,), name=f"{study.name}-{slugify(entry.label)}")
         before = {p: current[(entry.label, p)] for p in plants}
-        run = run_study(part, out / slugify(entry.label), backend=backend, address=address, workers=workers,
-                        progress=progress, log=log)
+        # one working folder per source version: an interrupted rebuild resumes, one of changed code starts anew
+        version = hashlib.sha256(json.dumps(sorted((p, f.tuner_hash, f.plant_hash) for p, f in before.items()))
+                                 .encode()).hexdigest()[:10]
+        work = out / slugify(entry.label) / version
+        run = run_study(part, work, backend=backend, address=address, workers=workers, progress=progress, log=log)
         if run.interrupted or run.failed:
             done["interrupted" if run.interrupted else "failed"] = [name for name, _ in run.failed] or True
             return done
-        from evaluation.curves import load_curves
-
-        new = load_curves(out / slugify(entry.label), part, optima=optima)
+        new = load_curves(work, part, optima=optima)
         modules = set(fingerprint.tuner_modules(entry.name))
         for plant in plants:
             modules.update(fingerprint.plant_modules(study.plant(plant).env_id))
         stamp = fingerprint.git_commit(sorted(modules)) or "unknown"
+        fingerprint.reread_sources()
         again = current_fingerprints(part, optima)
         changed = [p for p in plants if again[(entry.label, p)] != before[p]]
         if changed:

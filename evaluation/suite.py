@@ -20,7 +20,7 @@ Output (``OUT``, default ``out/suite``)::
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import pandas as pd
@@ -54,8 +54,6 @@ def tuner_study(suite: Study, tuner: str, params: dict | None = None, label: str
     """The suite with one tuner entry (``label``, default the tuner's name) on all its plants, ``seeds`` seeds."""
     entry = TunerEntry(name=tuner, label=label or tuner, params=dict(params or {}), group=label or tuner)
     study = suite.subset(tuners=(entry,), batches=seeds)
-    from dataclasses import replace
-
     return replace(study, imports=tuple(imports), name=f"{suite.name}-{slugify(entry.label)}")
 
 
