@@ -61,12 +61,12 @@ def full_runs(env_label: str, guidance: str, seeds: list[int]) -> dict:
     """Wall and CPU seconds of whole guided-BO runs (budget: the env's episode length) and their data efficiency.
 
     ``experiments_to_1.05``: real experiments until the best evaluated gains reach 1.05 times
-    the ground-truth optimum (budget + 1 if never; benchmarks/effect_aware_guided_bo.py).
+    the ground-truth optimum (budget + 1 if never; :func:`evaluation.curves.experiments_to_target`).
     """
-    from data_efficiency import experiments_to_reach
-    from effect_aware_guided_bo import optimum
+    from evaluation.curves import experiments_to_target
+    from gbo_envs import ground_truth
 
-    best = optimum(env_label)["cost"]
+    best = ground_truth(f"gbo_envs/{env_label}", resolution=100).cost
     runs = []
     for seed in seeds:
         env = gym.make(f"gbo_envs/{env_label}")
@@ -75,7 +75,7 @@ def full_runs(env_label: str, guidance: str, seeds: list[int]) -> dict:
         ratios = (run.min_true_cost_curve() / best).tolist()
         runs.append({"seed": seed, "seconds": time.perf_counter() - start,
                      "cpu_seconds": time.process_time() - cpu_start, "twin_evaluations": run.info["twin_evaluations"],
-                     "activations": run.info["activations"], "experiments_to_1.05": experiments_to_reach(ratios, 1.05),
+                     "activations": run.info["activations"], "experiments_to_1.05": experiments_to_target(ratios, 1.05),
                      "final_ratio": ratios[-1]})
     return {"runs": runs, "median_cpu_seconds": float(np.median([r["cpu_seconds"] for r in runs]))}
 

@@ -1,4 +1,4 @@
-"""``gbo bench STUDY``: run a Monte Carlo study, then write its report and figures.
+"""``gbo bench STUDY`` and ``gbo bench suite``: run a Monte Carlo study, or one tuner on the benchmark suite.
 
 Examples::
 
@@ -8,6 +8,9 @@ Examples::
     gbo bench performance --backend dask                   # a local dask.distributed cluster
     gbo bench performance --backend dask --address tcp://scheduler:8786
     gbo bench performance --report-only                    # redo the report from the saved batches
+    gbo bench suite --tuner random --suite quick           # one tuner on the suite, leaderboard with the references
+    gbo bench suite --import my_tuner --tuner my-tuner --tuner-kwargs '{"step": 0.05}'
+    gbo bench suite --rebuild-references --tuner guided-bo # rerun the stale references of guided-bo
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import importlib.util
 import sys
 from pathlib import Path
 
-from evaluation.cli_args import EXIT_BAD_INPUT, positive_int
+from evaluation.cli_args import EXIT_BAD_INPUT, json_object, positive_int
 
 __all__ = ["add_parser", "bench"]
 
@@ -25,13 +28,19 @@ __all__ = ["add_parser", "bench"]
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``bench`` sub-command to the ``gbo`` parser."""
     parser = subparsers.add_parser(
-        "bench", help="run a Monte Carlo study (TOML spec) and write its report",
+        "bench", help="run a Monte Carlo study (TOML spec) and write its report, or a tuner on the benchmark suite",
         description="Run a study's batches in parallel, saving each finished batch at once (rerun to resume), "
-                    "then write report.md and PNG figures.",
+                    "then write report.md and PNG figures. `gbo bench suite --tuner NAME` runs one tuner on the "
+                    "benchmark suite (every registered env, the effect plants and the time-varying envs, 30 seeds) "
+                    "and writes leaderboard.md/.csv/.html with the shipped reference results, which are not rerun.",
         epilog="Examples:\n  gbo bench --list\n  gbo bench smoke --out /tmp/smoke\n"
-               "  gbo bench performance --batches 10 --workers 2",
+               "  gbo bench performance --batches 10 --workers 2\n"
+               "  gbo bench suite --tuner random --suite quick\n"
+               "  gbo bench suite --import my_tuner --tuner my-tuner --suite quick\n"
+               "  gbo bench suite --rebuild-references --tuner guided-bo",
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("study", nargs="?", help="a shipped study name (see --list) or a path to a .toml/.yaml spec")
+    parser.add_argument("study", nargs="?", help="a shipped study name (see --list), a path to a .toml/.yaml spec, "
+                                                 "or `suite` (one tuner on the benchmark suite)")
     parser.add_argument("--list", action="store_true", help="list the shipped studies and exit")
     parser.add_argument("--batches", type=positive_int, help="run only the first N batches of every tuner")
     parser.add_argument("--backend", choices=("local", "dask"), default="local",
@@ -42,10 +51,38 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--out", help="output folder (default: out/studies/<study>)")
     parser.add_argument("--no-report", action="store_true", help="only run the batches")
     parser.add_argument("--report-only", action="store_true", help="only write the report from saved batches")
+    parser.add_argument("--rerun", action="append", default=[], metavar="LABEL",
+                        help="delete the saved runs of this tuner entry first, so that they run again with the current "
+                             "code (repeatable)")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress bar (without it, a bar on stderr when stderr is a terminal)")
+    suite = parser.add_argument_group("gbo bench suite")
+    suite.add_argument("--tuner", action="append", default=[], metavar="NAME",
+                       help="the tuner's registry name (yours: see --import); with --rebuild-references: a reference "
+                            "to rebuild (repeatable; default: every stale or missing one)")
+    suite.add_argument("--tuner-kwargs", type=json_object, default={}, metavar="JSON",
+                       help="the tuner's constructor keyword arguments as a JSON object")
+    suite.add_argument("--label", help="the tuner's name in the leaderboard (default: --tuner)")
+    suite.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",
+                       help="import MODULE first (in every worker too), found as `python -m` finds it (the current "
+                            "folder first): it registers your tuner; repeatable")
+    suite.add_argument("--suite", choices=("standard", "quick"), default="standard",
+                       help="standard: 12 plants x 30 seeds (default); quick: 3 plants x 3 seeds")
+    suite.add_argument("--seeds", type=positive_int, help="seeds per plant (default: the suite's, 30 or 3)")
+    suite.add_argument("--rebuild-references", action="store_true",
+                       help="rerun the stale and missing reference results (see --tuner) and write them into the "
+                            "package's references folder")
+    suite.add_argument("--force", action="store_true", help="with --rebuild-references: rebuild current ones too")
     parser.set_defaults(handler=bench)
     return parser
+
+
+#: Options of `gbo bench suite` only, and of a study only: their flags and the values that mean "not given".
+_SUITE_ONLY = {"tuner": ("--tuner", []), "tuner_kwargs": ("--tuner-kwargs", {}), "label": ("--label", None),
+               "imports": ("--import", []), "seeds": ("--seeds", None),
+               "rebuild_references": ("--rebuild-references", False), "force": ("--force", False)}
+_STUDY_ONLY = {"batches": ("--batches", None), "list": ("--list", False), "no_report": ("--no-report", False),
+               "rerun": ("--rerun", [])}
 
 
 def bench(args: argparse.Namespace) -> int:
@@ -53,11 +90,23 @@ def bench(args: argparse.Namespace) -> int:
     from evaluation.study import load_study, shipped_studies
     from evaluation.study_runner import default_out_dir, run_study
 
+    if args.study == "suite":
+        return suite(args)
+    given = [flag for key, (flag, unset) in _SUITE_ONLY.items() if getattr(args, key) != unset]
+    if args.suite != "standard":
+        given.append("--suite")
+    if given:
+        print(f"gbo bench: {', '.join(given)} only with `gbo bench suite`", file=sys.stderr)
+        return EXIT_BAD_INPUT
     if args.list:
         for name in shipped_studies():
             study = load_study(name)
-            print(f"{name:18s} {study.title} ({len(study.tuners)} tuners x {study.batches} batches x "
-                  f"{study.budget} experiments)")
+            if study.per_plant:
+                print(f"{name:18s} {study.title} ({len(study.tuners)} tuners x {len(study.plants)} plants x "
+                      f"{study.batches} batches)")
+            else:
+                print(f"{name:18s} {study.title} ({len(study.tuners)} tuners x {study.batches} batches x "
+                      f"{study.budget} experiments)")
         return 0
     if not args.study:
         print("gbo bench: give a STUDY (a shipped name or a spec path); see gbo bench --list", file=sys.stderr)
@@ -73,20 +122,108 @@ def bench(args: argparse.Namespace) -> int:
     if args.batches is not None:
         study = study.with_batches(args.batches)
     out = Path(args.out) if args.out else default_out_dir(study)
+    if args.rerun:
+        from evaluation.study_runner import forget
+
+        print(f"{study.name}: deleted {forget(study, out, args.rerun)} saved runs of {', '.join(args.rerun)}")
     status = 0
     if not args.report_only:
         run = run_study(study, out, backend=args.backend, address=args.address, workers=args.workers,
                         progress=False if args.quiet else None)  # ValueError before anything is written
-        print(f"{study.name}: {run.skipped + run.completed} of {run.total} batches finished "
-              f"({run.completed} now, {run.wall_time:.1f} s); results in {out / 'results'}")
-        if run.interrupted:
-            return 130
-        if run.failed:
-            print(f"gbo bench: {len(run.failed)} batch(es) failed; rerun to retry them", file=sys.stderr)
-            status = 1
+        status = _finished(run, f"{study.name}: ", "batches", f"results in {out / 'results'}", "gbo bench")
+        if status == 130:
+            return status
     if not args.no_report:
         from evaluation.report import write_report
 
         path = write_report(study, out)
         print(f"report: {path}")
     return status
+
+
+def suite(args: argparse.Namespace) -> int:
+    """Handler of ``gbo bench suite``: run a tuner on the suite and write the leaderboard, or rebuild references."""
+    import agents
+    from evaluation.suite import load_suite, run_suite
+
+    given = [flag for key, (flag, unset) in _STUDY_ONLY.items() if getattr(args, key) != unset]
+    if given:
+        print(f"gbo bench suite: {', '.join(given)} only with a study (gbo bench STUDY)", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if args.address and args.backend != "dask":
+        print("gbo bench suite: --address needs --backend dask", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    progress = False if args.quiet else None
+    if args.rebuild_references:
+        from evaluation.references import rebuild
+
+        extra = [flag for flag, value in (("--tuner-kwargs", args.tuner_kwargs), ("--label", args.label),
+                                          ("--import", args.imports), ("--seeds", args.seeds),
+                                          ("--report-only", args.report_only)) if value]
+        if extra:
+            print(f"gbo bench suite: {', '.join(extra)} not with --rebuild-references (the references run the "
+                  "standard suite with the kwargs of evaluation/studies/suite.toml)", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        done = rebuild(load_suite("standard"), tuners=args.tuner or None, out=Path(args.out or "out/references"),
+                       force=args.force, backend=args.backend, address=args.address, workers=args.workers,
+                       progress=progress)
+        for tuner, plants in done.items():
+            if tuner in ("interrupted", "failed"):
+                continue
+            print(f"{tuner}: {'rebuilt on ' + ', '.join(plants) if plants else 'current, nothing to rebuild'}")
+        if "interrupted" in done:
+            print("gbo bench suite: interrupted; rerun the same command to resume", file=sys.stderr)
+            return 130
+        if "failed" in done:
+            print(f"gbo bench suite: runs failed ({done['failed']}); rerun to retry them", file=sys.stderr)
+            return 1
+        return 0
+    if args.force:
+        print("gbo bench suite: --force only with --rebuild-references", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if len(args.tuner) != 1:
+        print("gbo bench suite: give one --tuner NAME (a registered tuner; yours with --import MODULE), "
+              f"got {len(args.tuner)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    name = args.tuner[0]
+    if name not in agents.registered_names():
+        hint = " (is --import the module that registers it?)" if args.imports else \
+            " (your own: --import MODULE that registers it)"
+        raise ValueError(f"--tuner {name!r}: not a registered tuner; registered: "
+                         f"{', '.join(agents.registered_names())}{hint}")
+    result = run_suite(name, params=args.tuner_kwargs, label=args.label, suite=args.suite, seeds=args.seeds,
+                       imports=args.imports, out=Path(args.out or "out/suite"), backend=args.backend,
+                       address=args.address, workers=args.workers, progress=progress, report_only=args.report_only)
+    run = result.run
+    if run is not None:
+        status = _finished(run, f"suite {args.suite}: ", f"runs of {result.label}",
+                           f"runs in {Path(args.out or 'out/suite')}", "gbo bench suite")
+        if status:
+            return status
+    board = result.leaderboard
+    for line in (result.references and _stale_lines(result.references)) or []:
+        print(line)
+    for row in board.aggregate_.to_dict("records"):
+        print(f"{row['rank']:>2}. {row['tuner']:<16} vs {board.reference}: {row['geo_mean_vs_reference']:.2f} "
+              f"[{row['ci_low']:.2f}, {row['ci_high']:.2f}], solved {100 * row['solved']:.0f} % of {row['pairs']}"
+              + (f" ({row['status']})" if row["status"] else ""))
+    print(f"leaderboard: {result.paths['md']} (.csv, .html)")
+    return 0
+
+
+def _finished(run, head: str, what: str, where: str, command: str) -> int:
+    """Print what a run of batches did; its exit status (130 after Ctrl-C, 1 if a batch failed, else 0)."""
+    print(f"{head}{run.skipped + run.completed} of {run.total} {what} finished ({run.completed} now, "
+          f"{run.wall_time:.1f} s); {where}")
+    if run.interrupted:
+        return 130
+    if run.failed:
+        print(f"{command}: {len(run.failed)} batch(es) failed; rerun to retry them", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _stale_lines(refs) -> list[str]:
+    from evaluation.references import describe
+
+    return describe(refs)

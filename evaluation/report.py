@@ -109,6 +109,9 @@ def _references(study: Study, frame, optimum, thresholds, param) -> dict:
 def write_report(study: Study, out: Path | str, frame: pd.DataFrame | None = None) -> Path:
     """Write ``out/report.md`` and its figures from the finished batches under ``out``.
 
+    A study of several plants gets its comparison table instead (:func:`evaluation.comparison.write_comparison`),
+    or the leaderboard of its tuners (``[report] table = "leaderboard"``, :func:`evaluation.suite.study_leaderboard`).
+
     Parameters
     ----------
     study : Study
@@ -124,6 +127,16 @@ def write_report(study: Study, out: Path | str, frame: pd.DataFrame | None = Non
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    if study.per_plant:
+        if study.report.get("table") == "leaderboard":
+            from evaluation.suite import study_leaderboard
+
+            return study_leaderboard(study, out)["md"]
+        from evaluation.comparison import write_comparison
+
+        path = write_comparison(study, out)
+        write_html(path, title=study.title)
+        return path
     frame = analysis.load_results(out, study) if frame is None else frame
     lines = [f"# {study.title}", ""]
     if study.description:

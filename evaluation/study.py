@@ -51,6 +51,32 @@ same noise. Example (``evaluation/studies/smoke.toml``)::
 
     [notes]
     text = "Free text copied into the report."
+
+A study may run on several plants instead of one ``[env]``: ``[[plants]]`` tables, each
+with its own label, env, thresholds and, optionally, its own number of batches, budget
+(default: the env's episode length) and phase (``"after-change"``: a plant-changing env
+such as ``DCMotorStep-v0`` is judged from its change on). A tuner entry may run on a subset
+of the plants (``plants = [...]``) and on fewer batches (``batches = N``)::
+
+    [study]
+    name = "peers"
+    batches = 30
+    imports = ["my_tuners"]       # modules imported first: tuners they register can be named
+
+    [[plants]]
+    label = "DC+saturation"
+    id = "gbo_envs/DCMotor-v0"
+    kwargs = {effects = {saturation = {limit = 138.0}}}
+    thresholds = [1.1, 1.05]
+
+    [[tuners]]
+    name = "bo"
+    plants = ["DC+saturation"]
+    batches = 10
+
+The runs of such a study are summarised per plant by a comparison table
+(:mod:`evaluation.comparison`; ``[report] table``); the benchmark suite
+(:mod:`evaluation.suite`) is one such study.
 """
 
 from __future__ import annotations
@@ -68,6 +94,8 @@ from typing import Any
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]+")
 
 __all__ = [
+    "PHASES",
+    "Plant",
     "Study",
     "StudySpecError",
     "Threshold",
@@ -83,17 +111,25 @@ __all__ = [
 #: Folder of the shipped studies (package data).
 STUDIES_DIR = Path(__file__).resolve().parent / "studies"
 
-TOP_KEYS = ("study", "env", "tuners", "thresholds", "analysis", "report", "paper", "notes")
-STUDY_KEYS = ("name", "title", "description", "batches", "budget", "n_initial", "seed", "resolution")
+TOP_KEYS = ("study", "env", "plants", "tuners", "thresholds", "analysis", "report", "paper", "notes", "suite")
+STUDY_KEYS = ("name", "title", "description", "batches", "budget", "n_initial", "seed", "resolution", "imports")
 ENV_KEYS = ("id", "kwargs")
-TUNER_KEYS = ("name", "label", "params", "sweep")
-THRESHOLD_KEYS = ("label", "ratio", "gains", "paper_ratio")
+PLANT_KEYS = ("label", "id", "kwargs", "thresholds", "batches", "budget", "phase")
+TUNER_KEYS = ("name", "label", "params", "sweep", "plants", "batches")
+#: ``[suite]``: the plants and batches of the quick suite (``gbo bench suite --suite quick``).
+SUITE_KEYS = ("quick_plants", "quick_batches")
+#: How a plant's runs are judged: from the first experiment (``"run"``), or from the plant change of a
+#: plant-changing env on, counting only experiments on the changed plant (``"after-change"``).
+PHASES = ("run", "after-change")
+THRESHOLD_KEYS = ("label", "ratio", "gains", "tuner", "params", "paper_ratio")
+#: ``[report] table`` of a ``[[plants]]`` study: the comparison table's layout (:mod:`evaluation.comparison`).
+TABLES = ("versus", "columns", "sections", "paired", "list", "leaderboard")
 ANALYSIS_KEYS = ("count_initial",)
 #: ``[report]`` options: batch drawn on the cost surface, tuners drawn there (labels), the
 #: experiment at which best gains are tabulated, histogram bins / upper ratio limit,
 #: the swept parameter of the sweep figure, and whether to draw percentile bands.
 REPORT_KEYS = ("surface_batch", "surface_tuners", "gains_at", "histogram_bins", "histogram_max", "sweep_param",
-               "bands")
+               "bands", "table", "reference", "columns", "caption", "csv", "ratio", "ratio_label", "phases", "headers")
 #: ``[paper]`` entries: free ``source``/``text``, ``thresholds`` rows ``{tuner, threshold, mean, best,
 #: worst}``, ``gains`` rows ``{label, <gain names>, cost}``, ``metrics`` rows ``{tuner, metric, value}``.
 PAPER_KEYS = ("source", "text", "thresholds", "gains", "metrics")
@@ -121,6 +157,10 @@ class TunerEntry:
         The swept parameters of this entry and their values (empty if not swept).
     group : str
         Label template of the entry it was expanded from (entries of one sweep share it).
+    plants : tuple of str
+        Labels of the plants it runs on (empty: every plant of the study).
+    batches : int or None
+        At most this many batches on each plant (None: the plant's).
     """
 
     name: str
@@ -128,6 +168,8 @@ class TunerEntry:
     params: dict = field(default_factory=dict)
     sweep: dict = field(default_factory=dict)
     group: str = ""
+    plants: tuple[str, ...] = ()
+    batches: int | None = None
 
 
 @dataclass(frozen=True)
@@ -141,6 +183,11 @@ class Threshold:
         ``J / J*`` threshold (dimensionless), when given directly.
     gains : tuple of float or None
         Controller gains whose noise-free ratio is the threshold (e.g. the nominal PGM controller).
+    tuner : str or None
+        A tuner whose first experiment's noise-free ratio is the threshold (e.g. ``"nominal"``, which
+        designs its gains from the plant), made with ``params``.
+    params : dict
+        Constructor keyword arguments of ``tuner``.
     paper_ratio : float or None
         The paper's value of this threshold, for the report.
     """
@@ -149,6 +196,8 @@ class Threshold:
     ratio: float | None = None
     gains: tuple[float, ...] | None = None
     paper_ratio: float | None = None
+    tuner: str | None = None
+    params: dict = field(default_factory=dict)
 
     def resolve(self, env, optimum: float) -> float:
         """The ratio: ``ratio`` itself, or ``J(gains) / J*`` on the noise-free ``env``.
@@ -164,12 +213,51 @@ class Threshold:
             return float(self.ratio)
         import numpy as np
 
+        if self.tuner is not None:
+            import gymnasium as gym
+
+            import agents
+
+            spec = env.spec
+            quiet = gym.make(spec.id, **{**(spec.kwargs or {}), "noise": False})
+            result = agents.make(self.tuner, **self.params).run(quiet, budget=1, seed=0, progress=False)
+            return float(result.min_true_cost_curve()[0]) / float(optimum)
         plant = env.unwrapped
         if len(self.gains) != len(plant.gain_names):
             raise StudySpecError(f"thresholds '{self.label}': gains has {len(self.gains)} values, the env has "
                                  f"{len(plant.gain_names)} gains {plant.gain_names}")
         cost = plant.evaluate(np.asarray(self.gains, dtype=float)[None, :], experiment_index=0)[1][0]
         return float(cost) / float(optimum)
+
+
+@dataclass(frozen=True)
+class Plant:
+    """One plant of a study: an env with its kwargs, thresholds and run length.
+
+    Attributes
+    ----------
+    label : str
+        Unique label, the ``plant`` column of the results (an ``[env]`` study's one plant: the env's name).
+    env_id : str
+    env_kwargs : dict
+    thresholds : tuple of Threshold
+        Its thresholds (empty: the study's).
+    batches : int or None
+        Batches on this plant (None: the study's).
+    budget : int or None
+        Plant experiments per run (None: the study's budget, else the env's episode length).
+    phase : {"run", "after-change"}
+        Judge runs from the first experiment, or from the plant change of a plant-changing env on
+        (:data:`PHASES`).
+    """
+
+    label: str
+    env_id: str
+    env_kwargs: dict = field(default_factory=dict)
+    thresholds: tuple[Threshold, ...] = ()
+    batches: int | None = None
+    budget: int | None = None
+    phase: str = "run"
 
 
 @dataclass(frozen=True)
@@ -199,13 +287,21 @@ class Study:
     path : Path or None
     text : str
         The spec file's text (copied into the report).
+    plants : tuple of Plant
+        The plants (an ``[env]`` study: its one env; ``env_id`` and ``env_kwargs`` are the first plant's).
+    per_plant : bool
+        The spec has ``[[plants]]`` (its report is a comparison table per plant).
+    imports : tuple of str
+        Modules imported before the tuners are made (they may register tuners).
+    suite : dict
+        ``[suite]`` options (:data:`SUITE_KEYS`).
     """
 
     name: str
     env_id: str
     tuners: tuple[TunerEntry, ...]
     batches: int
-    budget: int
+    budget: int | None
     title: str = ""
     description: str = ""
     env_kwargs: dict = field(default_factory=dict)
@@ -219,6 +315,10 @@ class Study:
     notes: str = ""
     path: Path | None = None
     text: str = ""
+    plants: tuple[Plant, ...] = ()
+    per_plant: bool = False
+    imports: tuple[str, ...] = ()
+    suite: dict = field(default_factory=dict)
 
     @property
     def labels(self) -> list[str]:
@@ -226,13 +326,71 @@ class Study:
         return [entry.label for entry in self.tuners]
 
     @property
+    def plant_labels(self) -> list[str]:
+        """Plant labels in spec order."""
+        return [plant.label for plant in self.plants]
+
+    def plant(self, label: str) -> Plant:
+        """The plant with this label."""
+        for plant in self.plants:
+            if plant.label == label:
+                return plant
+        raise KeyError(f"no plant labelled {label!r}; labels: {self.plant_labels}")
+
+    def plant_batches(self, plant: Plant, entry: TunerEntry | None = None) -> int:
+        """Batches of ``entry`` (default: any tuner) on ``plant``: the plant's or the study's, capped by the entry's."""
+        batches = plant.batches if plant.batches is not None else self.batches
+        if entry is not None and entry.batches is not None:
+            batches = min(batches, entry.batches)
+        return batches
+
+    def plant_thresholds(self, plant: Plant) -> tuple[Threshold, ...]:
+        """The plant's thresholds, or the study's."""
+        return plant.thresholds or self.thresholds
+
+    def runs_on(self, entry: TunerEntry, plant: Plant) -> bool:
+        """Whether the tuner entry runs on the plant."""
+        return not entry.plants or plant.label in entry.plants
+
+    def subset(self, plants: list[str] | None = None, batches: int | None = None,
+               tuners: tuple[TunerEntry, ...] | None = None, name: str | None = None) -> Study:
+        """The same study on fewer plants, with ``batches`` batches on every plant, or with other tuners.
+
+        Parameters
+        ----------
+        plants : list of str, optional
+            Plant labels to keep, in this order.
+        batches : int, optional
+            Batches per plant (replaces every plant's and entry's own count).
+        tuners : tuple of TunerEntry, optional
+            The tuner entries (their ``plants`` must name kept plants).
+        name : str, optional
+            The new study's name.
+        """
+        kept = self.plants if plants is None else tuple(self.plant(label) for label in plants)
+        entries = self.tuners if tuners is None else tuple(tuners)
+        if batches is not None:
+            batches = _positive_int(batches, "batches", "batches")
+            kept = tuple(replace(plant, batches=None) for plant in kept)
+            entries = tuple(replace(entry, batches=None) for entry in entries)
+        labels = {plant.label for plant in kept}
+        entries = tuple(replace(entry, plants=tuple(p for p in entry.plants if p in labels)) for entry in entries
+                        if not entry.plants or labels & set(entry.plants))
+        return replace(self, plants=kept, tuners=entries, batches=self.batches if batches is None else batches,
+                       env_id=kept[0].env_id, env_kwargs=dict(kept[0].env_kwargs), name=name or self.name)
+
+    @property
     def threshold_offset(self) -> int:
         """Experiments subtracted from experiments-to-threshold counts (N0 when not counted)."""
         return 0 if self.count_initial else int(self.n_initial or 0)
 
     def with_batches(self, batches: int) -> Study:
-        """The same study with another number of batches (``gbo bench --batches``)."""
-        return replace(self, batches=_positive_int(batches, "batches", "--batches"))
+        """The same study with another number of batches (``gbo bench --batches``): at most ``batches`` on
+        every plant and tuner."""
+        batches = _positive_int(batches, "batches", "--batches")
+        plants = tuple(replace(p, batches=min(p.batches, batches)) if p.batches is not None else p
+                       for p in self.plants)
+        return replace(self, batches=batches, plants=plants)
 
     def tuner(self, label: str) -> TunerEntry:
         """The tuner entry with this label."""
@@ -316,12 +474,27 @@ def _parse(data: dict, name: str, path: Path | None, text: str) -> Study:
     _check_keys(data, TOP_KEYS, "top level")
     head = _table(data.get("study", {}), "[study]")
     _check_keys(head, STUDY_KEYS, "[study]")
-    env = _table(data.get("env"), "[env]", required=True)
-    _check_keys(env, ENV_KEYS, "[env]")
-    env_id = env.get("id")
-    if not isinstance(env_id, str) or not env_id:
-        raise StudySpecError(f"[env] id: expected an env id string such as 'gbo_envs/DCMotor-v0', got {env_id!r}")
-    env_kwargs = dict(_table(env.get("kwargs", {}), "[env] kwargs"))
+    per_plant = "plants" in data
+    if per_plant == ("env" in data):
+        raise StudySpecError("give exactly one of [env] (one env) or [[plants]] (several plants, each with a "
+                             "label and an env id)")
+    if per_plant:
+        plants = tuple(_plant(raw, f"plants[{i}]") for i, raw in enumerate(_list(data["plants"], "plants")))
+        if not plants:
+            raise StudySpecError("plants: expected at least one [[plants]] table with a label and an id")
+        plant_labels = [plant.label for plant in plants]
+        repeated = sorted({label for label in plant_labels if plant_labels.count(label) > 1})
+        if repeated:
+            raise StudySpecError(f"plants: labels must be unique, repeated: {repeated}")
+        env_id, env_kwargs = plants[0].env_id, dict(plants[0].env_kwargs)
+    else:
+        env = _table(data.get("env"), "[env]", required=True)
+        _check_keys(env, ENV_KEYS, "[env]")
+        env_id = env.get("id")
+        if not isinstance(env_id, str) or not env_id:
+            raise StudySpecError(f"[env] id: expected an env id string such as 'gbo_envs/DCMotor-v0', got {env_id!r}")
+        env_kwargs = dict(_table(env.get("kwargs", {}), "[env] kwargs"))
+        plants = (Plant(label=env_id.rsplit("/", 1)[-1], env_id=env_id, env_kwargs=dict(env_kwargs)),)
 
     tuners = data.get("tuners")
     if not isinstance(tuners, list) or not tuners:
@@ -330,6 +503,11 @@ def _parse(data: dict, name: str, path: Path | None, text: str) -> Study:
     for i, raw in enumerate(tuners):
         entries.extend(_tuner_entries(raw, f"tuners[{i}]"))
     labels = [e.label for e in entries]
+    known = [plant.label for plant in plants]
+    for entry in entries:
+        unknown = [label for label in entry.plants if label not in known]
+        if unknown:
+            raise StudySpecError(f"tuners '{entry.label}' plants: {unknown} are not plant labels; plants: {known}")
     duplicates = sorted({lab for lab in labels if labels.count(lab) > 1})
     if duplicates:
         raise StudySpecError(f"tuners: labels must be unique, repeated: {duplicates}; set 'label' "
@@ -364,6 +542,21 @@ def _parse(data: dict, name: str, path: Path | None, text: str) -> Study:
     if not isinstance(notes, str):
         raise StudySpecError(f"[notes] text: expected a string, got {type(notes).__name__}")
 
+    suite = dict(_table(data.get("suite", {}), "[suite]"))
+    _check_keys(suite, SUITE_KEYS, "[suite]")
+    if "quick_plants" in suite and not (isinstance(suite["quick_plants"], list) and suite["quick_plants"]
+                                        and all(label in known for label in suite["quick_plants"])):
+        raise StudySpecError(f"[suite] quick_plants: expected a list of plant labels from {known}, "
+                             f"got {suite['quick_plants']!r}")
+    if "quick_batches" in suite:
+        _positive_int(suite["quick_batches"], "quick_batches", "[suite] quick_batches")
+    imports = head.get("imports", [])
+    if not isinstance(imports, list) or not all(isinstance(m, str) and m for m in imports):
+        raise StudySpecError(f"[study] imports: expected a list of module names such as ['my_tuners'], "
+                             f"got {imports!r}")
+    budget = head.get("budget")
+    if budget is not None or not per_plant:
+        budget = _positive_int(budget, "budget", "[study] budget")
     n_initial = head.get("n_initial")
     if n_initial is not None:
         n_initial = _positive_int(n_initial, "n_initial", "[study] n_initial")
@@ -385,7 +578,7 @@ def _parse(data: dict, name: str, path: Path | None, text: str) -> Study:
         env_kwargs=env_kwargs,
         tuners=tuple(entries),
         batches=_positive_int(head.get("batches"), "batches", "[study] batches"),
-        budget=_positive_int(head.get("budget"), "budget", "[study] budget"),
+        budget=budget,
         n_initial=n_initial,
         seed=seed,
         thresholds=thresholds,
@@ -396,6 +589,10 @@ def _parse(data: dict, name: str, path: Path | None, text: str) -> Study:
         notes=notes,
         path=path,
         text=text,
+        plants=plants,
+        per_plant=per_plant,
+        imports=tuple(imports),
+        suite=suite,
     )
 
 
@@ -410,9 +607,16 @@ def _tuner_entries(raw: Any, where: str) -> list[TunerEntry]:
     if not isinstance(label, str) or not label:
         raise StudySpecError(f"{where} label: expected a non-empty string, got {label!r}")
     params = dict(_table(raw.get("params", {}), f"{where} params"))
+    plants = raw.get("plants", [])
+    if not isinstance(plants, list) or not all(isinstance(p, str) and p for p in plants):
+        raise StudySpecError(f"{where} plants: expected a list of plant labels, got {plants!r}")
+    batches = raw.get("batches")
+    if batches is not None:
+        batches = _positive_int(batches, "batches", f"{where} batches")
+    scope = {"plants": tuple(plants), "batches": batches}
     points = _sweep_points(raw.get("sweep"), f"{where} sweep")
     if not points:
-        return [TunerEntry(name=name, label=label, params=params, sweep={}, group=label)]
+        return [TunerEntry(name=name, label=label, params=params, sweep={}, group=label, **scope)]
     entries = []
     for point in points:
         merged = _merged(params, point)
@@ -429,7 +633,7 @@ def _tuner_entries(raw: Any, where: str) -> list[TunerEntry]:
                                      f"parameter ({sorted(fields)})") from None
         else:
             text = f"{label} " + " ".join(f"{k}={_fmt(v)}" for k, v in swept.items())
-        entries.append(TunerEntry(name=name, label=text, params=merged, sweep=swept, group=label))
+        entries.append(TunerEntry(name=name, label=text, params=merged, sweep=swept, group=label, **scope))
     return entries
 
 
@@ -457,6 +661,31 @@ def _merged(params: dict, point: dict[tuple, Any]) -> dict:
     return merged
 
 
+def _plant(raw: Any, where: str) -> Plant:
+    raw = _table(raw, where)
+    _check_keys(raw, PLANT_KEYS, where)
+    env_id = raw.get("id")
+    if not isinstance(env_id, str) or not env_id:
+        raise StudySpecError(f"{where} id: expected an env id string such as 'gbo_envs/DCMotor-v0', got {env_id!r}")
+    label = raw.get("label", env_id.rsplit("/", 1)[-1])
+    if not isinstance(label, str) or not NAME_PATTERN.fullmatch(label.replace("+", "_").replace(".", "_")):
+        raise StudySpecError(f"{where} label: expected letters, digits and '_-+.' (e.g. 'DC+saturation'), "
+                             f"got {label!r}")
+    kwargs = dict(_table(raw.get("kwargs", {}), f"{where} kwargs"))
+    thresholds = tuple(_threshold(t, f"{where} thresholds[{i}]")
+                       for i, t in enumerate(_list(raw.get("thresholds", []), f"{where} thresholds")))
+    names = [t.label for t in thresholds]
+    if len(set(names)) != len(names):
+        raise StudySpecError(f"{where} thresholds: labels must be unique, got {names}")
+    batches, budget = raw.get("batches"), raw.get("budget")
+    phase = raw.get("phase", "run")
+    if phase not in PHASES:
+        raise StudySpecError(f"{where} phase: expected one of {list(PHASES)}, got {phase!r}")
+    return Plant(label=label, env_id=env_id, env_kwargs=kwargs, thresholds=thresholds,
+                 batches=None if batches is None else _positive_int(batches, "batches", f"{where} batches"),
+                 budget=None if budget is None else _positive_int(budget, "budget", f"{where} budget"), phase=phase)
+
+
 def _sweep_points(sweep: Any, where: str) -> list[dict[tuple, Any]]:
     """The sweep's points, each ``{path: value}`` (a path is a dotted key's parts, ``("eta1",)`` for a plain one)."""
     if sweep is None:
@@ -481,11 +710,19 @@ def _threshold(raw: Any, where: str) -> Threshold:
         raw = {"ratio": raw}
     raw = _table(raw, where)
     _check_keys(raw, THRESHOLD_KEYS, where)
-    ratio, gains = raw.get("ratio"), raw.get("gains")
-    if (ratio is None) == (gains is None):
-        raise StudySpecError(f"{where}: give exactly one of 'ratio' (an optimality ratio >= 1) or 'gains' "
-                             "(a controller whose ratio is the threshold)")
-    if ratio is not None:
+    ratio, gains, tuner = raw.get("ratio"), raw.get("gains"), raw.get("tuner")
+    if sum(value is not None for value in (ratio, gains, tuner)) != 1:
+        raise StudySpecError(f"{where}: give exactly one of 'ratio' (an optimality ratio >= 1), 'gains' "
+                             "(a controller whose ratio is the threshold) or 'tuner' (a tuner whose first "
+                             "experiment's ratio is the threshold, e.g. 'nominal')")
+    params = dict(_table(raw.get("params", {}), f"{where} params"))
+    if params and tuner is None:
+        raise StudySpecError(f"{where} params: only with 'tuner'")
+    if tuner is not None:
+        if not isinstance(tuner, str) or not tuner:
+            raise StudySpecError(f"{where} tuner: expected a tuner registry name such as 'nominal', got {tuner!r}")
+        label = raw.get("label", tuner)
+    elif ratio is not None:
         if not _is_number(ratio) or not ratio > 0:
             raise StudySpecError(f"{where} ratio: expected a number > 0 (an optimality ratio J / J*), got {ratio!r}")
         ratio = float(ratio)
@@ -500,7 +737,7 @@ def _threshold(raw: Any, where: str) -> Threshold:
     paper_ratio = raw.get("paper_ratio")
     if paper_ratio is not None and not _is_number(paper_ratio):
         raise StudySpecError(f"{where} paper_ratio: expected a number, got {paper_ratio!r}")
-    return Threshold(label=label, ratio=ratio, gains=gains,
+    return Threshold(label=label, ratio=ratio, gains=gains, tuner=tuner, params=params,
                      paper_ratio=None if paper_ratio is None else float(paper_ratio))
 
 
@@ -514,6 +751,16 @@ def _check_report(report: dict, labels: list[str]) -> None:
         "histogram_max": lambda v: _is_number(v) and v > 1,
         "sweep_param": lambda v: isinstance(v, str),
         "bands": lambda v: isinstance(v, bool),
+        "table": lambda v: v in TABLES,
+        "reference": lambda v: v in labels,
+        "columns": lambda v: isinstance(v, list) and all(isinstance(x, str) for x in v),
+        "caption": lambda v: isinstance(v, str),
+        "csv": lambda v: isinstance(v, bool),
+        "ratio": lambda v: isinstance(v, list) and len(v) == 2 and all(x in labels for x in v),
+        "ratio_label": lambda v: isinstance(v, str),
+        "phases": lambda v: isinstance(v, bool),
+        "headers": lambda v: isinstance(v, dict) and set(v) <= {"plant", "tuner", "seeds"}
+        and all(isinstance(x, str) for x in v.values()),
     }
     allowed = {
         "surface_batch": "an integer >= 0",
@@ -523,6 +770,15 @@ def _check_report(report: dict, labels: list[str]) -> None:
         "histogram_max": "a ratio > 1",
         "sweep_param": "a swept parameter name",
         "bands": "true or false",
+        "table": f"one of {list(TABLES)}",
+        "reference": f"a tuner label from {labels}",
+        "columns": "a list of column names (see evaluation.comparison.COLUMNS)",
+        "caption": "a string (the line above the table)",
+        "csv": "true or false",
+        "ratio": f"two tuner labels from {labels} (compared, reference)",
+        "ratio_label": "a string (the ratio column's header)",
+        "phases": "true or false",
+        "headers": "a table with 'plant', 'tuner' or 'seeds' (new column headers; seeds = '' drops it)",
     }
     for key, value in report.items():
         if not checks[key](value):

@@ -3,6 +3,9 @@
 Results layout (``OUT`` is the study's output folder)::
 
     OUT/results/<tuner-label-slug>__b<batch>__<key>.parquet   one file per finished batch
+    OUT/results/<plant>__<tuner>__b<batch>__<key>.parquet     the same in a study of several plants
+    OUT/curves.parquet                                        optional: runs kept as curves only
+                                                              (evaluation.curves), skipped like files
     OUT/study.toml                                            the spec as run (study.yaml for YAML)
     OUT/runs.jsonl                                            one line per `gbo bench` run (runtime)
 
@@ -13,15 +16,20 @@ file, then ``os.replace``), so a file is either complete or absent. ``key`` hash
 exactly the batches that already exist and reruns those whose spec changed.
 Ctrl-C stops the run and keeps every finished batch; rerunning resumes.
 
-The rows are :meth:`agents.TuningResult.to_pandas` (with ``include_twin=True``) plus ``study``, ``tuner``
-(the label), ``tuner_name`` (registry name), ``batch``, ``seed``, ``row``
-(order within the batch), ``params`` and ``info`` (JSON text) and
-``batch_wall_time`` (s).
+The rows are :meth:`agents.TuningResult.to_pandas` (with ``include_twin=True``) plus ``study``, ``plant``
+(its label), ``tuner`` (the label), ``tuner_name`` (registry name), ``batch``, ``seed``, ``row``
+(order within the batch), ``params`` and ``info`` (JSON text), ``batch_wall_time`` (s),
+``batch_cpu_time`` (CPU s of the run in its process), ``plant_cpu_time`` (the part of it spent in
+the plant env's ``step``: the simulated experiment and its ground truth; the tuner's compute is the
+difference) and, on plant rows, ``best_true_cost_now``: the lowest noise-free cost of the gains
+tried so far judged on the plant as it is at this experiment, ``min_{j <= k} J_k(theta_j)``
+(on a plant that does not change, the running minimum of ``true_cost``).
 """
 
 from __future__ import annotations
 
 import hashlib
+import importlib
 import inspect
 import json
 import os
@@ -33,17 +41,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 from agents.jsonable import to_json
 from agents.run_display import progress_bar
 from agents.thread_limits import single_thread
-from evaluation.study import Study, StudySpecError, TunerEntry, slugify
+from evaluation.study import Plant, Study, StudySpecError, TunerEntry, slugify
 from gbo_envs.atomic_write import atomic_write
 from gbo_envs.physics.block import validated_count
 
 __all__ = ["BatchTask", "StudyRun", "BACKENDS", "default_out_dir", "plan_batches", "finished_files",
-           "run_batch", "run_study", "resolve_params"]
+           "forget", "kept_files", "run_batch", "run_study", "resolve_params", "import_study_modules", "plant_budget"]
 
 #: Execution backends of :func:`run_study`.
 BACKENDS = ("local", "dask")
@@ -65,6 +74,14 @@ class BatchTask:
     env_kwargs : dict
     budget : int
         Plant experiments.
+    plant : str
+        The plant's label.
+    per_plant : bool
+        The study has several plants: the file name starts with the plant's label.
+    imports : tuple of str
+        Modules imported before the tuner is made (they may register it).
+    import_path : str or None
+        Folder put first on ``sys.path`` for ``imports`` (the folder the study was started in).
     """
 
     study: str
@@ -76,6 +93,10 @@ class BatchTask:
     env_id: str
     env_kwargs: dict
     budget: int
+    plant: str = ""
+    per_plant: bool = False
+    imports: tuple[str, ...] = ()
+    import_path: str | None = None
 
     @property
     def key(self) -> str:
@@ -86,7 +107,8 @@ class BatchTask:
     @property
     def filename(self) -> str:
         """Result file name of this batch."""
-        return f"{slugify(self.label)}__b{self.batch:04d}__{self.key}.parquet"
+        plant = f"{slugify(self.plant)}__" if self.per_plant else ""
+        return f"{plant}{slugify(self.label)}__b{self.batch:04d}__{self.key}.parquet"
 
 
 @dataclass
@@ -134,6 +156,38 @@ def default_out_dir(study: Study) -> Path:
 
 
 # -- planning -----------------------------------------------------------------------------------------
+def import_study_modules(modules, path: str | None = None) -> None:
+    """Import ``modules`` (they may register tuners), with ``path`` first on ``sys.path``.
+
+    Raises
+    ------
+    StudySpecError
+        A module that cannot be found or whose import raises; the message names it.
+    """
+    if path and path not in sys.path:
+        sys.path.insert(0, path)
+    for module in modules:
+        try:
+            importlib.import_module(module)
+        except ModuleNotFoundError as exc:
+            raise StudySpecError(f"[study] imports: no module named {exc.name or module!r} (searched "
+                                 f"{path or 'the installed packages'} first)") from exc
+        except Exception as exc:
+            raise StudySpecError(f"[study] imports: importing {module!r} raised {type(exc).__name__}: {exc}") from exc
+
+
+def plant_budget(study: Study, plant: Plant) -> int:
+    """Plant experiments per run on ``plant``: its own budget, the study's, or the env's episode length."""
+    if plant.budget is not None:
+        return plant.budget
+    if study.budget is not None:
+        return study.budget
+    steps = gym.spec(plant.env_id).max_episode_steps
+    if not steps:
+        raise StudySpecError(f"plants '{plant.label}': {plant.env_id} has no episode length; give budget")
+    return int(steps)
+
+
 def resolve_params(entry: TunerEntry, n_initial: int | None) -> dict:
     """The entry's params with the study's N0 added when the tuner takes ``n_initial`` and params lack it.
 
@@ -180,26 +234,88 @@ def check_env(env_id: str) -> None:
     raise StudySpecError(f"[env] id {env_id!r}: not a registered env ({reason}); registered: {', '.join(ours)}")
 
 
-def plan_batches(study: Study) -> list[BatchTask]:
-    """Every batch of ``study``, batch-major (batch 0 of every tuner first) so partial runs stay balanced.
+def plan_batches(study: Study, import_path: str | None = None) -> list[BatchTask]:
+    """Every batch of ``study``, batch-major (batch 0 of every plant and tuner first) so partial runs stay
+    balanced.
+
+    Parameters
+    ----------
+    study : Study
+    import_path : str, optional
+        Folder searched first for the study's ``imports`` (default: the working folder).
 
     Raises
     ------
     StudySpecError, ValueError
-        An unknown env (:func:`check_env`) or tuner, or params a tuner rejects.
+        An unknown env (:func:`check_env`), module or tuner, or params a tuner rejects.
     """
-    check_env(study.env_id)
+    import_path = import_path or os.getcwd()
+    import_study_modules(study.imports, import_path)
+    for plant in study.plants:
+        check_env(plant.env_id)
     params = {entry.label: resolve_params(entry, study.n_initial) for entry in study.tuners}
-    return [BatchTask(study=study.name, label=entry.label, tuner=entry.name, params=params[entry.label],
-                      batch=batch, seed=study.seed + batch, env_id=study.env_id, env_kwargs=dict(study.env_kwargs),
-                      budget=study.budget)
-            for batch in range(study.batches) for entry in study.tuners]
+    budgets = {plant.label: plant_budget(study, plant) for plant in study.plants}
+    tasks = []
+    for batch in range(max(study.plant_batches(plant) for plant in study.plants)):
+        for plant in study.plants:
+            for entry in study.tuners:
+                if study.runs_on(entry, plant) and batch < study.plant_batches(plant, entry):
+                    tasks.append(BatchTask(study=study.name, label=entry.label, tuner=entry.name,
+                                           params=params[entry.label], batch=batch, seed=study.seed + batch,
+                                           env_id=plant.env_id, env_kwargs=dict(plant.env_kwargs),
+                                           budget=budgets[plant.label], plant=plant.label,
+                                           per_plant=study.per_plant, imports=tuple(study.imports),
+                                           import_path=import_path if study.imports else None))
+    return tasks
 
 
 def finished_files(out: Path) -> set[str]:
     """Names of the result files already written under ``out/results``."""
     folder = Path(out) / RESULTS_DIR
     return {p.name for p in folder.glob("*.parquet")} if folder.is_dir() else set()
+
+
+def forget(study: Study, out: Path | str, labels) -> int:
+    """Delete the finished runs of the tuner entries ``labels`` under ``out`` (batch files and kept curves), so
+    that the next run makes them again with the current code (``gbo bench STUDY --rerun LABEL``).
+
+    Returns
+    -------
+    int
+        Runs deleted.
+
+    Raises
+    ------
+    ValueError
+        A label that is no tuner entry of the study.
+    """
+    from evaluation.curves import CURVES_FILE, read_curves, write_curves
+
+    unknown = [label for label in labels if label not in study.labels]
+    if unknown:
+        raise ValueError(f"--rerun: {unknown} are not tuner labels of {study.name}; labels: {study.labels}")
+    out = Path(out)
+    names = {task.filename for task in plan_batches(study) if task.label in set(labels)}
+    deleted = 0
+    for name in names:
+        path = out / RESULTS_DIR / name
+        if path.is_file():
+            path.unlink()
+            deleted += 1
+    curves = read_curves(out / CURVES_FILE)
+    drop = curves["file"].isin(names)
+    if drop.any():
+        write_curves(curves[~drop], out / CURVES_FILE)
+        deleted += int(drop.sum())
+    return deleted
+
+
+def kept_files(out: Path) -> set[str]:
+    """Batch file names of the runs kept as curves in ``out/curves.parquet`` (:mod:`evaluation.curves`)."""
+    from evaluation.curves import CURVES_FILE, read_curves
+
+    curves = read_curves(Path(out) / CURVES_FILE)
+    return {name for name in curves["file"] if isinstance(name, str)}
 
 
 # -- one batch ----------------------------------------------------------------------------------------
@@ -210,31 +326,74 @@ def run_batch(task: BatchTask):
     ``task.seed`` and BLAS runs single-threaded, so any process on any backend
     returns the same numbers.
     """
-    import gymnasium as gym
-
     import agents
     import gbo_envs  # noqa: F401  (registers the envs)
 
+    import_study_modules(task.imports, task.import_path)
     with single_thread(user_api=None):  # BLAS and OpenMP: same numbers on every backend, no oversubscription
         kwargs = dict(task.env_kwargs)
         kwargs.setdefault("max_episode_steps", task.budget)
-        env = gym.make(task.env_id, **kwargs)
+        env = _StepClock(gym.make(task.env_id, **kwargs))
         tuner = agents.make(task.tuner, **task.params)
-        start = time.perf_counter()
+        _torch_single_thread()
+        start, cpu = time.perf_counter(), time.process_time()
         result = tuner.run(env, budget=task.budget, seed=task.seed)
-        elapsed = time.perf_counter() - start
+        elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
+        now = best_true_cost_now(env.unwrapped, result)
         env.close()
     frame = result.to_pandas(include_twin=True)  # the twin rows feed the twin-use and timing tables
     info = {k: v for k, v in result.info.items() if k != "params"}
     frame.insert(0, "row", np.arange(len(frame)))
-    for position, (column, value) in enumerate([("study", task.study), ("tuner", task.label),
-                                                 ("tuner_name", task.tuner), ("batch", task.batch),
-                                                 ("seed", task.seed)]):
+    for position, (column, value) in enumerate([("study", task.study), ("plant", task.plant or task.env_id),
+                                                 ("tuner", task.label), ("tuner_name", task.tuner),
+                                                 ("batch", task.batch), ("seed", task.seed)]):
         frame.insert(position, column, value)
     frame["params"] = to_json(task.params)
     frame["info"] = to_json(info)
     frame["batch_wall_time"] = float(elapsed)
+    frame["batch_cpu_time"] = float(cpu)
+    frame["plant_cpu_time"] = float(env.cpu_seconds)
+    frame["best_true_cost_now"] = np.nan
+    plant_rows = (frame["source"] == "plant").to_numpy()
+    frame.loc[plant_rows, "best_true_cost_now"] = now
     return _tidy(frame)
+
+
+def best_true_cost_now(plant, result) -> np.ndarray:
+    """``min_{j <= k} J_k(theta_j)`` after every plant experiment ``k`` of ``result``, shape (n_experiments,).
+
+    The best gains tried so far judged on the plant as it is at experiment ``k``
+    (``plant.evaluate(gains, experiment_index=k)``, the expected cost): the controller a user would
+    deploy then. On a plant that does not change between experiments (no ``plant_params_at``) it is
+    :meth:`agents.TuningResult.min_true_cost_curve`.
+    """
+    if not hasattr(plant, "plant_params_at"):
+        return result.min_true_cost_curve()
+    rows = result.plant_rows
+    gains = np.array([[row[name] for name in result.gain_names] for row in rows], dtype=float)
+    return np.array([float(np.min(plant.evaluate(gains[: k + 1], experiment_index=k)[1])) for k in range(len(rows))])
+
+
+def _torch_single_thread() -> None:
+    """One torch thread, if torch is already imported (the BoTorch-based tuners); BLAS is limited by the caller."""
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(1)
+
+
+class _StepClock(gym.Wrapper):
+    """Adds up the CPU seconds spent in the env's ``step`` (the simulated experiment and its ground truth)."""
+
+    def __init__(self, env) -> None:
+        super().__init__(env)
+        self.cpu_seconds = 0.0
+
+    def step(self, action):
+        start = time.process_time()
+        try:
+            return self.env.step(action)
+        finally:
+            self.cpu_seconds += time.process_time() - start
 
 
 def _safe_run_batch(task: BatchTask):
@@ -369,7 +528,7 @@ def run_study(study: Study, out: Path | str | None = None, backend: str = "local
         suffix = study.path.suffix if study.path is not None else ".toml"
         with atomic_write(out / f"study{suffix}") as handle:
             handle.write(study.text)
-    done = finished_files(out)
+    done = finished_files(out) | kept_files(out)
     pending = [task for task in tasks if task.filename not in done]
     run = StudyRun(out=out, total=len(tasks), skipped=len(tasks) - len(pending))
     if run.skipped:

@@ -24,7 +24,7 @@ DC_PLANT = ContinuousPlant((9.544,), (1.0, 4.145, 4.199), delay=0.002)
 U_REST = 245.0 * 4.199 / 9.544
 
 #: columns of study results that hold wall-clock times (they differ between otherwise equal runs)
-TIMING_COLUMNS = ["wall_time", "batch_wall_time"]
+TIMING_COLUMNS = ["wall_time", "batch_wall_time", "batch_cpu_time", "plant_cpu_time"]
 
 
 def dc_loop(*effects, duration: float = 5.0, **kwargs) -> ClosedLoop:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 
 import gymnasium as gym
@@ -14,7 +13,7 @@ import gbo_envs  # noqa: F401
 from agents.mf_correction import TwinCorrection
 from agents.result import TuningResult
 from gbo_envs.experiment import Experiment
-from tests.support import benchmark_module
+from tests.support import REPO_ROOT
 
 pytest.importorskip("botorch")
 
@@ -164,10 +163,15 @@ def test_twin_rows_carry_their_fidelity_and_only_real_experiments_count():
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::UserWarning")
 def test_a_wrong_twin_is_refitted_as_records_arrive(monkeypatch):
-    # another plant's fitted twin (60 ms dead time, 120-unit drive limit; guided_bo_ablation.wrong_twin) is used
+    # another plant's fitted twin (60 ms dead time, 120-unit drive limit; benchmarks/study_tuners.wrong_twin) is used
     # as given until the records show its error, then refitted on them; the refitted twin follows the plant.
     # (On DCMotor-v0 the auto twin fitted on the first record is already right, so it shows no refit.)
-    wrong = benchmark_module(monkeypatch, "guided_bo_ablation").wrong_twin()
+    monkeypatch.setattr(agents.registry, "_REGISTRY", dict(agents.registry._REGISTRY))  # it registers tuners
+    monkeypatch.delitem(sys.modules, "benchmarks.study_tuners", raising=False)
+    monkeypatch.syspath_prepend(str(REPO_ROOT))
+    from benchmarks.study_tuners import wrong_twin
+
+    wrong = wrong_twin()
     tuner = agents.make("mf-bo", twin=wrong)
     tuner.run(gym.make("gbo_envs/DCMotor-v0"), budget=8, seed=4)
     changes = tuner.run_summary()["twin_changes"]
@@ -209,28 +213,3 @@ def test_plot_colours_twin_rows_by_fidelity():
     colours = [c.get_array() for c in ax.collections if c.get_array() is not None]
     assert any(np.allclose(np.asarray(a), [0.6, 0.8]) for a in colours)
     assert "twin evaluations (colour: fidelity s)" in [t.get_text() for t in ax.get_legend().get_texts()]
-
-
-def test_benchmark_resumes_and_compares_with_the_logged_bo_and_guided_bo_runs(monkeypatch, tmp_path, capsys):
-    bench = benchmark_module(monkeypatch, "mf_bo", RESULTS=tmp_path, RUNS=tmp_path / "mf_bo_runs.jsonl",
-                             REFERENCE_RUNS=tmp_path / "reference_runs.jsonl")
-    # reaching ratio 1.05: bo at experiments 3 and 4, guided-bo at 1 and 2, mf-bo at 2 and never (budget + 1 = 5)
-    curves = {("bo", 0): [1.2, 1.1, 1.0, 1.0], ("bo", 1): [1.5, 1.2, 1.08, 1.01],
-              ("guided-bo", 0): [1.0, 1.0, 1.0, 1.0], ("guided-bo", 1): [1.2, 1.04, 1.0, 1.0]}
-    bench.REFERENCE_RUNS.write_text("".join(json.dumps({"plant": "DCMotor-v0", "variant": v, "seed": s, "ratios": r})
-                                            + "\n" for (v, s), r in curves.items()))
-
-    def fake_run(label, variant, seed, best):
-        ratios = [1.2, 1.04, 1.0, 1.0] if seed == 0 else [1.3, 1.2, 1.1, 1.1]
-        return {"plant": label, "variant": variant, "seed": seed, "ratios": ratios, "cpu_per_experiment": 1.5,
-                "twin_evaluations": 40, "fidelity": [0.0, 0.9]}
-
-    bench.RUNS.write_text(json.dumps(fake_run("DCMotor-v0", "mf-bo", 0, 1.0)) + "\n")
-    ran = []
-    monkeypatch.setattr(bench, "run_one", lambda *job: ran.append(job[2]) or fake_run(*job))
-    monkeypatch.setattr(sys, "argv", ["mf_bo.py", "--plants", "DCMotor-v0", "--seeds", "2"])
-    bench.main()
-    assert ran == [1]  # seed 0 was logged: the study resumed
-    assert "| DCMotor-v0 | 1.05 | 2 | mf-bo | 3.5 [-15.6, 22.6] (1 misses) | 3.5 [-2.9, 9.9] (0 misses) | " \
-           "1.5 [-4.9, 7.9] (0 misses) | 1.00 | 2.33 | +2.0 [-10.7, +14.7] | 1.50 | 40.0 | 0.90 |" \
-           in capsys.readouterr().out  # mf-bo minus guided-bo, seed by seed: 1 and 3

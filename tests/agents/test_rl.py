@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import warnings
 from pathlib import Path
 
@@ -15,7 +14,6 @@ pytest.importorskip("stable_baselines3")
 import agents  # noqa: E402
 import gbo_envs  # noqa: E402, F401
 from agents.rl import RLTuner, TuningMDPEnv, TuningObserver, rescaled  # noqa: E402
-from evaluation.study import parse_study  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -156,35 +154,6 @@ def test_bad_arguments_raise():
         RLTuner(algorithm_kwargs={"batch_size": 0})
     with pytest.raises(ValueError, match="model_env"):
         RLTuner(mode="twin", model_env=3.5)
-
-
-def _rl_comparison():
-    spec = importlib.util.spec_from_file_location("rl_comparison", ROOT / "benchmarks" / "rl_comparison.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-@pytest.mark.slow
-def test_rl_comparison_runs_through_the_evaluation_study_runner_and_resumes(tmp_path):
-    bench = _rl_comparison()
-    study = parse_study({"study": {"name": "rl_tiny", "batches": 3, "budget": 9, "resolution": 5},
-                         "env": {"id": ENV_ID},
-                         "tuners": [{"name": "rl", "params": dict(FAST)}, {"name": "random"}],
-                         "thresholds": [{"ratio": 1e6}, {"ratio": 0.5}]})
-    studies = bench.configure(study, seeds=1, budget=2, rl_budget=3)
-    assert [(s.budget, s.labels, s.batches) for s in studies] == [(2, ["random"], 1), (3, ["rl"], 1)]
-    comparison = bench.compare(studies, tmp_path, workers=1, progress=False)
-    assert comparison["batches_run"] == 2 and not comparison["interrupted"]
-    rows = {row["method"]: row for summary in comparison["summaries"] for row in summary["rows"]}
-    assert (rows["rl"]["budget"], rows["rl"]["n_runs"], rows["random"]["budget"]) == (3, 1, 2)
-    # phi <= 1e6 is reached by the first experiment; phi <= 0.5 never (phi >= 1): counted as budget + 1
-    assert rows["rl"]["phi=1e+06"] == {"mean": 1.0, "median": 1.0, "reached": 1}
-    assert rows["rl"]["phi=0.5"] == {"mean": 4.0, "median": 4.0, "reached": 0}
-    table = bench.markdown_table(comparison["summaries"])
-    assert "| DCMotor-v0 | rl | 3 | 0 / 0 | 1.0 / 1 (1/1) | never within 3 (0/1; counted as 4) |" in table
-    again = bench.compare(studies, tmp_path, workers=1, progress=False)
-    assert again["batches_run"] == 0 and again["summaries"] == comparison["summaries"]  # resumed, nothing re-run
 
 
 def test_twin_mode_on_a_rig_needs_an_explicit_nominal_model():

@@ -209,3 +209,45 @@ def test_debug_shows_the_traceback(tmp_path):
         main(["--debug", "twin", "compare", str(tmp_path)])
     with pytest.raises(ValueError, match="is a folder"):
         main(["twin", "compare", str(tmp_path), "--debug"])
+
+
+# -- gbo bench suite ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("argv, words", [
+    (["--suite", "large"], ("--suite", "'large'", "standard", "quick")),
+    (["--seeds", "0"], ("--seeds", ">= 1")),
+    (["--tuner-kwargs", "{bad"], ("--tuner-kwargs", "not valid JSON")),
+    ([], ("give one --tuner NAME",)),
+    (["--tuner", "no-such-tuner"], ("--tuner 'no-such-tuner'", "registered", "bo", "--import")),
+    (["--tuner", "random", "--tuner-kwargs", '{"speed": 2}'], ("--tuner random / --tuner-kwargs", "speed")),
+    (["--tuner", "random", "--batches", "2"], ("--batches", "only with a study")),
+    (["--tuner", "random", "--force"], ("--force", "only with --rebuild-references")),
+    (["--rebuild-references", "--tuner", "nope"], ("--tuner", "['nope']", "not reference tuners", "guided-bo")),
+    (["--rebuild-references", "--seeds", "3"], ("--seeds", "not with --rebuild-references")),
+    (["--import", "no_such_module_xyz", "--tuner", "random"], ("--import no_such_module_xyz",)),
+])
+def test_bench_suite_refuses_bad_input_in_one_line(capsys, tmp_path, argv, words):
+    out = tmp_path / "o"
+    refused(capsys, ["bench", "suite", "--out", str(out), "--quiet", *argv], *words)
+    assert not out.exists()
+
+
+def test_suite_options_are_refused_with_a_study(capsys, tmp_path):
+    refused(capsys, ["bench", "smoke", "--tuner", "random", "--seeds", "2", "--out", str(tmp_path / "o")],
+            "--tuner, --seeds only with `gbo bench suite`")
+
+
+@pytest.mark.parametrize("spec, words", [
+    ({"plants": [{"id": ENV, "label": "a"}, {"id": ENV, "label": "a"}]}, ("plants: labels must be unique",)),
+    ({"plants": [{"id": ENV, "phase": "later"}]}, ("plants[0] phase", "after-change")),
+    ({"plants": [{"id": ENV}], "env": {"id": ENV}}, ("exactly one of [env]",)),
+    ({"plants": [{"id": ENV}], "tuner_plants": ["DCMotor"]}, ("plants: ['DCMotor'] are not plant labels",
+                                                              "DCMotor-v0")),
+])
+def test_study_plants_are_checked(spec, words):
+    data = {"study": {"name": "p", "batches": 1}, "tuners": [{"name": "random"}], **spec}
+    if "tuner_plants" in data:
+        data["tuners"][0]["plants"] = data.pop("tuner_plants")
+    with pytest.raises(StudySpecError) as info:
+        parse_study(data)
+    for word in words:
+        assert word in str(info.value), (word, str(info.value))

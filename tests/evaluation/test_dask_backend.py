@@ -40,3 +40,24 @@ def test_dask_without_address_starts_its_own_cluster(tmp_path):
     run = run_study(spec, tmp_path, backend="dask", workers=2, progress=False)
     assert run.completed == 2 and run.done
     assert len(analysis.load_results(tmp_path, spec)) == 6
+
+
+def test_the_suite_on_dask_imports_the_users_tuner_in_every_worker(tmp_path, monkeypatch):
+    import agents
+    from evaluation.suite import run_suite
+
+    monkeypatch.setattr(agents.registry, "_REGISTRY", dict(agents.registry._REGISTRY))  # the module registers
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "dask_user_tuner.py").write_text(
+        "import agents\nfrom agents.baselines import RandomSearch\n\n\nclass Mine(RandomSearch):\n    pass\n\n\n"
+        "agents.register('dask-user-tuner', Mine)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import dask_user_tuner  # noqa: F401  (registers it here; the workers import it from the task)
+
+    suite = parse_study({"study": {"name": "tiny-suite", "batches": 2, "resolution": 8},
+                         "plants": [{"label": "DC", "id": "gbo_envs/DCMotor-v0", "thresholds": [1.3], "budget": 3}],
+                         "tuners": [{"name": "random", "label": "bo"}]})
+    result = run_suite("dask-user-tuner", suite=suite, imports=["dask_user_tuner"], out=tmp_path / "out",
+                       backend="dask", workers=2, references=tmp_path / "refs")
+    assert result.run.completed == 2 and not result.run.failed
+    assert set(result.leaderboard.counts_["tuner"]) == {"dask-user-tuner"}

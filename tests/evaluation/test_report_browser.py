@@ -1,7 +1,8 @@
 """The HTML reports as a reader sees them: headless Chromium at desktop and phone width.
 
-Chromium loads the twin report (``gbo twin report``) and a study report
-(``gbo bench``'s ``report.html``) at 1280 and 390 px; every image must have
+Chromium loads the twin report (``gbo twin report``), a study report
+(``gbo bench``'s ``report.html``) and a leaderboard (``gbo bench suite``'s ``leaderboard.html``) at 1280 and
+390 px; every image must have
 loaded (``naturalWidth > 0``) and be drawn, the page must not scroll sideways,
 and the tables (the twin report's error ladder) must be there. Skips when no
 Chromium is installed (``make test`` installs Debian's ``chromium`` where missing).
@@ -15,6 +16,7 @@ import pytest
 from agents.twin.csvio import write_csv
 from evaluation.browser import DESKTOP_WIDTH, PHONE_WIDTH, find_chromium, page_check, screenshot
 from evaluation.cli import main
+from evaluation.leaderboard import Leaderboard, PlantTarget, write_leaderboard
 from evaluation.report import write_report
 from evaluation.study import parse_study
 from evaluation.study_runner import run_study
@@ -78,4 +80,29 @@ def test_study_report_in_chromium(study_report, width, tmp_path):
     assert len(check["tables"]) >= 4 and all(table["rows"] >= 2 for table in check["tables"])
     assert "Summary per tuner" in check["headings"]
     png = screenshot(study_report, tmp_path / "study.png", width=width, height=1200)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def leaderboard(tmp_path_factory):
+    import numpy as np
+    import pandas as pd
+
+    rng = np.random.default_rng(0)
+    plants = [PlantTarget(f"Plant{i}-v0", 1.05, budget=35) for i in range(4)]
+    rows = [{"tuner": tuner, "plant": plant.label, "seed": seed,
+             "curve": np.minimum.accumulate(1.0 + rng.exponential(scale, 35)), "instant": None}
+            for tuner, scale in [("my-tuner", 0.05), ("bo", 0.1), ("random", 0.4)] for plant in plants
+            for seed in range(5)]
+    board = Leaderboard(n_bootstrap=100).fit(pd.DataFrame(rows), plants, order=["my-tuner", "bo", "random"])
+    return write_leaderboard(board, tmp_path_factory.mktemp("board"), title="Leaderboard", highlight="my-tuner")["html"]
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_leaderboard_in_chromium(leaderboard, width, tmp_path):
+    check = _check_page(leaderboard, width)
+    assert len(check["images"]) == 2  # the runtime ECDF over the suite and per plant
+    assert len(check["tables"]) == 5 and all(table["rows"] == 4 for table in check["tables"])  # ranking, 4 plants
+    assert {"Ranking", "Runtime ECDF", "Per plant"} <= set(check["headings"])
+    png = screenshot(leaderboard, tmp_path / "board.png", width=width, height=1200)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -198,3 +198,33 @@ def test_report_with_twin_rows_sweep_and_paper_numbers(tmp_path, monkeypatch):
     assert "## Sweep over eta1" in text and "What the paper says." in text and "Where we differ." in text
     assert "| fake eta1=1 | activations | 12 |" in text
     assert "paper mean" in text and "| Ground truth | paper | 0.54 | 1.16 | 0.79 | 1 |" in text
+
+
+def test_a_study_of_several_plants_runs_each_tuner_on_its_plants_and_rerun_forgets_one_tuner(tmp_path, capsys):
+    study = parse_study({"study": {"name": "plants", "batches": 2, "budget": 2, "resolution": 5},
+                         "plants": [{"label": "DC", "id": "gbo_envs/DCMotor-v0", "thresholds": [1.5]},
+                                    {"label": "Lin", "id": "gbo_envs/LinearMotor-v0", "thresholds": [1.5],
+                                     "batches": 1, "budget": 3}],
+                         "tuners": [{"name": "random"}, {"name": "grid", "plants": ["DC"], "batches": 1}]})
+    tasks = plan_batches(study)
+    assert [(t.plant, t.label, t.batch, t.budget) for t in tasks] == [
+        ("DC", "random", 0, 2), ("DC", "grid", 0, 2), ("Lin", "random", 0, 3), ("DC", "random", 1, 2)]
+    assert tasks[0].filename.startswith("DC__random__b0000__")
+    run = run_study(study, tmp_path, workers=1, progress=False)
+    assert (run.completed, run.total) == (4, 4)
+    frame = analysis.load_results(tmp_path)
+    assert set(zip(frame["plant"], frame["tuner"])) == {("DC", "random"), ("DC", "grid"), ("Lin", "random")}
+    assert main(["bench", str(_spec(tmp_path, study)), "--out", str(tmp_path), "--rerun", "grid", "--quiet",
+                 "--workers", "1", "--no-report"]) == 0
+    out = capsys.readouterr().out
+    assert "deleted 1 saved runs of grid" in out and "4 of 4 batches finished (1 now" in out
+
+
+def _spec(tmp_path, study):
+    path = tmp_path / "plants.toml"
+    path.write_text('[study]\nname = "plants"\nbatches = 2\nbudget = 2\nresolution = 5\n'
+                    '[[plants]]\nlabel = "DC"\nid = "gbo_envs/DCMotor-v0"\nthresholds = [1.5]\n'
+                    '[[plants]]\nlabel = "Lin"\nid = "gbo_envs/LinearMotor-v0"\nthresholds = [1.5]\nbatches = 1\n'
+                    'budget = 3\n[[tuners]]\nname = "random"\n[[tuners]]\nname = "grid"\nplants = ["DC"]\n'
+                    'batches = 1\n')
+    return path

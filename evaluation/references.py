@@ -1,0 +1,380 @@
+"""The shipped reference results of the benchmark suite: curves of the reference tuners, with fingerprints.
+
+The reference tuners are the ``[[tuners]]`` of ``evaluation/studies/suite.toml``
+(``bo``, ``guided-bo``, ``mf-bo``, ``random``, ``nominal`` and the peer libraries).
+Their runs on the standard suite ship in ``evaluation/references/``:
+
+- ``<tuner>.parquet``: one row per run (plant, seed) as curves (:mod:`evaluation.curves`:
+  the best-ratio curve and each experiment's ratio, not the signals), and per run what it
+  was computed from: the git ``commit`` of the code, the hash of the tuner's source
+  modules (``tuner_hash``) and of the plant's (``plant_hash``, with the env's shipped
+  truth table), the env id and kwargs, the tuner's name and kwargs and ``J*``
+  (``optimum``), i.e. its **fingerprint**;
+- ``plants.json``: per plant of the suite its env, budget and ``J*_k`` per experiment
+  (:func:`evaluation.curves.plant_optima`) with the plant hash they belong to, so the
+  suite does not recompute ground truths while the plants are unchanged.
+
+**Staleness rule**: a reference run is stale when any part of its fingerprint differs
+from the current one: the env id or kwargs, the tuner's name or kwargs, the tuner's or
+the plant's source hash (:mod:`evaluation.fingerprint`: a changed plant, truth table or
+tuner), or ``J*`` (relative difference above :data:`OPTIMUM_RTOL`, i.e. beyond
+floating-point noise). The suite reports stale references and uses them with that mark;
+``gbo bench suite --rebuild-references [--tuner NAME]`` reruns the stale and missing
+ones (:func:`rebuild`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from agents.jsonable import jsonable
+from evaluation.curves import CURVE_COLUMNS, plant_optima, read_curves
+from evaluation.study import Study, slugify
+from gbo_envs.atomic_write import atomic_write
+
+__all__ = ["OPTIMUM_RTOL", "REFERENCES_DIR", "FINGERPRINT_COLUMNS", "Fingerprint", "ReferenceSet",
+           "current_fingerprints", "describe", "load_references", "plant_hash", "plant_table", "rebuild",
+           "reference_file", "stale_reasons", "suite_optima", "write_references"]
+
+#: The shipped references (package data).
+REFERENCES_DIR = Path(__file__).resolve().parent / "references"
+PLANTS_FILE = "plants.json"
+#: Relative tolerance on ``J*`` below which two optima are the same (floating-point noise of the grid search).
+OPTIMUM_RTOL = 1e-9
+#: Curves columns of a reference run beyond :data:`evaluation.curves.CURVE_COLUMNS`.
+FINGERPRINT_COLUMNS = ["tuner_hash", "plant_hash"]
+
+
+@dataclass(frozen=True)
+class Fingerprint:
+    """What a run of one tuner on one plant depends on (see the module docstring).
+
+    Attributes
+    ----------
+    env_id : str
+    env_kwargs : str
+        JSON, keys sorted.
+    tuner_name : str
+    params : str
+        JSON, keys sorted.
+    tuner_hash, plant_hash : str
+        :func:`evaluation.fingerprint.source_hash` of the tuner's and the plant's modules (the plant's with
+        its truth table).
+    optimum : float
+        ``J*`` of the plant at the first experiment.
+    """
+
+    env_id: str
+    env_kwargs: str
+    tuner_name: str
+    params: str
+    tuner_hash: str
+    plant_hash: str
+    optimum: float
+
+
+def _canonical(value) -> str:
+    if isinstance(value, str):
+        value = json.loads(value) if value else {}
+    return json.dumps(jsonable(value), sort_keys=True)
+
+
+def stale_reasons(run, current: Fingerprint) -> list[str]:
+    """Why a reference run (a curves row with fingerprint columns) no longer matches ``current``; empty if
+    it is current."""
+    reasons = []
+    if run["env_id"] != current.env_id or _canonical(run["env_kwargs"]) != current.env_kwargs:
+        reasons.append("the plant's env or kwargs changed")
+    if run["tuner_name"] != current.tuner_name or _canonical(run["params"]) != current.params:
+        reasons.append("the tuner's name or kwargs changed")
+    if run.get("tuner_hash") != current.tuner_hash:
+        reasons.append(f"the tuner's source changed since {str(run.get('commit') or '?')[:10]}")
+    if run.get("plant_hash") != current.plant_hash:
+        reasons.append(f"the plant's source or truth table changed since {str(run.get('commit') or '?')[:10]}")
+    elif not np.isclose(float(run["optimum"]), current.optimum, rtol=OPTIMUM_RTOL, atol=0.0):
+        reasons.append(f"J* changed ({float(run['optimum']):.6g} -> {current.optimum:.6g})")
+    return reasons
+
+
+# -- plants -------------------------------------------------------------------------------------------
+def plant_hash(env_id: str, tree=None) -> str:
+    """Hash of the plant's source modules and its shipped truth table (:mod:`evaluation.fingerprint`)."""
+    from evaluation import fingerprint
+
+    table = fingerprint.truth_table_path(env_id)
+    extra = {}
+    if table is not None:
+        if tree is not None and tree.commit is not None:
+            blob = fingerprint._git_show(tree.commit, table)
+        else:
+            blob = (fingerprint.REPO_ROOT / table).read_bytes()
+        extra[table] = blob if blob is not None else b"<missing>"
+    return fingerprint.source_hash(fingerprint.plant_modules(env_id, tree), tree, extra)
+
+
+def plant_table(folder: Path | str = REFERENCES_DIR) -> dict:
+    """``plants.json`` of a references folder: plant label -> env, budget, resolution, hash and ``optima``."""
+    path = Path(folder) / PLANTS_FILE
+    return json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
+
+
+def suite_optima(study: Study, budgets: dict[str, int], folder: Path | str = REFERENCES_DIR,
+                 cache: Path | str | None = None, progress: bool | None = False) -> dict[str, np.ndarray]:
+    """``J*_k`` per plant of ``study``: from the references' plant table while the plant is unchanged, else
+    computed (:func:`evaluation.curves.plant_optima`, cached in ``cache``; a bar per plant with ``progress``)."""
+    from agents.run_display import progress_bar
+
+    table = plant_table(folder)
+    optima = {}
+    bar = progress_bar(len(study.plants), "ground truths", progress, unit="plant")
+    for plant in study.plants:
+        bar.update(1)
+        known = table.get(plant.label)
+        budget = budgets[plant.label]
+        if (known and known["env_id"] == plant.env_id
+                and _canonical(known["env_kwargs"]) == _canonical(plant.env_kwargs)
+                and known["resolution"] == study.resolution and len(known["optima"]) >= budget
+                and known["plant_hash"] == plant_hash(plant.env_id)):
+            optima[plant.label] = np.asarray(known["optima"][:budget], dtype=float)
+        else:
+            optima[plant.label] = plant_optima(plant.env_id, plant.env_kwargs, budget, study.resolution, cache)
+    bar.close()
+    return optima
+
+
+def _write_plant_table(study: Study, budgets: dict[str, int], optima: dict[str, np.ndarray], folder: Path) -> None:
+    table = plant_table(folder)
+    for plant in study.plants:
+        table[plant.label] = {"env_id": plant.env_id, "env_kwargs": jsonable(plant.env_kwargs),
+                              "budget": budgets[plant.label], "resolution": study.resolution,
+                              "plant_hash": plant_hash(plant.env_id),
+                              "optima": [float(v) for v in optima[plant.label]]}
+    folder.mkdir(parents=True, exist_ok=True)
+    with atomic_write(folder / PLANTS_FILE) as handle:
+        json.dump(table, handle, indent=1)
+        handle.write("\n")
+
+
+# -- current fingerprints -----------------------------------------------------------------------------
+def current_fingerprints(study: Study, optima: dict[str, np.ndarray]) -> dict[tuple[str, str], Fingerprint]:
+    """``(tuner label, plant label)`` -> the fingerprint a run made now would have, for every entry and plant
+    of ``study`` it runs on."""
+    from evaluation import fingerprint
+
+    plant_hashes = {plant.label: plant_hash(plant.env_id) for plant in study.plants}
+    out = {}
+    for entry in study.tuners:
+        try:
+            tuner_hash = fingerprint.source_hash(fingerprint.tuner_modules(entry.name))
+        except ValueError:
+            tuner_hash = "<unknown tuner>"
+        for plant in study.plants:
+            if study.runs_on(entry, plant):
+                out[(entry.label, plant.label)] = Fingerprint(
+                    env_id=plant.env_id, env_kwargs=_canonical(plant.env_kwargs), tuner_name=entry.name,
+                    params=_canonical(entry.params), tuner_hash=tuner_hash, plant_hash=plant_hashes[plant.label],
+                    optimum=float(optima[plant.label][0]))
+    return out
+
+
+# -- loading ------------------------------------------------------------------------------------------
+@dataclass
+class ReferenceSet:
+    """The reference runs of a suite, with their staleness.
+
+    Attributes
+    ----------
+    curves : DataFrame
+        Curves rows (:data:`evaluation.curves.CURVE_COLUMNS` + :data:`FINGERPRINT_COLUMNS`) of the suite's
+        plants and seeds, ``tuner`` the reference label.
+    stale : dict
+        ``(tuner, plant)`` -> reasons (a list of str), for the references with at least one stale run.
+    missing : list of (str, str)
+        ``(tuner, plant)`` of the suite without any reference run, or with fewer seeds than the suite.
+    """
+
+    curves: pd.DataFrame
+    stale: dict = field(default_factory=dict)
+    missing: list = field(default_factory=list)
+
+    def status(self, tuner: str, plant: str) -> str:
+        """``"current"``, ``"stale"`` or ``"missing"``."""
+        if (tuner, plant) in self.stale:
+            return "stale"
+        if (tuner, plant) in self.missing:
+            return "missing"
+        return "current"
+
+
+def reference_file(label: str, folder: Path | str = REFERENCES_DIR) -> Path:
+    """The curves file of the reference tuner ``label``."""
+    return Path(folder) / f"{slugify(label)}.parquet"
+
+
+def load_references(study: Study, optima: dict[str, np.ndarray], folder: Path | str = REFERENCES_DIR,
+                    batches: int | None = None) -> ReferenceSet:
+    """The reference runs of every tuner entry of ``study`` on its plants, seeds ``seed .. seed + batches - 1``.
+
+    Parameters
+    ----------
+    study : Study
+        The suite (its ``tuners`` are the references).
+    optima : dict
+        ``J*_k`` per plant (for the current fingerprints).
+    folder : Path
+        The references folder.
+    batches : int, optional
+        Seeds per plant (default: the study's).
+    """
+    batches = study.batches if batches is None else batches
+    current = current_fingerprints(study, optima)
+    parts, stale, missing = [], {}, []
+    for entry in study.tuners:
+        curves = read_curves(reference_file(entry.label, folder))
+        for plant in study.plants:
+            if not study.runs_on(entry, plant):
+                continue
+            wanted = min(batches, study.plant_batches(plant, entry))
+            mine = curves[(curves["plant"] == plant.label) & (curves["batch"] < wanted)] if len(curves) else curves
+            if len(mine) < wanted:
+                missing.append((entry.label, plant.label))
+            if not len(mine):
+                continue
+            reasons = sorted({reason for _, run in mine.iterrows()
+                              for reason in stale_reasons(run, current[(entry.label, plant.label)])})
+            if reasons:
+                stale[(entry.label, plant.label)] = reasons
+            parts.append(mine.assign(tuner=entry.label))
+    frame = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=CURVE_COLUMNS + FINGERPRINT_COLUMNS)
+    return ReferenceSet(curves=frame, stale=stale, missing=missing)
+
+
+# -- rebuilding ---------------------------------------------------------------------------------------
+def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Path("out") / "references",
+            folder: Path | str = REFERENCES_DIR, force: bool = False, backend: str = "local",
+            address: str | None = None, workers: int | None = None, progress: bool | None = False,
+            log=None) -> dict:
+    """Rerun the stale and missing references of ``study`` and write them into ``folder``.
+
+    Each reference tuner's plants that are stale or missing (all of them with ``force``) run through
+    :func:`evaluation.study_runner.run_study` in ``out/<tuner>/<version>`` (``version`` hashes the
+    sources: an interrupted rebuild goes on where it stopped, a rebuild of changed code starts anew),
+    then replace that tuner's rows of those plants in its curves file, stamped with the current
+    commit and hashes.
+
+    Parameters
+    ----------
+    study : Study
+        The suite with its reference tuners (``evaluation/studies/suite.toml``).
+    tuners : list of str, optional
+        Reference labels to rebuild (default: all).
+    out : Path
+        Working folder of the runs.
+    folder : Path
+        The references folder.
+    force : bool
+        Rebuild current references too.
+    backend, address, workers, progress, log
+        As :func:`evaluation.study_runner.run_study`.
+
+    Returns
+    -------
+    dict
+        ``tuner label -> list of the plant labels rebuilt`` (empty lists for tuners that were current),
+        and ``"interrupted"`` / ``"failed"`` (batch files of failed runs) when that happened.
+    """
+    from evaluation import fingerprint
+    from evaluation.curves import load_curves
+    from evaluation.study_runner import plan_batches, run_study
+
+    labels = study.labels
+    unknown = [t for t in (tuners or []) if t not in labels]
+    if unknown:
+        raise ValueError(f"--tuner: {unknown} are not reference tuners; references: {', '.join(labels)}")
+    folder, out = Path(folder), Path(out)
+    tasks = plan_batches(study)
+    budgets = {task.plant: task.budget for task in tasks}
+    optima = suite_optima(study, budgets, folder, out / "optima.json", progress=progress)
+    current = current_fingerprints(study, optima)
+    refs = load_references(study, optima, folder)
+    done: dict = {}
+    for entry in study.tuners:
+        if tuners and entry.label not in tuners:
+            continue
+        plants = [p.label for p in study.plants if study.runs_on(entry, p)
+                  and (force or refs.status(entry.label, p.label) != "current")]
+        done[entry.label] = plants
+        if not plants:
+            continue
+        part = study.subset(plants=plants, tuners=(entry,), name=f"{study.name}-{slugify(entry.label)}")
+        before = {p: current[(entry.label, p)] for p in plants}
+        # one working folder per source version: an interrupted rebuild resumes, one of changed code starts anew
+        version = hashlib.sha256(json.dumps(sorted((p, f.tuner_hash, f.plant_hash) for p, f in before.items()))
+                                 .encode()).hexdigest()[:10]
+        work = out / slugify(entry.label) / version
+        run = run_study(part, work, backend=backend, address=address, workers=workers, progress=progress, log=log)
+        if run.interrupted or run.failed:
+            done["interrupted" if run.interrupted else "failed"] = [name for name, _ in run.failed] or True
+            return done
+        new = load_curves(work, part, optima=optima)
+        modules = set(fingerprint.tuner_modules(entry.name))
+        for plant in plants:
+            modules.update(fingerprint.plant_modules(study.plant(plant).env_id))
+        stamp = fingerprint.git_commit(sorted(modules)) or "unknown"
+        fingerprint.reread_sources()
+        again = current_fingerprints(part, optima)
+        changed = [p for p in plants if again[(entry.label, p)] != before[p]]
+        if changed:
+            raise RuntimeError(f"the sources of {entry.label} on {changed} changed while its references were "
+                               "built; rebuild again")
+        new = new.assign(commit=stamp, tuner_hash=[before[p].tuner_hash for p in new["plant"]],
+                         plant_hash=[before[p].plant_hash for p in new["plant"]], source="engine")
+        old = read_curves(reference_file(entry.label, folder))
+        keep = old[~old["plant"].isin(plants)] if len(old) else old
+        merged = pd.concat([frame for frame in (keep, new) if len(frame)], ignore_index=True)
+        order = {p.label: i for i, p in enumerate(study.plants)}
+        merged = merged.sort_values(["plant", "batch"], key=lambda s: s.map(order) if s.name == "plant" else s,
+                                    kind="stable")
+        write_references(merged, reference_file(entry.label, folder))
+    _write_plant_table(study, budgets, optima, folder)
+    return done
+
+
+def write_references(curves: pd.DataFrame, path: Path) -> Path:
+    """Write a reference curves file: :func:`evaluation.curves.write_curves` with the fingerprint columns."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frame = curves.reindex(columns=CURVE_COLUMNS + FINGERPRINT_COLUMNS).reset_index(drop=True)
+    frame["curve"] = [np.asarray(v, dtype=float).tolist() for v in frame["curve"]]
+    frame["instant"] = [None if v is None else np.asarray(v, dtype=float).tolist() for v in frame["instant"]]
+    with atomic_write(path, "wb") as handle:
+        frame.to_parquet(handle, index=False, compression="zstd")
+    return path
+
+
+def describe(refs: ReferenceSet) -> list[str]:
+    """One line per reference tuner with stale or missing plants, for the command's output and the leaderboard:
+    ``"stale reference: botorch on DCMotor-v0, LinearMotor-v0: the tuner's source changed since a30627b13b"``."""
+    stale: dict = {}
+    for (tuner, plant), reasons in refs.stale.items():
+        plants, kinds = stale.setdefault(tuner, ([], {}))
+        plants.append(plant)
+        for reason in reasons:
+            kind, since, commit = reason.rpartition(" since ")
+            commits = kinds.setdefault(kind if since else reason, [])
+            if since and commit not in commits:
+                commits.append(commit)
+    lines = [f"stale reference: {tuner} on {', '.join(plants)}: "
+             + "; ".join(f"{kind} since {', '.join(commits)}" if commits else kind
+                         for kind, commits in sorted(kinds.items()))
+             for tuner, (plants, kinds) in stale.items()]
+    missing: dict = {}
+    for tuner, plant in refs.missing:
+        missing.setdefault(tuner, []).append(plant)
+    lines += [f"missing reference: {tuner} on {', '.join(plants)}" for tuner, plants in missing.items()]
+    return lines
