@@ -191,3 +191,38 @@ def test_encoder_speed_reads_whole_counts():
     speed = encoder_speed(np.full(1000, 30.0), 1e-3, lines=1024, window=4)
     ratio = speed[4:] / QUANTUM
     assert np.allclose(ratio, np.round(ratio)) and abs(speed[4:].mean() - 30.0) < QUANTUM
+
+
+# -- the ranking a physicist would sign ----------------------------------------------------------------------------
+
+def _candidate(effect, share, rmse, delta_bic):
+    return {"effect": effect, "share": share, "rmse": rmse, "delta_bic": delta_bic}
+
+
+def test_an_effect_that_explains_a_few_percent_does_not_beat_one_that_explains_much_by_a_hair():
+    from agents.twin.ranking import _by_share
+
+    drift = _candidate("drift", 3.0, 0.99, -60.0)  # the lab rig of issue 35: 3 % of the residual, first by BIC
+    delay = _candidate("time_delay", 44.0, 1.00, -50.0)
+    assert [c["effect"] for c in _by_share([drift, delay])] == ["time_delay", "drift"]
+    clearly = _candidate("drift", 3.0, 0.90, -60.0)  # unless the held-out error says so clearly (10 % lower)
+    assert [c["effect"] for c in _by_share([clearly, delay])] == ["drift", "time_delay"]
+    close = _candidate("offset", 40.0, 1.0, -40.0)  # shares that are close keep the BIC order
+    assert [c["effect"] for c in _by_share([delay, close])] == ["time_delay", "offset"]
+
+
+@pytest.mark.parametrize("dt", [1e-4, 5e-2])
+def test_sample_times_from_a_tenth_of_a_millisecond_to_fifty(dt):
+    from agents.twin.linear_fit import linear_fit
+    from agents.twin.model import ModelSpec
+
+    n = 400
+    u = np.zeros(n)
+    u[20:] = 0.4
+    plant = SERVO_PLANT if dt > 1e-3 else __import__("gbo_envs").ContinuousPlant((4e4,), (1.0, 400.0))  # 2.5 ms lag
+    from agents.twin.open_loop import simulate_open_loop
+
+    y = simulate_open_loop(plant, u[None], dt).y_true[0]
+    fit = linear_fit(GreyData.from_records([_open_loop(u, y, dt=dt)]), ModelSpec(n_poles=1))
+    assert fit.rmse <= 1e-3 * np.ptp(y)
+    assert fit.plant.dc_gain == pytest.approx(plant.dc_gain, rel=1e-3)
