@@ -102,12 +102,12 @@ class OrderCandidate:
         if np.isfinite(cost):
             problems.append(make_problem(data, spec, theta, y0, bias, rows, lower, upper, scale, tag=self.name))
         thetas = [np.concatenate([linear, [delay], effects]) for linear in self.factor_starts(data, current)]
-        sims = simulate_sets(data, [(spec, np.concatenate([th, current.y0, current.bias]), rows) for th in thetas])
+        sims = simulate_sets(data, [(spec, np.concatenate([th, current.nuisance()]), rows) for th in thetas])
         costs = [float(np.sum(np.where(data.mask, y - data.y, 0.0) ** 2)) for y in sims]
         for i in np.argsort(np.where(np.isfinite(costs), costs, np.inf))[:n_keep]:
             if np.isfinite(costs[i]):
                 problems.append(make_problem(data, spec, thetas[i], current.y0.copy(), current.bias.copy(), rows,
-                                             lower, upper, scale, tag=self.name))
+                                             lower, upper, scale, tag=self.name, start=current.start))
         return problems
 
     def factor_starts(self, data: GreyData, current: GreyFit) -> list[np.ndarray]:
@@ -320,7 +320,9 @@ def candidate_problems(data: GreyData, current: GreyFit, name: str, options: Map
             theta[spec.n_linear] = current.theta[current.spec.n_linear]
         thetas.append(theta)
     biases = [forward_bias(data, current, spec, th) for th in thetas]
-    sims = simulate_sets(data, [(spec, np.concatenate([th, current.y0, b]), rows) for th, b in zip(thetas, biases)])
+    moving = current.start.ravel()
+    sims = simulate_sets(data, [(spec, np.concatenate([th, current.y0, b, moving]), rows)
+                                for th, b in zip(thetas, biases)])
     costs = []
     for y in sims:
         err = np.where(data.mask, y - data.y, 0.0)
@@ -329,7 +331,7 @@ def candidate_problems(data: GreyData, current: GreyFit, name: str, options: Map
     problems = []
     for i in order:
         problems.append(make_problem(data, spec, thetas[i], current.y0.copy(), biases[i], rows, lower, upper, scale,
-                                     tag=tag))
+                                     tag=tag, start=current.start))
     return problems
 
 
@@ -358,4 +360,4 @@ def refit_problem(data: GreyData, fit: GreyFit, rows=None, free_global: bool = T
     lower, upper, scale = effect_bounds(data, fit, np.full(n_eff, -np.inf), np.full(n_eff, np.inf), np.ones(n_eff))
     return make_problem(data, fit.spec, fit.theta if theta is None else theta,
                         fit.y0[rows] if y0 is None else y0, fit.bias[rows] if bias is None else bias, rows,
-                        lower, upper, scale, free_global=free_global, tag=tag)
+                        lower, upper, scale, free_global=free_global, tag=tag, start=fit.start[rows])

@@ -61,7 +61,7 @@ def refine_grid_parameters(data: GreyData, fit: GreyFit) -> GreyFit:
     if "quantization" not in fit.spec.effect_names or quantization_step(data.y, data.mask)[0] is not None:
         return fit
     rows = np.arange(data.n_records)
-    theta = np.concatenate([fit.theta, fit.y0, fit.bias])
+    theta = np.concatenate([fit.theta, fit.nuisance()])
     y_true = simulate_sets(data, [(fit.spec, theta, rows)], true_output=True)[0]
     j = fit.spec.n_linear + 1 + effect_offset(fit.spec, "quantization")
     span = float(np.ptp(data.y[data.mask]))
@@ -70,7 +70,7 @@ def refine_grid_parameters(data: GreyData, fit: GreyFit) -> GreyFit:
     for q in steps + [fit.theta[j]]:
         th = fit.theta.copy()
         th[j] = q
-        problem = make_problem(data, fit.spec, th, fit.y0, fit.bias, rows, free_global=False)
+        problem = make_problem(data, fit.spec, th, fit.y0, fit.bias, rows, free_global=False, start=fit.start)
         fit_problems(data, [problem], max_iter=0)
         cand = GreyFit.from_problem(data, problem)
         if cand.rmse < best.rmse:
@@ -212,7 +212,7 @@ def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit
         n_old = current.theta.size
         theta = fit.theta[:n_old].copy()
         problem = make_problem(data, current.spec, theta, fit.y0, fit.bias, np.arange(data.n_records),
-                               free_global=False)
+                               free_global=False, start=fit.start)
         problem.free[:] = False
         fit_problems(data, [problem], max_iter=0)
         reduced = GreyFit.from_problem(data, problem)

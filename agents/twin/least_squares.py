@@ -58,7 +58,8 @@ class Problem:
     """One bounded least-squares problem: a model structure fitted to some records.
 
     ``theta`` holds the global parameters followed by ``y0`` and ``bias`` of
-    each record of ``rows``. ``free`` marks what the iteration may move.
+    each record of ``rows``, then, where a record starts moving, ``n_start`` initial-state
+    parameters per record (record by record). ``free`` marks what the iteration may move.
     """
 
     spec: ModelSpec
@@ -77,7 +78,24 @@ class Problem:
     @property
     def n_global(self) -> int:
         """Global (model) parameters."""
-        return self.theta.size - 2 * self.rows.size
+        return self.spec.n_global
+
+    @property
+    def n_start(self) -> int:
+        """Initial-state parameters per record (0 when no record of the problem starts moving)."""
+        return (self.theta.size - self.spec.n_global) // self.rows.size - 2
+
+    def record_of(self, cols: np.ndarray) -> np.ndarray:
+        """The record (position in ``rows``) that each per-record parameter index of ``cols`` belongs to."""
+        g, k, m = self.n_global, self.rows.size, self.n_start
+        cols = np.asarray(cols) - g
+        return np.where(cols < 2 * k, cols % k, (cols - 2 * k) // max(m, 1))
+
+    def nuisance_of(self, theta: np.ndarray, records) -> np.ndarray:
+        """The per-record parameters of ``theta`` for the records ``records`` (a slice or index of ``rows``)."""
+        g, k, m = self.n_global, self.rows.size, self.n_start
+        start = theta[g + 2 * k :].reshape(k, m)[records].ravel()
+        return np.concatenate([theta[g : g + k][records], theta[g + k : g + 2 * k][records], start])
 
 
 def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarray | None = None,
@@ -199,10 +217,12 @@ def _difference_layout(data: GreyData, p: Problem, simulate=None):
         def simulate(sets, true_output=False):
             return simulate_sets(data, sets, true_output=true_output)
     free = np.flatnonzero(p.free & (p.lower < p.upper))
-    g, k = p.n_global, p.rows.size
+    g, k, m = p.n_global, p.rows.size, p.n_start
     rough = any(not smooth for name, options in p.spec.effects for _, smooth in fitted_parameters(name, options))
     columns = [[j] for j in free[free < g]]
     columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
+    # the initial-state parameters, one group per slot: slot s of every moving record at once
+    columns += [group for s in range(m) if (group := [j for j in free if j >= g + 2 * k and (j - g - 2 * k) % m == s])]
     return simulate, free, rough, columns
 
 
@@ -262,11 +282,10 @@ def _dense_jacobian(p: Problem, free: np.ndarray, columns: list[list[int]], shar
                     per_record: list[np.ndarray]) -> np.ndarray:
     """The dense Jacobian of ``p`` from its difference quotients: ``shared`` (one per free global
     parameter, the first groups of ``columns``) and ``per_record`` (one per later group of ``columns``)."""
-    g, k = p.n_global, p.rows.size
+    g = p.n_global
     positions = [np.flatnonzero(free < g)]
     for cols in columns[shared.shape[0]:]:
-        first = g if cols[0] < g + k else g + k
-        positions.append(np.column_stack([np.searchsorted(free, cols), np.asarray(cols) - first]))
+        positions.append(np.column_stack([np.searchsorted(free, cols), p.record_of(cols)]))
     return dense_jacobian(shared, per_record, positions)
 
 
@@ -310,7 +329,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
         return theta
 
     def part(theta: np.ndarray, records: slice) -> np.ndarray:
-        return np.concatenate([theta[:g], theta[g : g + k][records], theta[g + k :][records]])
+        return np.concatenate([theta[:g], p.nuisance_of(theta, records)])
 
     def cost(x: np.ndarray) -> float:
         trial.update(key=None, residual=None, y=None)  # a rejected trial point's residual: freed first
@@ -382,21 +401,20 @@ def _record_positions(p: Problem, free: np.ndarray, columns: list[list[int]], n_
     -------
     ndarray of int, shape (len(p.rows), len(columns))
         The free global parameters first (the same for every record), then the record's own
-        parameter of each per-record group of ``columns`` (rest level, bias).
+        parameter of each per-record group of ``columns`` (rest level, bias, initial-state slot).
     """
-    g, k = p.n_global, p.rows.size
+    k = p.rows.size
     out = np.full((k, len(columns)), -1)
     out[:, :n_shared] = np.arange(n_shared)
     for j, cols in enumerate(columns[n_shared:], start=n_shared):
         cols = np.asarray(cols)
-        first = g if cols[0] < g + k else g + k
-        out[cols - first, j] = np.searchsorted(free, cols)
+        out[p.record_of(cols), j] = np.searchsorted(free, cols)
     return out
 
 
 def make_problem(data: GreyData, spec: ModelSpec, theta_global: np.ndarray, y0: np.ndarray, bias: np.ndarray,
                  rows: np.ndarray, lower=None, upper=None, scale=None, free_global: bool = True,
-                 tag=None) -> Problem:
+                 tag=None, start=None) -> Problem:
     """A :class:`Problem` of ``spec`` on the records ``rows``, with default bounds for the linear part and nuisances.
 
     Parameters
@@ -416,6 +434,9 @@ def make_problem(data: GreyData, spec: ModelSpec, theta_global: np.ndarray, y0: 
         Whether the iteration moves the global parameters (else only the rest levels and biases).
     tag : object, optional
         Caller's label, kept on the problem.
+    start : ndarray of shape (len(rows), spec.n_start), optional
+        Starting initial-state parameters of the records that start moving (units of ``y`` per s;
+        default zero, the rest state); only those records have them, and only when one of ``rows`` does.
     """
     g = theta_global.size
     nl = spec.n_linear
@@ -428,20 +449,27 @@ def make_problem(data: GreyData, spec: ModelSpec, theta_global: np.ndarray, y0: 
     lo = np.concatenate([lo, lower if lower is not None else np.full(extra, -np.inf)])
     hi = np.concatenate([hi, upper if upper is not None else np.full(extra, np.inf)])
     sc = np.concatenate([sc, scale if scale is not None else np.ones(extra)])
+    rows = np.asarray(rows, dtype=int)
     k = rows.size
     ys = max(float(np.ptp(data.y[rows][data.mask[rows]])), 1e-9)
     us = max(float(np.max(np.abs(data.u[rows]))), 1e-9)
-    lower = np.concatenate([lo, np.full(2 * k, -np.inf)])
-    upper = np.concatenate([hi, np.full(2 * k, np.inf)])
-    scale = np.concatenate([sc, np.full(k, ys), np.full(k, us)])
     # a record that shows its rest is pinned there: measured rest level, no plant-input bias (docs/design.md,
-    # "Initial conditions"); the others estimate both
+    # "Records as real rigs produce them"); the others estimate both, and one that starts moving its state
     pinned = data.initial.pinned[rows]
-    free = np.concatenate([spec.smooth_mask() & free_global, ~pinned, ~pinned])
+    moving = data.initial.mode[rows] == "moving"
+    m = spec.n_start if moving.any() else 0
+    if start is None or m == 0 or np.shape(start) != (k, m):
+        start = np.zeros((k, m))
+    span = float(data.mask[rows].sum(axis=1).max() * dt)
+    lower = np.concatenate([lo, np.full((2 + m) * k, -np.inf)])
+    upper = np.concatenate([hi, np.full((2 + m) * k, np.inf)])
+    scale = np.concatenate([sc, np.full(k, ys), np.full(k, us), np.full(k * m, ys / span)])
+    free = np.concatenate([spec.smooth_mask() & free_global, ~pinned, ~pinned, np.repeat(moving, m)])
     y0 = np.where(pinned, data.initial.y0[rows], y0)
     bias = np.where(pinned, 0.0, bias)
+    start = np.where(moving[:, None], start, 0.0)
     if "time_delay" in spec.effect_names:
         free[nl] = False  # the extra delay takes the delay's place
-    theta = np.clip(np.concatenate([theta_global, y0, bias]), lower, upper)
+    theta = np.clip(np.concatenate([theta_global, y0, bias, start.ravel()]), lower, upper)
     return Problem(spec=spec, rows=np.asarray(rows, dtype=int), theta=theta, lower=lower, upper=upper, scale=scale,
                    free=free, tag=tag)

@@ -104,6 +104,17 @@ class ModelSpec:
         """Linear parameters ``b_0..b_m, a_1..a_{n-k}``."""
         return self.n_zeros + 1 + self.n_poles - self.n_integrators
 
+    @property
+    def n_global(self) -> int:
+        """Global parameters: the linear part, the delay and the effects' fitted parameters."""
+        return self.n_linear + 1 + sum(len(fitted_parameters(name, options)) for name, options in self.effects)
+
+    @property
+    def n_start(self) -> int:
+        """Initial-state parameters of a record that starts moving (:mod:`agents.twin.initial`): the plant's
+        state beyond its output, ``n_poles - 1`` (the free response's mean slope over 1 .. n - 1 samples)."""
+        return max(self.n_poles - 1, 0)
+
     def global_names(self) -> list[str]:
         """Names of the global parameters (before the per-record rest levels and biases)."""
         names = [f"b{j}" for j in range(self.n_zeros + 1)]
@@ -207,6 +218,9 @@ class GreyFit:
     rmse : float
         Root-mean-square simulation error over all real samples, units of ``y``; for a position
         output, of its increments (:func:`output_error`).
+    start : ndarray of shape (n_records, m)
+        Initial-state parameters of each record that starts moving (``m = spec.n_start``, units of
+        ``y`` per s; zero for the others); ``m = 0`` when no record starts moving.
     """
 
     spec: ModelSpec
@@ -217,15 +231,27 @@ class GreyFit:
     bias: np.ndarray
     y_sim: np.ndarray
     rmse: float
+    start: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.start is None:
+            object.__setattr__(self, "start", np.zeros((self.y0.size, 0)))
 
     @classmethod
     def from_problem(cls, data: GreyData, p: Problem) -> GreyFit:
         """Collect a solved :class:`Problem` (its records must be ``data``'s)."""
-        g, k = p.n_global, p.rows.size
+        g, k, m = p.n_global, p.rows.size, p.n_start
         y, mask = (data.y, data.mask) if data.is_all(p.rows) else (data.y[p.rows], data.mask[p.rows])  # no copies
         return cls(p.spec, p.theta[:g].copy(), p.spec.plant(p.theta[:g]), p.spec.blocks(p.theta[:g]),
-                   p.theta[g : g + k].copy(), p.theta[g + k :].copy(), p.y_sim,
-                   rmse(output_error(y, p.y_sim, mask, p.spec, data.closed_loop[p.rows]), mask=mask))
+                   p.theta[g : g + k].copy(), p.theta[g + k : g + 2 * k].copy(), p.y_sim,
+                   rmse(output_error(y, p.y_sim, mask, p.spec, data.closed_loop[p.rows]), mask=mask),
+                   p.theta[g + 2 * k :].reshape(k, m).copy())
+
+    def nuisance(self, rows=None) -> np.ndarray:
+        """The per-record parameters of the records ``rows`` (default all), as a problem holds them after its
+        global ones: rest levels, biases, then the initial-state parameters record by record."""
+        rows = slice(None) if rows is None else rows
+        return np.concatenate([self.y0[rows], self.bias[rows], self.start[rows].ravel()])
 
     @property
     def effect_params(self) -> dict[str, dict]:

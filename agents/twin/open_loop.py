@@ -83,6 +83,7 @@ def simulate_open_loop(
     y0: np.ndarray | float | None = None,
     bias: np.ndarray | float = 0.0,
     experiment_index: np.ndarray | int = 0,
+    initial: np.ndarray | None = None,
 ) -> OpenLoopResult:
     """Replay recorded commands through plants with effect blocks, vectorised over rows.
 
@@ -106,6 +107,11 @@ def simulate_open_loop(
         Constant plant-input bias added after the actuator blocks, in input units.
     experiment_index : array_like of int, shape (batch,), or int, default 0
         Experiment index of each row for plant-side blocks (``drift``).
+    initial : array_like of shape (batch, m), optional
+        A start that is not at rest (a record cut from a long log): the plant's state at the first
+        sample moves from the rest state so that the free response, with the output unchanged at
+        the first sample, has the mean slope ``initial[:, j]`` (output units per s) over the first
+        ``j + 1`` samples (``j = 0 .. m - 1``, at most the row's order minus one). Default: at rest.
 
     Returns
     -------
@@ -137,6 +143,10 @@ def simulate_open_loop(
     y0 = np.broadcast_to(np.asarray(0.0 if y0 is None else y0, dtype=float), (batch,)).copy()
     bias = np.broadcast_to(np.asarray(bias, dtype=float), (batch,)).copy()
     index = np.broadcast_to(np.asarray(experiment_index, dtype=int), (batch,))
+    if initial is not None:
+        initial = np.asarray(initial, dtype=float).reshape(batch, -1)
+        if not np.any(initial):
+            initial = None
 
     # plant-side blocks, then one exact discretisation per distinct plant
     cache: dict[tuple, DiscretePlant] = {}
@@ -159,11 +169,12 @@ def simulate_open_loop(
         rows = np.flatnonzero(direct == flag)
         if rows.size == 0:
             continue
+        start = None if initial is None else initial[rows]
         if rows.size < batch:
             fn([continuous[r] for r in rows], [discrete[r] for r in rows], [chains[r] for r in rows], u, rows, dt,
-               y0[rows], bias[rows], out)
+               y0[rows], bias[rows], out, start)
         else:
-            fn(continuous, discrete, chains, u, rows, dt, y0, bias, out)
+            fn(continuous, discrete, chains, u, rows, dt, y0, bias, out, start)
     return OpenLoopResult(**out)
 
 
@@ -220,9 +231,10 @@ class _Rest:
     v_rest: np.ndarray  # plant input at rest
     u_rest: np.ndarray  # command that holds the rest (actuators inverted)
     lags: np.ndarray  # whole-sample input delay of each row
+    dx: np.ndarray | None = None  # the state's move from rest of a row that starts moving, (batch, order)
 
 
-def _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt: float, column: bool) -> _Rest:
+def _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt: float, column: bool, initial=None) -> _Rest:
     """Sort the rows, then go from the measured ``y0`` to the rest state.
 
     Measured ``y0`` -> true output (sensors inverted) -> plant equilibrium -> holding
@@ -242,9 +254,55 @@ def _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt: float, colum
                 y_true0[idx] = _flat(block.level_for, y_true0[idx]) if column else block.level_for(y_true0[idx])
     x0, v_rest, speed0 = _rest(continuous, discrete, y_true0)
     u_rest = _holding_command(groups, v_rest - bias, speed0, dt, column)
+    dx = None
+    if initial is not None:  # a start that is not at rest: the state moves, the output at the first sample does not
+        dx = _moving_start(discrete, initial[perm], dt, x0.shape[1])
+        x0 = x0 + dx
     return _Rest(continuous=continuous, discrete=discrete, groups=groups, source=np.asarray(rows)[perm], bias=bias,
                  y_true0=y_true0, x0=x0, v_rest=v_rest, u_rest=u_rest,
-                 lags=np.array([d.delay_steps for d in discrete], dtype=np.int64))
+                 lags=np.array([d.delay_steps for d in discrete], dtype=np.int64), dx=dx)
+
+
+def _moving_start(discrete: list[DiscretePlant], initial: np.ndarray, dt: float, order: int) -> np.ndarray:
+    """The move ``dx`` of each row's state from rest, shape (batch, order), for the free-response slopes ``initial``.
+
+    Row ``i``'s ``dx`` solves ``c Phi^q dx = 0`` for ``q = 0`` and ``(q) dt initial[i, q - 1]`` for ``q = 1 .. m``
+    (the observability rows of its sampled plant), by least squares with the least norm where ``m``
+    is below the row's order minus one; zero where ``initial`` is.
+    """
+    batch, m = initial.shape
+    dx = np.zeros((batch, order))
+    for row in np.flatnonzero(np.any(initial != 0.0, axis=1)):
+        d = discrete[row]
+        rows_obs, c = [], d.c.copy()
+        for _ in range(min(m, d.order - 1) + 1):
+            rows_obs.append(c)
+            c = c @ d.phi
+        obs = np.array(rows_obs)
+        target = np.concatenate([[0.0], initial[row, : obs.shape[0] - 1] * dt * np.arange(1, obs.shape[0])])
+        dx[row, : d.order] = np.linalg.lstsq(obs, target, rcond=None)[0]
+    return dx
+
+
+def _free_response(d: DiscretePlant, dx: np.ndarray, n: int) -> np.ndarray:
+    """``c Phi^q dx`` for ``q = 0 .. n - 1``: the free response of the rows ``dx`` (shape (rows, order)) of one plant.
+
+    As the impulse response ``h`` of ``c (zI - Phi)^-1 dx`` (``h[q + 1] = c Phi^q dx``), filtered by
+    ``scipy.signal.lfilter`` with the numerator ``c M_k dx`` and denominator of the Faddeev-LeVerrier
+    recursion of :func:`_transfer_functions`.
+    """
+    order = d.order
+    den = np.zeros(order + 1)
+    den[0] = 1.0
+    num = np.zeros((dx.shape[0], order + 1))
+    mk = np.zeros((order, order))
+    for k in range(1, order + 1):
+        mk = d.phi @ mk + den[k - 1] * np.eye(order)
+        den[k] = -np.trace(d.phi @ mk) / k
+        num[:, k] = dx[:, :order] @ (mk.T @ d.c)  # c M_k dx, per row
+    impulse = np.zeros(n + 1)
+    impulse[0] = 1.0
+    return np.stack([lfilter(b, den, impulse)[1:] for b in num])
 
 
 def _scatter(out: dict, rest: _Rest, **values: np.ndarray) -> None:
@@ -258,7 +316,7 @@ def _scatter(out: dict, rest: _Rest, **values: np.ndarray) -> None:
             out[name][rest.source] = value
 
 
-def _direct(continuous, discrete, chains, u, rows, dt, y0, bias, out) -> None:
+def _direct(continuous, discrete, chains, u, rows, dt, y0, bias, out, initial=None) -> None:
     """Rows ``rows`` whose blocks are static maps: ``y = S(y_rest + P(z) (A(u_delayed) + bias - v_rest))``.
 
     The actuator map ``A`` and the sensor map ``S`` act on the whole record at
@@ -268,7 +326,7 @@ def _direct(continuous, discrete, chains, u, rows, dt, y0, bias, out) -> None:
     ``rows`` of the outputs ``out``.
     """
     n = u.shape[1]
-    rest = _prepare_rest(continuous, discrete, chains, rows, y0, bias, 1.0, column=True)
+    rest = _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt, column=True, initial=initial)
     discrete, groups, bias, v_rest = rest.discrete, rest.groups, rest.bias, rest.v_rest
     v = _delayed(u, rest.source, rest.lags, rest.u_rest)
     for sl, _, actuators in groups:
@@ -286,6 +344,9 @@ def _direct(continuous, discrete, chains, u, rows, dt, y0, bias, out) -> None:
         num, den = tf_cache[key]
         idx = np.array(idx)
         y_true[idx] = rest.y_true0[idx, None] + lfilter(num, den, v[idx] - v_rest[idx, None], axis=-1)
+    if rest.dx is not None:  # rows that start moving: their free response from the moved state
+        for row in np.flatnonzero(np.any(rest.dx != 0.0, axis=1)):
+            y_true[row] += _free_response(discrete[row], rest.dx[row : row + 1], n)[0]
     y = y_true.copy()
     for sl, sensors, _ in groups:
         for stage in sensors:
@@ -470,7 +531,7 @@ def _merged(blocks: list[EffectBlock], rng: np.random.Generator, column: bool) -
     return merged
 
 
-def _stepping(continuous, discrete, chains, u, rows, dt, y0, bias, out) -> None:
+def _stepping(continuous, discrete, chains, u, rows, dt, y0, bias, out, initial=None) -> None:
     """Sample-by-sample simulation of the rows ``rows``, grouped by the classes of their blocks.
 
     The rows may have plants of different orders. The rest state and the blocks' start are
@@ -479,7 +540,7 @@ def _stepping(continuous, discrete, chains, u, rows, dt, y0, bias, out) -> None:
     sensor block of the rows, else in :func:`_step_numpy`, which gives the same numbers.
     The results go into the rows ``rows`` of the outputs ``out``.
     """
-    rest = _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt, column=False)
+    rest = _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt, column=False, initial=initial)
     continuous, discrete, groups = rest.continuous, rest.discrete, rest.groups
     batch, order = rest.x0.shape
     # per row: [Phi Gamma0 Gamma1] of its order, padded with zeros to the largest order

@@ -184,7 +184,7 @@ def effect_size(data: GreyData, fit: GreyFit) -> float:
         if pname == cls.magnitude_param:
             theta0[pos + j] = next(p.zero for p in cls.parameters if p.name == pname)
     rows = np.arange(data.n_records)
-    sims = simulate_sets(data, [(fit.spec, np.concatenate([th, fit.y0, fit.bias]), rows) for th in (fit.theta, theta0)],
+    sims = simulate_sets(data, [(fit.spec, np.concatenate([th, fit.nuisance()]), rows) for th in (fit.theta, theta0)],
                          true_output=cls.side != "sensor")  # a sensor effect only shows in the measurement
     size = rmse(output_error(sims[0], sims[1], data.mask, fit.spec, data.closed_loop), mask=data.mask)  # the fit's
     return size if np.isfinite(size) else 0.0

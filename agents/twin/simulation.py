@@ -62,22 +62,29 @@ def simulate_both(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np
 def _simulate_in_parts(data: GreyData, spec: ModelSpec, theta: np.ndarray, rows: np.ndarray) -> tuple:
     """``(measurement, plant output before the sensors)`` of one large set, a few records per pass."""
     k, n_steps = rows.size, data.u.shape[1]
-    g = theta.size - 2 * k
+    g = spec.n_global
+    y0, bias, start = _nuisance(theta[g:], k)
     y, y_true = np.empty((k, n_steps)), np.empty((k, n_steps))
     per_pass = max(1, SIMULATION_BATCH_SAMPLES // n_steps)
     for first in range(0, k, per_pass):
         part = slice(first, first + per_pass)
-        piece = np.concatenate([theta[:g], theta[g : g + k][part], theta[g + k :][part]])
+        piece = np.concatenate([theta[:g], y0[part], bias[part], start[part].ravel()])
         y[part], y_true[part] = _simulate_batch(data, [(spec, piece, rows[part])])[0]
     return y, y_true
 
 
+def _nuisance(tail: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(y0, bias, start)`` of ``k`` records from the parameters after the global ones (``start``: (k, m))."""
+    m = tail.size // k - 2
+    return tail[:k], tail[k : 2 * k], tail[2 * k :].reshape(k, m)
+
+
 def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]]) -> list[tuple]:
     """``(measurement, plant output before the sensors)`` of each set, in one vectorised pass."""
-    plants, chains, u, y0, bias, index, owner = [], [], [], [], [], [], []
+    plants, chains, u, y0, bias, start, index, owner = [], [], [], [], [], [], [], []
     for s, (spec, theta, rows) in enumerate(sets):
         k = rows.size
-        g = theta.size - 2 * k
+        g = spec.n_global
         try:
             plant = spec.plant(theta[:g])
             blocks = spec.blocks(theta[:g])
@@ -86,17 +93,22 @@ def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, 
         plants += [plant] * k
         chains += [blocks] * k
         u.append(data.u if data.is_all(rows) else data.u[rows])  # read only: no copy of all the records
-        y0.append(theta[g : g + k])
-        bias.append(theta[g + k :])
+        rest_level, rest_bias, moving = _nuisance(theta[g:], k)
+        y0.append(rest_level)
+        bias.append(rest_bias)
+        start.append(moving)
         index.append(data.index[rows])
         owner += [s] * k
     out: list = [None] * len(sets)
     if owner:
         try:
             with np.errstate(all="ignore"):
+                width = max(m.shape[1] for m in start)
+                initial = None if width == 0 else np.concatenate(
+                    [np.pad(m, ((0, 0), (0, width - m.shape[1]))) for m in start])
                 res = simulate_open_loop(plants, u[0] if len(u) == 1 else np.concatenate(u), data.dt, chains,
                                          y0=np.concatenate(y0), bias=np.concatenate(bias),
-                                         experiment_index=np.concatenate(index))
+                                         experiment_index=np.concatenate(index), initial=initial)
         except (np.linalg.LinAlgError, ValueError):  # a plant that cannot be sampled (overflowing coefficients)
             if len(sets) > 1:
                 return [_simulate_batch(data, [one])[0] for one in sets]

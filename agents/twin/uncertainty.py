@@ -43,7 +43,7 @@ def parameter_intervals(data: GreyData, fit: GreyFit, level: float = 0.95) -> di
     if not 0.0 < float(level) < 1.0:
         raise ValueError(f"level: must be in (0, 1), got {level}")
     rows = np.arange(data.n_records)
-    problem = make_problem(data, fit.spec, fit.theta, fit.y0, fit.bias, rows)
+    problem = make_problem(data, fit.spec, fit.theta, fit.y0, fit.bias, rows, start=fit.start)
     free = np.flatnonzero(problem.free & (problem.lower < problem.upper))
     jac = jacobian(data, problem, problem.theta)[data.mask.ravel()]
     dof = max(data.n_samples - free.size, 1)

@@ -226,3 +226,27 @@ def test_sample_times_from_a_tenth_of_a_millisecond_to_fifty(dt):
     fit = linear_fit(GreyData.from_records([_open_loop(u, y, dt=dt)]), ModelSpec(n_poles=1))
     assert fit.rmse <= 1e-3 * np.ptp(y)
     assert fit.plant.dc_gain == pytest.approx(plant.dc_gain, rel=1e-3)
+
+
+def test_a_record_cut_from_a_long_log_gets_its_moving_state_estimated():
+    """A second-order plant's record that starts while it accelerates: a rest level and a bias cannot start it
+    with a slope; the estimated initial state does."""
+    from agents.twin.linear_fit import linear_fit
+    from agents.twin.model import ModelSpec
+    from agents.twin.open_loop import simulate_open_loop
+
+    plant = __import__("gbo_envs").ContinuousPlant((9.544,), (1.0, 4.145, 4.199), delay=0.002)
+    n, dt = 1500, 0.002
+    u = np.full(3 * n, 40.0)
+    u[2 * n:] = 60.0
+    y = simulate_open_loop(plant, u[None], dt).y_true[0]
+    records = [_open_loop(u[n // 3 : n // 3 + n], y[n // 3 : n // 3 + n], dt=dt, index=0),
+               _open_loop(u[n + n // 2 : n + n // 2 + n], y[n + n // 2 : n + n // 2 + n], dt=dt, index=1)]
+    data = GreyData.from_records(records)
+    assert list(data.initial.mode) == ["moving", "moving"]
+    fit = linear_fit(data, ModelSpec())
+    assert fit.start.shape == (2, 1) and abs(fit.start[0, 0]) > 10.0  # rad/s per s: the first accelerates
+    assert fit.rmse < 1e-3
+    assert fit.plant.dc_gain == pytest.approx(plant.dc_gain, rel=1e-3)
+    rested = linear_fit(GreyData.from_records(records, initial="steady"), ModelSpec())
+    assert rested.rmse > 100.0 * fit.rmse
