@@ -220,13 +220,20 @@ def test_a_position_outputs_error_is_taken_on_its_increments():
     from agents.twin.model import output_error
 
     t = np.arange(6) * 0.01
-    data = GreyData.from_records([{"t": t, "r": np.ones(6), "u": np.ones(6), "y": np.array([0, 1, 2, 3, 3, 3.0])}])
+    y = np.array([0, 1, 2, 3, 3, 3.0])
+    data = GreyData.from_records([{"t": t, "r": np.full(6, 3.0), "u": np.ones(6), "y": y}])  # a closed loop
     y_sim = np.array([[0, 1, 2, 2.5, 2.5, 2.5]])  # stuck 0.5 short: an offset that persists
     e = data.y - y_sim
     np.testing.assert_allclose(output_error(data.y, y_sim, data.mask, ModelSpec(output="speed")), e)
-    increments = output_error(data.y, y_sim, data.mask, ModelSpec(output="position"))
+    increments = output_error(data.y, y_sim, data.mask, ModelSpec(output="position"), data.closed_loop)
     np.testing.assert_allclose(increments, [[0, 0, 0, 0.5, 0, 0]])  # counted once
     np.testing.assert_allclose(residual(data, np.array([0]), y_sim, increments=True), -increments)
+    # an open-loop record (no controller to take the offset out): its position error is the error
+    open_loop = GreyData.from_records([{"t": t, "r": np.ones(6), "u": np.ones(6), "y": y}])
+    assert not open_loop.closed_loop[0]
+    np.testing.assert_allclose(output_error(open_loop.y, y_sim, open_loop.mask, ModelSpec(output="position"),
+                                            open_loop.closed_loop), e)
+    np.testing.assert_allclose(residual(open_loop, np.array([0]), y_sim, increments=True), -e)
 
 
 def test_a_fitted_twin_scores_its_own_and_new_rig_records_at_its_fit_error():
