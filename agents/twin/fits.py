@@ -8,7 +8,9 @@ simulations share vectorised passes.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -23,7 +25,10 @@ from agents.twin.model import GreyFit, ModelSpec, effect_items, effect_offset, f
 from agents.twin.noise_floor import quantization_step
 from agents.twin.simulation import simulate_sets
 
-__all__ = ["CandidateFits", "fit_candidates", "fit_model", "refine_grid_parameters"]
+__all__ = ["START_THREADS", "CandidateFits", "fit_candidates", "fit_model", "refine_grid_parameters"]
+
+#: Candidates whose starting problems are made at the same time (threads; see :func:`_starting_problems`).
+START_THREADS = min(2, os.cpu_count() or 1)
 
 
 @single_thread()
@@ -127,15 +132,13 @@ def fit_candidates(data: GreyData, current: GreyFit, plan: CandidatePlan, max_it
     starts = None
     for restarted in (False, True):
         problems = [refit_problem(data, current, tag="__current__")]
+        fresh = [c for c in plan.candidates if starts is None or c.name not in starts]
+        made = _starting_problems(data, current, fresh, progress if not restarted else None)
         for candidate in plan.candidates:
             if starts is not None and candidate.name in starts:  # the second round: from the first round's fit
                 problems.append(refit_problem(data, starts[candidate.name], tag=candidate.name))
             else:
-                if progress is not None:
-                    progress.set_postfix_str(f"starts of {candidate.name}")
-                problems += candidate.problems(data, current)
-            if progress is not None and not restarted:
-                progress.update(1)
+                problems += made[candidate.name]
         if progress is not None:
             progress.set_postfix_str(f"fitting {len(plan.candidates)} candidates")
         _screened_fit(data, problems, max_iter, screen_iter)
@@ -152,6 +155,25 @@ def fit_candidates(data: GreyData, current: GreyFit, plan: CandidatePlan, max_it
             return CandidateFits(current, fits, restarted)
         current, starts = better, fits
     raise AssertionError("unreachable")
+
+
+def _starting_problems(data: GreyData, current: GreyFit, candidates: list, progress=None) -> dict[str, list]:
+    """``{name: problems}``: each candidate's starting problems, made :data:`START_THREADS` candidates at a time.
+
+    The starts (SRIVC profiles, screening simulations) of one candidate do not depend on another's, and
+    most of their time is spent in ``lfilter``, BLAS and the compiled stepping, which release the GIL.
+    """
+    def make(candidate) -> list:
+        return candidate.problems(data, current)
+
+    made = {}
+    with ThreadPoolExecutor(max_workers=START_THREADS) as pool:
+        for candidate, problems in zip(candidates, pool.map(make, candidates)):
+            made[candidate.name] = problems
+            if progress is not None:
+                progress.set_postfix_str(f"starts of {candidate.name}")
+                progress.update(1)
+    return made
 
 
 def _best_variant(data: GreyData, problems: list[Problem], floor: float | None = None, margin: float = 10.0,

@@ -8,8 +8,10 @@ Problems solved in parallel threads meet in one pass (:class:`Lockstep`).
 
 from __future__ import annotations
 
+import os
 import threading
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -19,8 +21,11 @@ from agents.twin.open_loop import simulate_open_loop
 
 __all__ = ["SIMULATION_BATCH_SAMPLES", "Lockstep", "simulate_both", "simulate_sets"]
 
-#: Most samples (records times steps) simulated in one vectorised pass (about 32 MB per signal).
-SIMULATION_BATCH_SAMPLES = 2**22
+#: Most samples (records times steps) simulated in one vectorised pass (about 8 MB per signal).
+SIMULATION_BATCH_SAMPLES = 2**20
+#: Passes simulated at the same time, in threads: the compiled stepping and ``scipy.signal.lfilter`` release
+#: the GIL, so on two cores two passes take little more than one.
+SIMULATION_THREADS = min(2, os.cpu_count() or 1)
 
 
 def simulate_sets(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]],
@@ -42,21 +47,33 @@ def simulate_both(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np
     """``(measurement, plant output before the sensors)`` of each set, in vectorised passes.
 
     Consecutive sets are simulated together up to :data:`SIMULATION_BATCH_SAMPLES` samples
-    (a larger set alone), so that the memory of one pass is bounded. The rows of a pass do not
-    interact, so the grouping does not change the values.
+    (a larger set alone, a few records at a time), so that the memory of one pass is bounded;
+    up to :data:`SIMULATION_THREADS` passes run at the same time. The rows of a pass do not
+    interact, so neither the grouping nor the threads change the values.
     """
     n_steps = data.u.shape[1]
-    out, batch, size = [], [], 0
+    passes, batch, size = [], [], 0
     for one in sets:
         if batch and size + one[2].size * n_steps > SIMULATION_BATCH_SAMPLES:
-            out += _simulate_batch(data, batch)
+            passes.append(batch)
             batch, size = [], 0
         if one[2].size * n_steps > SIMULATION_BATCH_SAMPLES:
-            out.append(_simulate_in_parts(data, *one))
+            passes.append(one)  # a set alone, in parts
         else:
             batch.append(one)
             size += one[2].size * n_steps
-    return out + _simulate_batch(data, batch) if batch else out
+    if batch:
+        passes.append(batch)
+
+    def run(item) -> list[tuple]:
+        return [_simulate_in_parts(data, *item)] if isinstance(item, tuple) else _simulate_batch(data, item)
+
+    if len(passes) > 1 and SIMULATION_THREADS > 1:
+        with ThreadPoolExecutor(max_workers=SIMULATION_THREADS) as pool:
+            results = list(pool.map(run, passes))
+    else:
+        results = [run(item) for item in passes]
+    return [pair for result in results for pair in result]
 
 
 def _simulate_in_parts(data: GreyData, spec: ModelSpec, theta: np.ndarray, rows: np.ndarray) -> tuple:

@@ -156,8 +156,12 @@ def test_shipped_studies_pin_the_paper_guidance_in_the_current_spelling():
     import agents
     from evaluation.study_runner import resolve_params
 
+    import importlib
+
     for name in shipped_studies():
         study = load_study(name)
+        for module in study.imports:  # the tuners a study defines in its own modules (benchmarks/study_tuners.py)
+            importlib.import_module(module)
         for entry in study.tuners:
             if entry.name == "rl":
                 continue  # stable-baselines3 is an extra
