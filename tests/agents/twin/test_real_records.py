@@ -112,18 +112,21 @@ def test_the_floor_finds_an_encoders_quantum_and_never_falls_below_it():
     assert noise_floor(data) >= (1.0 - 1e-6) * QUANTUM / np.sqrt(12.0)
 
 
-def test_a_quantum_written_with_a_files_precision_is_still_a_quantum(tmp_path):
-    """25 rpm steps printed to 6 decimals: the changes are multiples of 25 up to the printing, not exactly."""
+def test_a_quantum_blurred_by_the_windows_timing_jitter_is_still_a_quantum(tmp_path):
+    """A lab rig's speed: whole encoder counts over a window whose length jitters by 0.02 % (the PC's clock), in
+    rpm, written with two decimals. Counts of 12 per turn over 50 ms: a 100 rpm quantum, read as 99.9-100.1
+    rpm steps plus changes of a few tenths between samples of the same count."""
     rng = np.random.default_rng(3)
-    n = 3001
-    u = np.zeros(n)
-    u[200:] = 2.0
-    y = 25.0 * np.round(_servo(u, dt=1e-2) * 60.0 / (2.0 * np.pi) / 25.0) + rng.normal(0.0, 1e-7, n)  # rpm
-    records = [_open_loop(u, np.round(y, 6), dt=1e-2)]
-    path = write_csv(records, tmp_path / "rig.csv")
+    n, dt = 650, 0.05
+    u = np.repeat(np.arange(13) * 0.25, 50)  # a staircase of 12 steps from rest, 2.5 s each, as a lab's
+    speed = _servo(u, dt=dt) * 60.0 / (2.0 * np.pi)  # rpm
+    window = dt * (1.0 + 2e-4 * rng.standard_normal(n))
+    counts = np.round(speed / 60.0 * 12.0 * dt)  # whole counts per window
+    rpm = np.round(counts * 60.0 / (12.0 * window), 2)
+    path = write_csv([_open_loop(u, rpm, dt=dt)], tmp_path / "rig.csv")
     data = GreyData.from_records(read_csv(path))
-    assert quantization_step(data.y, data.mask)[0] == pytest.approx(25.0, rel=1e-3)
-    assert noise_floor(data) >= (1.0 - 1e-3) * 25.0 / np.sqrt(12.0)
+    assert quantization_step(data.y, data.mask)[0] == pytest.approx(100.0, rel=0.01)
+    assert noise_floor(data) >= 0.99 * 100.0 / np.sqrt(12.0)
 
 
 @pytest.mark.parametrize("colour", ["ar1", "moving_window"])
