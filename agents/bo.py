@@ -36,7 +36,7 @@ SETTLING_MODELS = ("gp", "envelope")
 #: jumps where the response touches the 2 % band, and the log makes the jump relatively smaller than
 #: the valley; rise time and ITAE grow like ``1 / gain`` towards small gains, which a GP extrapolates
 #: better in logs. Overshoot is not logged: it is 0 on a large region, and its log makes that flat
-#: region dominate the fit (benchmarks/README.md, data_efficiency.py, has the comparison).
+#: region dominate the fit (benchmarks/README.md, the study data_efficiency, has the comparison).
 LOG_METRICS = ("settling_time", "rise_time", "itae")
 
 #: With ``settling_model="envelope"``: the times, evenly spaced over the record, at which the error

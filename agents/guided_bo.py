@@ -81,7 +81,7 @@ class GuidedBO(BayesianOptimization):
     noise draws only near its expected optimum, see :class:`~agents.twin.prior.TwinMetrics`).
     Otherwise the metric GPs have their constant prior mean and guided BO is the default BO. A diverging plant
     experiment enters with the metrics of ``J = unstable_cost``.
-    Which choice buys what is measured in benchmarks/guided_bo_ablation.py.
+    Which choice buys what is measured in the study guided_bo_ablation (``gbo bench guided_bo_ablation``).
 
     **guidance="iterations"**, Algorithm 1 of the paper, on one GP on the cost
     (the twin's points enter ``D`` as costs). Every ``ask`` after the initial design:

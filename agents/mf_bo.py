@@ -120,8 +120,8 @@ class MultiFidelityBO(Tuner):
     ``10^-3`` of the unit box), the real experiment goes to the maximiser of
     ``LogExpectedImprovement`` at ``s = 1`` (incumbent: the lowest measured cost)
     instead. Multi-fidelity knowledge gradient is the other cost-aware acquisition
-    BoTorch has; it is many times slower per optimisation (``python benchmarks/mf_bo.py
-    --acquisition-timing``), beyond the 2 s per real experiment this tuner keeps to.
+    BoTorch has; it is many times slower per optimisation (``python benchmarks/bench_mf_bo.py``),
+    beyond the 2 s per real experiment this tuner keeps to.
     Why the real experiment is not the MES or log-EI maximiser: benchmarks/README.md.
 
     **A useless twin** (``s_twin < min_fidelity``) is not evaluated, and the real
