@@ -81,8 +81,10 @@ DENSE_JACOBIANS_TOTAL_BYTES = 256 * 2**20
 #: Most samples (records times steps, all trial points together) simulated in one pass of a compressed
 #: Jacobian (about 8 MB per signal); problems in lock-step share :data:`SIMULATION_BATCH_SAMPLES` per pass.
 JACOBIAN_PASS_SAMPLES = 2**20
-#: Most samples (records times steps) simulated in one vectorised pass (about 32 MB per signal).
-SIMULATION_BATCH_SAMPLES = 2**22
+#: Most samples (records times steps) simulated in one vectorised pass (about 8 MB per signal). With the
+#: compiled stepping a pass costs the same per sample at any size, so it is kept small: at 2**22 samples
+#: the passes held about 200 MB more at the peak of ``gbo twin diagnose`` (issue 37).
+SIMULATION_BATCH_SAMPLES = 2**20
 
 
 @dataclass(frozen=True, eq=False)
