@@ -28,13 +28,17 @@ numba's cache) the compiled simulation; its time is printed apart as ``compile_s
 ``peak_rss_mb`` is the process's peak so far (``ru_maxrss``), so run one case per process
 to read it per case.
 
-``--command`` writes each case's records to a CSV and times the whole ``gbo twin diagnose
-FILE --quiet`` process (start-up, reading, the diagnosis, the advice), each run its own child
-(``os.wait4``): wall time, CPU time (user + system), system time, minor page faults and peak
-resident size. The children share one fresh numba cache folder (``NUMBA_CACHE_DIR``): before
-the timed runs, one untimed run fills it, and its wall time is printed apart as
-``first_run_s`` (a user's very first command, which compiles the kernels); a tree without
-compiled kernels (before issue 37) pays nothing there.
+``--command`` writes each case's records to a CSV (in ``--data DIR`` if given, so that another
+tree runs on the same data) and times the whole ``gbo twin diagnose FILE --quiet`` process
+(start-up, reading, the diagnosis, the advice), each run its own child (``os.wait4``): wall
+time, CPU time (user + system), system time, minor page faults and peak resident size. The
+children share one fresh numba cache folder (``NUMBA_CACHE_DIR``). First, apart, a child
+compiles the kernels into it (``compile_s``: what a user's very first command pays once) and
+another loads them from it (``cache_load_s``: what every later command pays); a tree without
+compiled kernels (before issue 37) prints ``compile_s: null``::
+
+    python benchmarks/bench_diagnose.py --command --repeat 3 --data out/bench_diagnose
+    PYTHONPATH=/path/to/other/tree python benchmarks/bench_diagnose.py --command --repeat 3 --data out/bench_diagnose
 """
 
 from __future__ import annotations
@@ -150,19 +154,37 @@ def _run_child(args: list[str], env: dict) -> tuple[float, resource.struct_rusag
         return wall, usage, out.read()
 
 
-def command(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int = 0, repeat: int = 1) -> dict:
-    """``gbo twin diagnose`` on the records of ``case`` as a user runs it, timed as a whole process."""
-    records, gain_names = case_records(case, n_experiments, seed)
+def compile_child(env: dict) -> dict:
+    """A fresh process compiling the kernels into the (empty) cache of ``env``, then one loading them from it."""
+    args = [sys.executable, "-c", "from gbo_envs.physics.kernels import warm_up; print(warm_up())"]
+    out = {"benchmark": "diagnose_compile"}
+    for label in ("compile", "cache_load"):
+        try:
+            wall, usage, stdout = _run_child(args, env)
+        except subprocess.CalledProcessError:  # a tree without compiled kernels
+            return {**out, "compile_s": None}
+        out[f"{label}_s"] = round(float(stdout.strip()), 2)
+        out[f"{label}_process_cpu_s"] = round(usage.ru_utime + usage.ru_stime, 2)
+    return out
+
+
+def command(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int = 0, repeat: int = 1,
+            env: dict | None = None, data: Path | None = None) -> dict:
+    """``gbo twin diagnose`` on the records of ``case`` as a user runs it, timed as a whole process.
+
+    ``data``: a folder holding the case's CSV (written there first if missing), so that other trees
+    run on the same data; by default a temporary one.
+    """
     runs = []
     with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / f"{case}.csv"
-        write_csv(records, path, gain_names=gain_names)
-        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(folder) / "numba_cache"))
+        path = Path(data or folder) / f"{case}.csv"
+        if not path.exists():
+            records, gain_names = case_records(case, n_experiments, seed)
+            write_csv(records, path, gain_names=gain_names)
         args = [sys.executable, "-m", "evaluation.cli", "twin", "diagnose", str(path), "--quiet"]
-        first, _, _ = _run_child(args, env)  # fills the fresh cache (compiles the kernels once)
         for _ in range(repeat):
             load = os.getloadavg()[0]
-            wall, usage, stdout = _run_child(args, env)
+            wall, usage, stdout = _run_child(args, env or dict(os.environ))
             runs.append({"wall_s": round(wall, 2), "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
                          "system_s": round(usage.ru_stime, 2), "minor_faults": usage.ru_minflt,
                          "peak_rss_mb": round(usage.ru_maxrss / 1024), "load": round(load, 2)})
@@ -170,8 +192,8 @@ def command(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int
     return {"benchmark": "diagnose_command", "case": case, "n_experiments": n_experiments,
             "time_s": float(np.median([r["wall_s"] for r in runs])),
             "cpu_s": float(np.median([r["cpu_s"] for r in runs])),
-            "peak_rss_mb": max(r["peak_rss_mb"] for r in runs), "first_run_s": round(first, 2),
-            "target_s": TARGET_S, "target_rss_mb": TARGET_RSS_MB, "runs": runs, "best": best}
+            "peak_rss_mb": max(r["peak_rss_mb"] for r in runs), "target_s": TARGET_S,
+            "target_rss_mb": TARGET_RSS_MB, "runs": runs, "best": best}
 
 
 if __name__ == "__main__":
@@ -180,7 +202,17 @@ if __name__ == "__main__":
     parser.add_argument("--experiments", type=int, default=12)
     parser.add_argument("--repeat", type=int, default=1, help="runs per case; the median time is printed")
     parser.add_argument("--command", action="store_true", help="time the gbo twin diagnose command instead")
+    parser.add_argument("--data", type=Path, help="with --command: folder of the cases' CSV files (written if "
+                                                  "missing), to run other trees on the same data")
     args = parser.parse_args()
-    for name in CASES if args.case == "all" else [args.case]:
-        run = command if args.command else main
-        print(json.dumps(run(name, args.experiments, repeat=args.repeat)), flush=True)
+    names = list(CASES) if args.case == "all" else [args.case]
+    if args.command:
+        with tempfile.TemporaryDirectory() as cache:  # a fresh numba cache: the compile is measured, then loaded
+            child_env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+            print(json.dumps(compile_child(child_env)), flush=True)
+            for name in names:
+                print(json.dumps(command(name, args.experiments, repeat=args.repeat, env=child_env, data=args.data)),
+                      flush=True)
+    else:
+        for name in names:
+            print(json.dumps(main(name, args.experiments, repeat=args.repeat)), flush=True)

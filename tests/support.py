@@ -107,6 +107,18 @@ def _dc_motor_space():
 DC_MOTOR_SPACE = _dc_motor_space()
 
 
+def leaky_saturation(limit: float, leak: float):
+    """A user's own block: a saturation at ``limit`` that lets the fraction ``leak`` of the excess through."""
+    from gbo_envs.physics import Saturation
+
+    class Leaky(Saturation):
+        def actuate(self, u, speed):
+            clipped = super().actuate(u, speed)
+            return clipped + leak * (u - clipped)
+
+    return Leaky(limit)
+
+
 class RaiseAt(gym.Wrapper):
     """Raises ``error`` on the given (1-based) ``step`` calls; the other calls reach the env."""
 

@@ -242,7 +242,7 @@ def _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt: float, colum
     ``column``: the blocks take column parameters (the direct path) rather than one
     value per row (the stepping path).
     """
-    perm, _ = _sorted_rows(chains)
+    perm = _sorted_rows(chains)
     continuous, discrete, chains = [continuous[r] for r in perm], [discrete[r] for r in perm], [chains[r] for r in perm]
     y0, bias = y0[perm], bias[perm]
     groups = _groups(chains, column=column)
@@ -323,7 +323,7 @@ def _direct(continuous, discrete, chains, u, rows, dt, y0, bias, out, initial=No
     once (their parameters as column vectors, one per row); ``P(z)`` is the
     exact sampled plant without its whole-sample delay, run on the deviation
     from rest with ``scipy.signal.lfilter``. The results go into the rows
-    ``rows`` of the outputs ``out``.
+    ``rows`` of the outputs ``out``. (``dt`` is unused: the arguments are those of :func:`_stepping`.)
     """
     n = u.shape[1]
     rest = _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt, column=True, initial=initial)
@@ -412,12 +412,11 @@ def _delayed(u: np.ndarray, source: np.ndarray, lags: np.ndarray, u_rest: np.nda
     return out
 
 
-def _sorted_rows(chains) -> tuple[np.ndarray, np.ndarray]:
+def _sorted_rows(chains) -> np.ndarray:
     """Row order that makes rows with the same block classes, then the same blocks, contiguous."""
     signature = [repr(tuple((type(b).__name__, b.side) for b in chain if b.side != "plant")) for chain in chains]
-    perm = np.array(sorted(range(len(chains)), key=lambda r: (signature[r], tuple(id(b) for b in chains[r]))),
+    return np.array(sorted(range(len(chains)), key=lambda r: (signature[r], tuple(id(b) for b in chains[r]))),
                     dtype=int)
-    return perm, np.argsort(perm)
 
 
 def _flat(fn, values: np.ndarray) -> np.ndarray:

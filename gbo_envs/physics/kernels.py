@@ -110,11 +110,6 @@ class PackedBlocks:
     state: np.ndarray
     noise: np.ndarray
 
-    @property
-    def slots(self) -> int:
-        """Block positions per row."""
-        return self.code.shape[1]
-
 
 def _per_row(value, rows: int) -> np.ndarray:
     """A block parameter (a float, or per-row values of a merged block) as shape (rows,)."""

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from gbo_envs import ClosedLoop, ContinuousPlant, PDT1Controller
 from gbo_envs.physics import CoulombFriction, Saturation, build_effect, kernels
 from gbo_envs.physics.encoder import PositionEncoder, SpeedEncoder
-from tests.support import dc_loop
+from tests.support import dc_loop, leaky_saturation
 
 FAST = settings(max_examples=25, deadline=None, derandomize=True, database=None)
 GAINS = np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2], [1.05, 2.0], [0.5, 1.9], [0.2, 0.9]])
@@ -121,18 +121,10 @@ def test_position_loop_friction_acts_on_the_speed_compiled(monkeypatch):
     _assert_same(fast, slow, calls, nexts)
 
 
-class _HalfSaturation(Saturation):
-    """A user's block: a saturation that lets half of the excess through."""
-
-    def actuate(self, u, speed):
-        clipped = super().actuate(u, speed)
-        return clipped + 0.5 * (u - clipped)
-
-
 def test_a_block_the_kernel_does_not_know_keeps_the_numpy_loop(monkeypatch):
     calls = []
     monkeypatch.setattr(kernels, "closed_loop_kernel", lambda *args: calls.append(1))
-    own = dc_loop(_HalfSaturation(130.0), duration=1.0).simulate(GAINS)
+    own = dc_loop(leaky_saturation(130.0, 0.5), duration=1.0).simulate(GAINS)
     assert calls == []
     plain = dc_loop(Saturation(130.0), duration=1.0)
     monkeypatch.setattr(kernels, "KERNEL_CODES", {})

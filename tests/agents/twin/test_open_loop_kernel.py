@@ -15,8 +15,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agents.twin.open_loop import simulate_open_loop
-from gbo_envs.physics import ContinuousPlant, CoulombFriction, Saturation, kernels
+from gbo_envs.physics import ContinuousPlant, CoulombFriction, kernels
 from gbo_envs.physics.effects import build_effects
+from tests.support import leaky_saturation
 
 FAST = settings(max_examples=20, deadline=None, derandomize=True, database=None)
 SPEED = ContinuousPlant(num=(9.544,), den=(1.0, 4.145, 4.199), delay=0.002)
@@ -121,19 +122,11 @@ def test_mixed_orders_replay_in_numpy_too(monkeypatch):
         np.testing.assert_array_equal(both.y[row], alone.y[0])
 
 
-class _Leaky(Saturation):
-    """A user's block: a saturation that lets a tenth of the excess through."""
-
-    def actuate(self, u, speed):
-        clipped = super().actuate(u, speed)
-        return clipped + 0.1 * (u - clipped)
-
-
 def test_a_block_the_kernel_does_not_know_replays_in_numpy(monkeypatch):
     calls = []
     monkeypatch.setattr(kernels, "open_loop_kernel", lambda *args: calls.append(1))
     plants, chains, u, y0, bias = _rows([SPEED] * 2, [{}, {}])
-    chains = [(_Leaky(5.0), CoulombFriction(1.0)), (CoulombFriction(1.0),)]
+    chains = [(leaky_saturation(5.0, 0.1), CoulombFriction(1.0)), (CoulombFriction(1.0),)]
     res = simulate_open_loop(plants, u, 0.002, chains, y0=y0, bias=bias)
     assert calls == []
     assert np.all(np.isfinite(res.y)) and np.max(np.abs(res.v[0])) > 5.0  # the leak passed the limit
