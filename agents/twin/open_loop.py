@@ -268,7 +268,8 @@ def _moving_start(discrete: list[DiscretePlant], initial: np.ndarray, dt: float,
 
     Row ``i``'s ``dx`` solves ``c Phi^q dx = 0`` for ``q = 0`` and ``(q) dt initial[i, q - 1]`` for ``q = 1 .. m``
     (the observability rows of its sampled plant), by least squares with the least norm where ``m``
-    is below the row's order minus one; zero where ``initial`` is.
+    is below the row's order minus one; zero where ``initial`` is, NaN where the row's sampled plant
+    is not finite.
     """
     batch, m = initial.shape
     dx = np.zeros((batch, order))
@@ -279,6 +280,11 @@ def _moving_start(discrete: list[DiscretePlant], initial: np.ndarray, dt: float,
             rows_obs.append(c)
             c = c @ d.phi
         obs = np.array(rows_obs)
+        if not np.isfinite(obs).all():
+            # e^{A dt} overflowed (a fit's trial pole run far into the right half-plane): the row diverges, and
+            # its NaN start says so in the output; LAPACK must not see it (it printed DLASCL's "illegal value")
+            dx[row] = np.nan
+            continue
         target = np.concatenate([[0.0], initial[row, : obs.shape[0] - 1] * dt * np.arange(1, obs.shape[0])])
         dx[row, : d.order] = np.linalg.lstsq(obs, target, rcond=None)[0]
     return dx

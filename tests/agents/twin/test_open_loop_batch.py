@@ -62,3 +62,17 @@ def test_candidate_fits_of_one_effect_merge_into_one_block_with_per_row_paramete
         blocks = [build_effects({name: {**params, **{key: value * scale for key, value in params.items()}}})[0]
                   for scale in (1.0, 1.5, 2.0)]
         assert _merged(blocks, rng, column=False) is not None, name
+
+
+def test_a_moving_start_of_a_plant_that_overflows_diverges_without_lapack(capfd):
+    """A fit's trial point with a pole far in the right half-plane: e^{A dt} overflows. Its moving start went
+    into ``lstsq`` with NaN ("On entry to DLASCL parameter number 4 had an illegal value", then LinAlgError in
+    guided BO on a resonant plant); now that row's output is NaN (divergence) and the other row is untouched."""
+    wild = ContinuousPlant(num=(9.5,), den=(1.0, -1e6, 4.2))
+    good = ContinuousPlant(num=(9.544,), den=(1.0, 4.145, 4.199))
+    u = np.ones((2, 50))
+    with np.errstate(all="ignore"):
+        res = simulate_open_loop([wild, good], u, 0.001, (), initial=np.array([[1.0], [2.0]]))
+    alone = simulate_open_loop(good, u[:1], 0.001, (), initial=np.array([[2.0]]))
+    assert np.isnan(res.y[0]).all() and np.array_equal(res.y[1], alone.y[0])
+    assert "DLASCL" not in "".join(capfd.readouterr())
