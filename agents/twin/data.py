@@ -57,6 +57,13 @@ class GreyData:
                            for k in range(self.u.shape[0])])
         closed.setflags(write=False)
         object.__setattr__(self, "_closed", closed)
+        # per record: the largest |y| (padding included) and whether it is padded, for the residual's fast path
+        extent = np.maximum(self.y.max(axis=1), -self.y.min(axis=1)) if self.y.size else np.zeros(0)
+        padded = ~self.mask.all(axis=1)
+        for array in (extent, padded):
+            array.setflags(write=False)
+        object.__setattr__(self, "_extent", extent)
+        object.__setattr__(self, "_padded", padded)
 
     @classmethod
     def decimated(cls, records, n_samples: int | None, initial: str = "auto") -> GreyData:
@@ -121,6 +128,14 @@ class GreyData:
     def n_samples(self) -> int:
         """Real samples in all."""
         return int(self.mask.sum())
+
+    def y_extent(self, rows: np.ndarray) -> float:
+        """``max |y|`` over the records ``rows`` (their padding included), units of ``y``."""
+        return float(self._extent.max()) if self.is_all(rows) else float(self._extent[rows].max())
+
+    def padded(self, rows: np.ndarray) -> bool:
+        """Whether any of the records ``rows`` is shorter than the longest (has masked padding)."""
+        return bool(self._padded.any()) if self.is_all(rows) else bool(self._padded[rows].any())
 
     def is_all(self, rows: np.ndarray) -> bool:
         """Whether ``rows`` are all the records in order (so that the arrays serve as they are, uncopied)."""

@@ -8,11 +8,11 @@ from agents.twin.data import GreyData
 from agents.twin.least_squares import residual
 
 
-def _data(n_records=2, n=50):
+def _data(n_records=2, n=50, mask=None):
     t = np.tile(np.arange(n) * 0.01, (n_records, 1))
     y = np.sin(t) + 5.0
-    return GreyData(t=t, r=np.full_like(t, 6.0), u=np.ones_like(t), y=y, mask=np.ones_like(t, dtype=bool),
-                    dt=0.01, index=np.arange(n_records))
+    mask = np.ones_like(t, dtype=bool) if mask is None else mask
+    return GreyData(t=t, r=np.full_like(t, 6.0), u=np.ones_like(t), y=y, mask=mask, dt=0.01, index=np.arange(n_records))
 
 
 def test_a_diverged_simulation_gives_a_bounded_residual_whose_squares_do_not_overflow():
@@ -30,11 +30,12 @@ def test_a_diverged_simulation_gives_a_bounded_residual_whose_squares_do_not_ove
 
 
 def test_residual_written_into_out_equals_the_new_array():
-    data = _data(n_records=3)
+    mask = np.ones((3, 50), dtype=bool)
+    mask[2, 40:] = False  # padding samples give 0
+    data = _data(n_records=3, mask=mask)
     rows = np.array([2, 0])
     y_sim = data.y[rows] + 0.25
     y_sim[1, 5] = np.inf
-    data.mask[2, 40:] = False  # padding samples give 0
     out = np.full((2, data.y.shape[1]), 7.0)
     got = residual(data, rows, y_sim, out=out)
     assert got is out
