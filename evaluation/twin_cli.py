@@ -317,8 +317,7 @@ def _diagnose(args) -> int:
     print(f"ranking ({payload['validation']}):")
     print(f"{'effect':>18} {'held-out RMSE':>14} {'delta BIC':>12}  evidence")
     for c in payload["candidates"]:
-        heldout = "-" if c["rmse"] is None else f"{c['rmse']:.5g}"
-        print(f"{c['effect']:>18} {heldout:>14} {c['delta_bic']:12.1f}  {c['evidence']}")
+        print(f"{c['effect']:>18} {c['rmse']:14.5g} {c['delta_bic']:12.1f}  {c['evidence']}")
     print(f"best: {step['text']}" if step else "best: none (no effect improves the held-out error beyond its "
                                                "complexity cost)")
     _print_unobservable(result)

@@ -34,7 +34,7 @@ from agents.twin.uncertainty import parameter_intervals
 from gbo_envs.physics.effects import EFFECTS, describe_effect
 
 __all__ = ["CLEAR_HELDOUT_GAIN", "DEFAULT_FOLDS", "NUISANCE_REFIT_ITER", "Ranking", "effect_intervals", "effect_size",
-           "heldout_rss", "rank", "training_delta_bic", "validated_folds"]
+           "heldout_rss", "rank", "validated_folds"]
 
 #: Folds of the cross-validation over experiments when none are given (fewer with fewer experiments).
 DEFAULT_FOLDS = 4
@@ -206,12 +206,10 @@ class Ranking:
     Attributes
     ----------
     candidates : list of dict
-        Per candidate, best first: ``effect, rmse`` (held-out; ``None`` when not cross-validated),
-        ``delta_bic, params, evidence, train_rmse, share`` (% of the current model's residual power
-        the candidate's fit explains), ``extra_params, effect_rms, fitted, validated`` (cross-validated:
-        its fit to all data pays for its parameters, :func:`training_delta_bic` ``< 0``; the others'
-        ``delta_bic`` is the training one), ``intervals`` and ``note`` where the data cannot show the
-        effect.
+        Per candidate, best first: ``effect, rmse`` (held-out), ``delta_bic, params, evidence,
+        train_rmse, share`` (% of the current model's residual power the candidate's fit
+        explains), ``extra_params, effect_rms, fitted, intervals`` and ``note`` where the data
+        cannot show the effect.
     best : str or None
         The candidate the rules select.
     heldout_rmse : float
@@ -235,11 +233,7 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
          bic_margin: float = 10.0, min_gain: float = 0.02, noise_gain: float = 0.05, progress=None) -> Ranking:
     """Rank the candidate ``fits`` against ``current`` and select the best; see :func:`agents.twin.diagnose.diagnose`.
 
-    Only the candidates whose fit to all data pays for their extra parameters
-    (:func:`training_delta_bic` ``< 0``) are cross-validated: a nested model that does not beat
-    the current one on the data it was fitted to is not the missing physics, and the held-out
-    refits are the ranking's main cost. Rules, in order: a cross-validated candidate is *good*
-    when its ``delta_bic < -bic_margin``, its held-out
+    Rules, in order: a candidate is *good* when its ``delta_bic < -bic_margin``, its held-out
     RMSE is below ``(1 - min_gain)`` times the current model's and at least ``noise_gain``
     times the noise floor below it, its fit to all data is better than the current model's
     (a candidate that fits worse cannot be the missing physics, whatever a few held-out
@@ -250,11 +244,9 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
     :data:`CLEAR_HELDOUT_GAIN`: the held-out error of a few experiments is itself uncertain,
     and a small effect that wins by a hair is not the physics that the residual shows.
     """
-    n = data.n_samples
-    # only a fit that pays for its parameters on all data is worth holding experiments out for
-    order = [name for name in fits if training_delta_bic(current, fits[name], n) < 0.0]
-    unpaid = [name for name in fits if name not in order]
+    order = list(fits)
     models = [current] + [fits[name] for name in order]
+    n = data.n_samples
     if progress is not None:
         progress.set_postfix_str("cross-validation over experiments")
     if data.n_records >= 2:
@@ -266,32 +258,34 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
     bic = n * np.log(np.maximum(rss, 1e-300) / n) + np.array([m.n_params for m in models]) * np.log(n)
     cands = []
     for i, name in enumerate(order, start=1):
-        entry = _entry(data, current, fits[name], name, validated=True)
-        entry.update({"rmse": float(np.sqrt(rss[i] / n)), "delta_bic": float(bic[i] - bic[0])})
+        fit = fits[name]
+        grown = fit.spec.n_linear != current.spec.n_linear  # an order candidate
+        if grown:
+            change = order_change(name, current, fit)
+            params = {key: value["value"] for key, value in change.items()}
+            intervals = {key: {**value, "std": "n/a"} for key, value in change.items()}
+            size = rmse(output_error(fit.y_sim, current.y_sim, data.mask, fit.spec, data.closed_loop), mask=data.mask)
+        else:
+            params = fit.effect_params.get(name, {})
+            intervals, size = effect_intervals(data, fit, name), effect_size(data, fit)
+        entry = {"effect": name, "kind": "order" if grown else "effect", "rmse": float(np.sqrt(rss[i] / n)),
+                 "delta_bic": float(bic[i] - bic[0]), "params": jsonable(params, finite=True),
+                 "evidence": effect_evidence(name, data, current, fit), "train_rmse": float(fit.rmse),
+                 "share": _share(current, fit), "extra_params": int(fit.n_params - current.n_params),
+                 "effect_rms": float(size) if np.isfinite(size) else 0.0, "fitted": True, "intervals": intervals}
+        if name in plan.notes:
+            entry["note"] = plan.notes[name]
         cands.append(entry)
-    for name in unpaid:
-        delta = training_delta_bic(current, fits[name], n)
-        entry = _entry(data, current, fits[name], name, validated=False)
-        entry.update({"rmse": None, "delta_bic": delta,
-                      "evidence": f"not cross-validated: its fit to all data does not pay for its "
-                                  f"{entry['extra_params']} parameter(s) (training delta BIC {delta:+.1f}); "
-                                  + entry["evidence"]})
-        cands.append(entry)
-    for entry in cands:
-        if entry["effect"] in plan.notes:
-            entry["note"] = plan.notes[entry["effect"]]
     cur_rmse = float(np.sqrt(rss[0] / n))
     for name in plan.skipped:  # not fitted: absorbed by the rest levels, so its fit is the current model's
         extra = len(FITTED_PARAMETERS[name])
         cands.append({"effect": name, "kind": "effect", "rmse": cur_rmse, "delta_bic": float(extra * np.log(n)),
                       "params": {},
                       "evidence": f"not fitted: {plan.notes[name]}", "train_rmse": float(current.rmse), "share": 0.0,
-                      "extra_params": extra, "effect_rms": 0.0, "note": plan.notes[name], "fitted": False,
-                      "validated": False})
-    cands.sort(key=lambda c: (c["rmse"] is None, c["delta_bic"]))  # the cross-validated first
+                      "extra_params": extra, "effect_rms": 0.0, "note": plan.notes[name], "fitted": False})
+    cands.sort(key=lambda c: c["delta_bic"])
     floor = noise.rmse
-    good = [c for c in cands if c["validated"] and c["delta_bic"] < -bic_margin
-            and c["rmse"] < (1.0 - min_gain) * cur_rmse
+    good = [c for c in cands if c["delta_bic"] < -bic_margin and c["rmse"] < (1.0 - min_gain) * cur_rmse
             and (floor is None or cur_rmse - c["rmse"] >= noise_gain * floor)
             and c["train_rmse"] < current.rmse
             and c["effect_rms"] >= 0.2 * np.sqrt(max(current.rmse**2 - c["train_rmse"] ** 2, 0.0))]
@@ -312,39 +306,6 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
     if blind_pairs and suggestion is None:
         suggestion = REVEALING_EXPERIMENTS.get(blind_pairs[0][0], separating_experiment(*blind_pairs[0]))
     return Ranking(cands, best, cur_rmse, validation, pairs + blind_pairs, suggestion)
-
-
-def training_delta_bic(current: GreyFit, fit: GreyFit, n_samples: int) -> float:
-    """``n log(RSS / RSS_current) + (k - k_current) log n`` of ``fit`` on the data it was fitted to (all of it).
-
-    A candidate nests the current model, so only a fit that beats it by more than the price of its extra
-    parameters (``< 0``) can be the missing physics; the others are not cross-validated (:func:`rank`).
-    """
-    n = n_samples
-    ratio = max(fit.rmse, 1e-300) ** 2 / max(current.rmse, 1e-300) ** 2
-    return float(n * np.log(ratio) + (fit.n_params - current.n_params) * np.log(n))
-
-
-def _entry(data: GreyData, current: GreyFit, fit: GreyFit, name: str, validated: bool) -> dict:
-    """A ranked candidate's entry but its held-out ``rmse`` and ``delta_bic`` (see :class:`Ranking`).
-
-    Confidence intervals are computed for a cross-validated candidate only (they cost a Jacobian).
-    """
-    grown = fit.spec.n_linear != current.spec.n_linear  # an order candidate
-    if grown:
-        change = order_change(name, current, fit)
-        params = {key: value["value"] for key, value in change.items()}
-        intervals = {key: {**value, "std": "n/a"} for key, value in change.items()} if validated else {}
-        size = rmse(output_error(fit.y_sim, current.y_sim, data.mask, fit.spec, data.closed_loop), mask=data.mask)
-    else:
-        params = fit.effect_params.get(name, {})
-        intervals = effect_intervals(data, fit, name) if validated else {}
-        size = effect_size(data, fit)
-    return {"effect": name, "kind": "order" if grown else "effect", "params": jsonable(params, finite=True),
-            "evidence": effect_evidence(name, data, current, fit), "train_rmse": float(fit.rmse),
-            "share": _share(current, fit), "extra_params": int(fit.n_params - current.n_params),
-            "effect_rms": float(size) if np.isfinite(size) else 0.0, "fitted": True, "validated": validated,
-            "intervals": intervals}
 
 
 def _share(current: GreyFit, fit: GreyFit) -> float:
