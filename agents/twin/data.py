@@ -137,6 +137,12 @@ class GreyData:
         """Whether any of the records ``rows`` is shorter than the longest (has masked padding)."""
         return bool(self._padded.any()) if self.is_all(rows) else bool(self._padded[rows].any())
 
+    def rows_of(self, array: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """``array[rows]`` (an array of this data's shape), a view, not a copy, when ``rows`` are consecutive."""
+        if rows.size and rows[-1] - rows[0] == rows.size - 1 and np.all(np.diff(rows) == 1):
+            return array[rows[0]: rows[-1] + 1]
+        return array[rows]
+
     def is_all(self, rows: np.ndarray) -> bool:
         """Whether ``rows`` are all the records in order (so that the arrays serve as they are, uncopied)."""
         return rows.size == self.n_records and np.array_equal(rows, np.arange(rows.size))

@@ -131,12 +131,12 @@ def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarra
     ndarray of shape (len(rows), n_steps)
         In the units of ``y``.
     """
-    everything = data.is_all(rows)
-    y, mask = (data.y, data.mask) if everything else (data.y[rows], data.mask[rows])  # no copies of all
+    y = data.rows_of(data.y, rows)
+    mask = data.rows_of(data.mask, rows) if data.padded(rows) else None
     penalty = 1e6 * (1.0 + data.y_extent(rows))
     with np.errstate(invalid="ignore", over="ignore"):
         err = np.subtract(y_sim, y, out=out)
-    if data.padded(rows):
+    if mask is not None:
         err[~mask] = 0.0
     # the common case, every value finite and within the penalty, in two passes without temporaries
     # (a NaN fails both comparisons); the residual runs once per Jacobian column of every fit

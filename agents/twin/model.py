@@ -174,13 +174,15 @@ def residual_in_increments(spec: ModelSpec) -> bool:
 def to_increments(err: np.ndarray, mask: np.ndarray, rows=None) -> np.ndarray:
     """``err`` (records by samples, 0 on padding) replaced in place by its first sample and its increments.
 
-    ``rows`` (bool, one per record) limits it to those records (default every record).
+    ``rows`` (bool, one per record) limits it to those records (default every record); ``mask`` may be
+    ``None`` when no record is padded.
     """
     if rows is None or np.all(rows):
         err[:, 1:] -= err[:, :-1].copy()
     elif np.any(rows):
         err[rows, 1:] -= err[rows, :-1].copy()
-    err[~mask] = 0.0
+    if mask is not None:
+        err[~mask] = 0.0
     return err
 
 
