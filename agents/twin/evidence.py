@@ -273,8 +273,11 @@ def effect_evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit) -
     if name == "saturation":
         limit = params.get("limit", np.inf)
         over = np.abs(data.u[m]) > limit
-        ratio = (rmse(e[over]) / max(rmse(e[~over]), 1e-300)) if over.any() and \
-            (~over).any() else float("nan")
+        if not over.any() or over.all():  # no samples on one side: no ratio to give (it printed "nanx")
+            where = "never exceeds" if not over.any() else "exceeds"
+            return (f"the command {where} the fitted limit {limit:.4g} in every sample: the residual cannot show "
+                    f"a clipping (r={r:.2f})" + tail)
+        ratio = rmse(e[over]) / max(rmse(e[~over]), 1e-300)
         return (f"command exceeds {limit:.4g} in {100 * over.mean():.1f} % of samples, where the error grows "
                 f"({ratio:.1f}x the rms elsewhere; r={r:.2f})" + tail)
     if name == "dead_zone":

@@ -51,3 +51,22 @@ def test_backlash_is_excited_by_an_input_that_turns_back_without_a_speed_reversa
     assert {"coulomb_friction", "stiction"} <= set(notes)
     flat = {**{k: record[k] for k in ("t", "r", "y")}, "u": np.linspace(100.0, 130.0, len(record["t"]))}
     assert "never turns back" in excitation_notes(GreyData.from_records([flat]), "speed")["backlash"]
+
+
+def test_a_saturation_that_clips_nothing_says_so_without_a_nan_ratio():
+    """A drive limit above every command: no sample on the clipped side, no ratio of errors to give (the
+    evidence printed "(nanx the rms elsewhere" on a flexible-coupling rig)."""
+    import numpy as np
+
+    from agents.twin.data import GreyData
+    from agents.twin.evidence import effect_evidence
+    from agents.twin.fits import fit_model
+    from tests.support import loop_records
+
+    data = GreyData.from_records(loop_records({}, gains=np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2]]), noise=0.1,
+                                              seed=0))
+    current = fit_model(data)
+    fit = fit_model(data, {"saturation": {"limit": 1e5}})
+    assert fit.effect_params["saturation"]["limit"] > np.abs(data.u).max()
+    text = effect_evidence("saturation", data, current, fit)
+    assert "nan" not in text and text.startswith("the command never exceeds the fitted limit")
