@@ -236,9 +236,9 @@ def _counts(runs, level: float, start: int = 0, end: int | None = None) -> np.nd
 def _versus(study, index, levels, context) -> tuple[list[str], list[dict]]:
     ref = study.report.get("reference", study.labels[0])
     extras = _columns(study)
-    lines = [f"| {_header(study, 'plant', 'plant')} | threshold | {_header(study, 'tuner', 'variant')} | seeds | "
-             f"variant: real experiments | {ref}, same seeds | variant / {ref} | "
-             + " | ".join(h for h, _ in extras) + " |", "|" + "---|" * (7 + len(extras))]
+    header = [_header(study, "plant", "plant"), "threshold", _header(study, "tuner", "variant"), "seeds",
+              "variant: real experiments", f"{ref}, same seeds", f"variant / {ref}", *(h for h, _ in extras)]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     records = []
     for plant in study.plants:
         mine = {label: index.get((plant.label, label), {}) for label in study.labels}
@@ -254,8 +254,9 @@ def _versus(study, index, levels, context) -> tuple[list[str], list[dict]]:
                 miss = int(runs[0]["budget"]) + 1
                 (m0, c0), (m1, c1) = _cell(_counts(runs, level), miss), _cell(_counts(refs, level), miss)
                 row = Row(plant=plant.label, runs=runs, reference=refs, context=context.get(plant.label, {}))
-                lines.append(f"| {plant.label} | {_level_name(name, level, threshold)} | {label} | {len(seeds)} | "
-                             f"{c0} | {c1} | {m0 / m1:.2f} | " + " | ".join(f(row) for _, f in extras) + " |")
+                cells = [plant.label, _level_name(name, level, threshold), label, str(len(seeds)), c0, c1,
+                         f"{m0 / m1:.2f}", *(f(row) for _, f in extras)]
+                lines.append("| " + " | ".join(cells) + " |")
                 records.append({"plant": plant.label, "threshold": name, "ratio": level, "tuner": label,
                                 "seeds": len(seeds), "mean": m0, "vs_reference": m0 / m1})
     return lines, records

@@ -107,7 +107,7 @@ def test_effects_column_counts_most_frequent_first_ties_as_first_seen():
 
 
 COMMITTED = ["guided_bo_ablation", "time_varying", "peers", "mf_bo", "effect_aware", "guided_bo_oracle",
-             "discrimination"]
+             "discrimination", "beyond_catalogue"]
 
 
 @pytest.mark.slow
