@@ -58,7 +58,8 @@ def main() -> None:
         summary = json.loads(run.summary)
         print(json.dumps({"plant": task.plant, "seed": task.seed,
                           "tuner_cpu_s": round(float(run.cpu_seconds - run.plant_cpu_seconds), 2),
-                          "cpu_s": round(float(run.cpu_seconds), 2), "plant_cpu_s": round(float(run.plant_cpu_seconds), 2),
+                          "cpu_s": round(float(run.cpu_seconds), 2),
+                          "plant_cpu_s": round(float(run.plant_cpu_seconds), 2),
                           "wall_s": round(float(run.seconds), 2), "load": round(load, 2),
                           "effects": summary.get("effects"), "curve_max_rel_diff": diff}), flush=True)
 

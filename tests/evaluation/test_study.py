@@ -151,12 +151,11 @@ def test_shipped_studies_load_and_are_package_data():
 def test_shipped_studies_pin_the_paper_guidance_in_the_current_spelling():
     """Every tuner of every shipped study is built without the FutureWarning of ``GuidedBO``'s former keywords;
     the paper studies pin the twin iterations (their parameters in ``TwinIterations``) and the linear twin."""
+    import importlib
     import warnings
 
     import agents
     from evaluation.study_runner import resolve_params
-
-    import importlib
 
     for name in shipped_studies():
         study = load_study(name)

@@ -21,6 +21,7 @@ Output: experiment 1, t = k*0.005 s, u = nominal mean voltage [V] (0.2*15 V),
 Only numpy/pandas/stdlib.
 """
 import os
+
 import numpy as np
 import pandas as pd
 

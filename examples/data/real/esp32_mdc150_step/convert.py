@@ -14,6 +14,7 @@ Output:
 Only numpy/pandas/stdlib.
 """
 import os
+
 import numpy as np
 import pandas as pd
 

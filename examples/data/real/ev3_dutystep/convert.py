@@ -22,6 +22,7 @@ import glob
 import os
 import re
 import sys
+
 import numpy as np
 import pandas as pd
 

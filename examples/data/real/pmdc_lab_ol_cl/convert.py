@@ -23,6 +23,7 @@ without interpolation unless the deviation exceeds 5 % of dt (then linear
 interpolation is used).  Only numpy/pandas/stdlib.
 """
 import os
+
 import numpy as np
 import pandas as pd
 
