@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
-import agents
 from evaluation.comparison import comparison_lines, effects_column
 from evaluation.curves import read_curves
 from evaluation.references import suite_optima
@@ -112,10 +110,8 @@ COMMITTED = ["guided_bo_ablation", "time_varying", "peers", "mf_bo", "effect_awa
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", COMMITTED)
-def test_the_committed_reports_are_what_the_engine_computes_from_the_committed_curves(name, monkeypatch):
+def test_the_committed_reports_are_what_the_engine_computes_from_the_committed_curves(name, monkeypatch, study_tuners):
     monkeypatch.chdir(REPO_ROOT)  # the studies import benchmarks/study_tuners.py from the repository root
-    monkeypatch.setattr(agents.registry, "_REGISTRY", dict(agents.registry._REGISTRY))
-    monkeypatch.delitem(sys.modules, "benchmarks.study_tuners", raising=False)
     spec = load_study(name)
     folder = REPO_ROOT / "docs" / "reports" / name
     budgets = {}
