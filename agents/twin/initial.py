@@ -18,8 +18,11 @@ A record's model needs its initial state. Real data start in three ways:
   are estimated: a free rest level ``y0`` and a free plant-input bias (the
   SRIVC rest input ``u0`` in disguise). A constant load within such a record
   cannot be told from the unobserved rest command.
-* ``"moving"``: the output is not flat at the start (a record cut from a long log).
-  The rest level and the bias are estimated, as for ``"steady"``.
+* ``"moving"``: the output is not flat before the excitation, or, with the excitation on
+  from the first sample, it changes already in that sample, before an input at sample 0
+  can move a plant at rest (a record cut from a long log). The rest level, the bias and
+  the free response's slopes are estimated (:func:`agents.twin.open_loop.simulate_rows`'
+  ``initial``).
 
 :func:`initial_conditions` classifies the records from the data; ``initial=`` of
 :meth:`agents.twin.data.GreyData.from_records` overrides it for every record.
@@ -37,8 +40,11 @@ __all__ = ["INITIAL_MODES", "InitialConditions", "initial_conditions"]
 #: (``"rest"``: at the rest of the first sample; ``"zero"``: at rest with the drive off, ``u0 = 0``;
 #: ``"steady"``: estimated rest level and bias).
 INITIAL_MODES = ("auto", "rest", "zero", "steady")
-#: Output samples checked for flatness at the start of a record whose excitation starts at once.
-START_SAMPLES = 3
+#: Output samples checked for flatness at the start of a record whose excitation is on from its first sample:
+#: the first step only. A plant at rest answers an input at sample 0 no sooner than at sample 1, and a plant of
+#: relative degree 2 or more (or with a delay) by ``O(dt^2)`` there; a machine already moving changes at its speed.
+#: Later samples would take a fast response from rest for motion (every LinearMotor-v0 record, with 3 samples).
+START_SAMPLES = 2
 #: A flat output stays within this many noise standard deviations (plus a quantum) of its median.
 FLAT_SIGMAS = 5.0
 
@@ -159,7 +165,7 @@ def initial_conditions(r: np.ndarray, u: np.ndarray, y: np.ndarray, mask: np.nda
         start = yi[:START_SAMPLES]
         if open_loop[i] and _flat(np.array([yi[0], 0.0]), yi):  # from standstill at zero, the drive just on
             mode[i], y0[i], u0[i], assumed[i] = "rest", float(yi[0]), 0.0, True
-        elif not _flat(start, yi, relative=1e-3):  # a response that starts from rest creeps at first
+        elif not _flat(start, yi, relative=1e-3):  # moves in its first sample: it was moving before the record
             mode[i] = "moving"
     return InitialConditions(mode.astype(str), y0, u0, quiet, assumed)
 

@@ -35,6 +35,20 @@ def _servo(u, dt=1e-3, effects=None):
 
 # -- how records start ---------------------------------------------------------------------------------------------
 
+@pytest.mark.parametrize("env_id", ["DCMotor-v0", "LinearMotor-v0", "LinearMotorRig-v0"])
+def test_a_fast_closed_loop_step_from_steady_state_is_not_taken_for_motion(env_id):
+    """The envs' records: the reference is on from sample 0 and the output creeps out of its steady state. The
+    linear motor's position moves 0.8 % of its span within 3 samples, but not in the first: it starts "steady"
+    (taken as "moving" it got free initial slopes, which changed guided BO's twin on Linear+coulomb)."""
+    import gymnasium as gym
+
+    env = gym.make(f"gbo_envs/{env_id}")
+    env.reset(seed=0)
+    space = env.unwrapped.action_space
+    records = [env.step(space.low + share * (space.high - space.low))[4]["experiment"] for share in (0.2, 0.5, 0.9)]
+    assert list(GreyData.from_records(records).initial.mode) == ["steady"] * 3
+
+
 def test_records_that_show_their_rest_are_pinned_there():
     data = GreyData.from_records(real_like_records(ASYMMETRIC))
     start = data.initial
