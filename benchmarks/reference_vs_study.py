@@ -11,6 +11,11 @@ both where the curves record it::
 
     python benchmarks/reference_vs_study.py --tuner guided-bo
     python benchmarks/reference_vs_study.py --tuner bo --study guided_bo_ablation
+
+``--runs FOLDER`` takes the runs of a study's output folder (``gbo bench SPEC --out FOLDER``, with the
+``study.toml`` it writes there) in place of the reference: a rerun of a few plants on new code::
+
+    python benchmarks/reference_vs_study.py --tuner guided-bo --runs out/lin_probe
 """
 
 from __future__ import annotations
@@ -21,7 +26,8 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from evaluation.curves import CURVES_FILE, experiments_to_target, read_curves
+from evaluation.curves import CURVES_FILE, experiments_to_target, load_curves, read_curves
+from evaluation.study import load_study
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -41,10 +47,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tuner", required=True, help="the tuner's label in both (e.g. guided-bo, bo)")
     parser.add_argument("--study", default="guided_bo_ablation", help="a study folder under docs/reports")
+    parser.add_argument("--runs", type=Path, help="a study's output folder whose runs replace the reference")
     args = parser.parse_args()
     kept = read_curves(REPO / "docs" / "reports" / args.study / CURVES_FILE)
     kept = kept[kept["tuner"] == args.tuner]
-    reference = read_curves(REPO / "evaluation" / "references" / f"{args.tuner}.parquet")
+    if args.runs is None:
+        reference = read_curves(REPO / "evaluation" / "references" / f"{args.tuner}.parquet")
+    else:
+        reference = load_curves(args.runs, load_study(args.runs / "study.toml"))
+        reference = reference[reference["tuner"] == args.tuner]
     print(f"| plant | target | seeds | {args.study} | reference | paired | same curve | tuner CPU s/run: study, "
           "reference |")
     print("|---|---|---|---|---|---|---|---|")
