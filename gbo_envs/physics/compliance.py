@@ -96,6 +96,6 @@ class Compliance(EffectBlock):
         if np.isinf(self.frequency):
             return plant
         num_f, den_f = self.factor()
-        num = np.convolve(plant.num, num_f)  # polynomial products (np.polymul's poly1d copies cost more)
-        den = np.convolve(plant.den, den_f)
+        num = np.polymul(plant.num, num_f)
+        den = np.polymul(plant.den, den_f)
         return replace(plant, num=tuple(num / den[0]), den=tuple(den / den[0]))

@@ -9,7 +9,6 @@ integration error enters the closed-loop simulation.
 
 from __future__ import annotations
 
-import functools
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -134,9 +133,6 @@ class ContinuousPlant:
         """
         if not np.isfinite(dt) or dt <= 0.0:
             raise ValueError(f"dt: sample time must be > 0 s, got {dt}")
-        return _sampled(self, float(dt))
-
-    def _discretize(self, dt: float) -> DiscretePlant:
         a, b, c = self.state_space()
         whole = int(np.floor(self.delay / dt + 1e-9))
         frac = self.delay - whole * dt
@@ -150,17 +146,8 @@ class ContinuousPlant:
             phi = phi @ phi_frac
         else:
             gamma1 = np.zeros_like(gamma0)
-        for array in (phi, gamma0, gamma1, c, a, b):  # shared by every caller of the cache below
-            array.setflags(write=False)
         return DiscretePlant(phi=phi, gamma0=gamma0, gamma1=gamma1, c=c, delay_steps=whole, dt=dt,
                              a=a, b=b)
-
-
-@functools.lru_cache(maxsize=8192)
-def _sampled(plant: ContinuousPlant, dt: float) -> DiscretePlant:
-    """:meth:`ContinuousPlant.discretize`, remembered: a fit's finite-difference columns and its problems ask
-    for the same plants again (35,204 discretisations of 7,187 plants in one diagnosis of 12 records)."""
-    return plant._discretize(dt)
 
 
 def _zoh_blocks(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
