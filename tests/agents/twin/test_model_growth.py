@@ -85,6 +85,18 @@ def test_diagnose_names_the_coupling_and_says_where_the_residual_rings():
     assert "frequency" in step["text"] and "rad/s" in step["text"]
 
 
+@pytest.mark.slow
+def test_one_record_grows_no_order_but_two_do():
+    """One experiment holds nothing out, and its training error favours the more flexible structure: the
+    order candidates are ranked but none is the best; a second experiment cross-validates the pole pair (the
+    one effect offered, an offset, cannot show in records that start with their excitation)."""
+    one = diagnose(GreyData.from_records(_coupled_records(n=1)), candidates=["offset"])
+    assert one.best is None and one.validation.startswith("training error")
+    assert one.candidates[0]["kind"] == "order" and one.candidates[0]["rmse"] < 0.5 * one.current.rmse
+    two = diagnose(GreyData.from_records(_coupled_records(n=2)), candidates=["offset"])
+    assert two.best == "pole_pair"
+
+
 def test_order_candidates_stop_at_six_poles():
     from agents.twin.candidates import MAX_POLES, OrderCandidate, candidate_plan
     from agents.twin.fits import fit_model
