@@ -9,8 +9,8 @@ held-out errors into the ranking
 (``delta_bic`` against the current model) and picks the best candidate with the rules of
 :func:`rank`: beyond the BIC margin, a held-out gain, a gain the measurement resolves and an
 effect that itself matters; an effect that explains a large share of the residual power
-is not beaten by one that explains little, nor a physical effect by a grown model order,
-unless the held-out error says so clearly.
+is not beaten by one that explains little, unless the held-out error says so clearly; and
+a grown model order comes after the effects of the catalogue.
 """
 
 from __future__ import annotations
@@ -191,8 +191,8 @@ def effect_size(data: GreyData, fit: GreyFit) -> float:
     return size if np.isfinite(size) else 0.0
 
 
-#: A candidate that explains a much larger share of the residual power, or a physical effect against a grown
-#: order (see :func:`rank`), is put first unless the other's held-out RMSE is lower by at least this fraction.
+#: A candidate that explains a much larger share of the residual power (see :func:`rank`) is put first
+#: unless the other's held-out RMSE is lower by at least this fraction.
 CLEAR_HELDOUT_GAIN = 0.05
 #: Shares of the residual power (training) that count as "much larger": at least this many percentage
 #: points more, and at least :data:`SHARE_RATIO` times the other's.
@@ -241,11 +241,12 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
     experiments say), and its ``effect_rms`` is at least a fifth of the RMS it explains. The
     good candidates are ordered by ``delta_bic``; then a candidate whose fit explains a much larger
     share of the residual power (:data:`SHARE_POINTS`, :data:`SHARE_RATIO`)
-    moves ahead of one that explains little, and a catalogue effect ahead of a grown order of
-    the linear part, unless the other's held-out RMSE is lower by :data:`CLEAR_HELDOUT_GAIN`:
-    the held-out error of a few experiments is itself uncertain, a small effect that wins by a
-    hair is not the physics that the residual shows, and an extra pole pair that mimics an
-    effect names no physics. With one experiment nothing is held out, and no order candidate is
+    moves ahead of one that explains little, unless the latter's held-out RMSE is lower by
+    :data:`CLEAR_HELDOUT_GAIN`: the held-out error of a few experiments is itself uncertain,
+    and a small effect that wins by a hair is not the physics that the residual shows. A
+    grown order of the linear part comes after every good effect (:func:`_physics_first`): it
+    is the fallback for what the catalogue does not explain, and the ladder grows it once no
+    effect helps. With one experiment nothing is held out, and no order candidate is
     good: the training error of one record always favours the more flexible structure (on
     LinearMotor-v0 with Coulomb friction a pole pair 8 % ahead of saturation on guided BO's first
     record, whose twin then explained its next records and was never diagnosed again).
@@ -296,7 +297,7 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
             and c["train_rmse"] < current.rmse
             and c["effect_rms"] >= 0.2 * np.sqrt(max(current.rmse**2 - c["train_rmse"] ** 2, 0.0))
             and (data.n_records >= 2 or c["kind"] != "order")]  # no structure grown on one record's training error
-    good = _by_share(good)
+    good = _physics_first(_by_share(good))
     cands = good + [c for c in cands if c not in good]
     best = good[0]["effect"] if good else None
     pairs = []
@@ -321,34 +322,34 @@ def _share(current: GreyFit, fit: GreyFit) -> float:
 
 
 def _by_share(good: list[dict]) -> list[dict]:
-    """``good`` (ordered by ``delta_bic``) with each candidate moved ahead of those it should precede.
+    """``good`` (ordered by ``delta_bic``) with each candidate moved ahead of those it clearly out-explains.
 
-    ``b`` goes before ``a`` (:func:`_goes_before`) when it explains a much larger share of the residual
-    power, or when it is a catalogue effect and ``a`` a growth of the linear part's order; either only
-    while ``a``'s held-out RMSE is not lower than ``b``'s by :data:`CLEAR_HELDOUT_GAIN`. An insertion
-    that keeps ``delta_bic`` order otherwise.
+    ``b`` goes before ``a`` when ``b`` explains at least :data:`SHARE_POINTS` percentage points and
+    :data:`SHARE_RATIO` times more of the residual power, unless ``a``'s held-out RMSE is lower than
+    ``b``'s by :data:`CLEAR_HELDOUT_GAIN`. An insertion that keeps ``delta_bic`` order otherwise.
     """
     out: list[dict] = []
     for b in good:
         pos = len(out)
-        while pos > 0 and _goes_before(b, out[pos - 1]):
-            pos -= 1
+        while pos > 0:
+            a = out[pos - 1]
+            explains_more = b["share"] >= a["share"] + SHARE_POINTS and b["share"] >= SHARE_RATIO * a["share"]
+            clearly_better = a["rmse"] < (1.0 - CLEAR_HELDOUT_GAIN) * b["rmse"]
+            if explains_more and not clearly_better:
+                pos -= 1
+            else:
+                break
         out.insert(pos, b)
     return out
 
 
-def _goes_before(b: dict, a: dict) -> bool:
-    """Whether candidate ``b`` is ranked ahead of ``a``, which is ahead of it by ``delta_bic``.
+def _physics_first(good: list[dict]) -> list[dict]:
+    """The good catalogue effects first, then the good grown orders, each in the order of ``good``.
 
-    Two reasons, each unless ``a``'s held-out RMSE is lower than ``b``'s by :data:`CLEAR_HELDOUT_GAIN`:
-    ``b`` explains at least :data:`SHARE_POINTS` percentage points and :data:`SHARE_RATIO` times more of
-    the residual power; or ``b`` is a physical effect and ``a`` a grown order (a pole pair mimics a
-    friction's lag or a limit's slowing, and a twin's rung spent on it is not spent on the physics:
-    on LinearMotor-v0 with Coulomb friction, a pole pair 3.6 % ahead on two records took the first rung,
-    saturation the second, and the friction found no place in guided BO's two-effect twin).
+    A grown order of the linear part is the fallback for what no effect of the catalogue explains: an extra
+    pole pair mimics a friction's lag or a limit's slowing and names no physics, and a rung of the ladder
+    spent on it can block the effects. On LinearMotor-v0 with Coulomb friction (guided BO's first 4
+    records), a pole pair 8 % ahead held out took the first rung; saturation, then backlash followed, to a
+    held-out RMSE of 1.6e-5 m, where saturation then Coulomb friction reach 2.9e-6 m.
     """
-    if a["rmse"] < (1.0 - CLEAR_HELDOUT_GAIN) * b["rmse"]:
-        return False
-    explains_more = b["share"] >= a["share"] + SHARE_POINTS and b["share"] >= SHARE_RATIO * a["share"]
-    physics_first = b.get("kind") == "effect" and a.get("kind") == "order"
-    return explains_more or physics_first
+    return [c for c in good if c["kind"] != "order"] + [c for c in good if c["kind"] == "order"]

@@ -228,20 +228,19 @@ def test_an_effect_that_explains_a_few_percent_does_not_beat_one_that_explains_m
     assert [c["effect"] for c in _by_share([delay, close])] == ["time_delay", "offset"]
 
 
-def test_a_physical_effect_goes_before_a_grown_order_unless_the_order_is_clearly_better():
-    from agents.twin.ranking import _by_share
+def test_the_catalogue_effects_go_before_a_grown_order():
+    from agents.twin.ranking import _physics_first
 
     def kind(candidate, what):
         return {**candidate, "kind": what}
 
-    # guided BO's twin on LinearMotor-v0 with Coulomb friction, two records: the pole pair first by BIC, 3.6 % ahead
-    pole_pair = kind(_candidate("pole_pair", 89.7, 2.140e-5, -1147.5), "order")
-    saturation = kind(_candidate("saturation", 92.0, 2.219e-5, -1110.0), "effect")
-    assert [c["effect"] for c in _by_share([pole_pair, saturation])] == ["saturation", "pole_pair"]
-    clearly = kind(_candidate("pole_pair", 89.7, 2.0e-5, -1147.5), "order")  # 10 % lower held out: the order stays
-    assert [c["effect"] for c in _by_share([clearly, saturation])] == ["pole_pair", "saturation"]
-    zero = kind(_candidate("zero", 50.0, 2.0e-5, -1000.0), "order")  # orders among themselves keep the BIC order
-    assert [c["effect"] for c in _by_share([pole_pair, zero])] == ["pole_pair", "zero"]
+    # guided BO's twin on LinearMotor-v0 with Coulomb friction, four records: the pole pair first by BIC, 8 % ahead
+    pole_pair = kind(_candidate("pole_pair", 88.7, 2.08e-5, -2422.1), "order")
+    saturation = kind(_candidate("saturation", 85.4, 2.26e-5, -2236.1), "effect")
+    zero = kind(_candidate("zero", 14.9, 5.30e-5, -180.6), "order")
+    coulomb = kind(_candidate("coulomb_friction", 23.1, 5.00e-5, -318.9), "effect")
+    ranked = _physics_first([pole_pair, saturation, zero, coulomb])
+    assert [c["effect"] for c in ranked] == ["saturation", "coulomb_friction", "pole_pair", "zero"]
 
 
 @pytest.mark.parametrize("dt", [1e-4, 5e-2])
