@@ -24,18 +24,12 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from evaluation.curves import CURVES_FILE, experiments_to_target, load_curves, read_curves
+from evaluation.leaderboard import mean_interval
 from evaluation.study import load_study
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def _interval(x: np.ndarray) -> tuple[float, float]:
-    """Mean and the half width of its 95 % Student-t interval."""
-    half = stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size) if x.size > 1 else np.nan
-    return float(x.mean()), float(half)
 
 
 def _cpu(runs) -> str:
@@ -71,9 +65,10 @@ def main() -> None:
                   for runs in (old, new)]
         cells = []
         for x in counts:
-            mean, half = _interval(x)
-            cells.append(f"{mean:.1f} [{mean - half:.1f}, {mean + half:.1f}] ({int((x > budget).sum())})")
-        diff, half = _interval(counts[1] - counts[0])
+            mean, low, high = mean_interval(x)
+            cells.append(f"{mean:.1f} [{low:.1f}, {high:.1f}] ({int((x > budget).sum())})")
+        diff, _, high = mean_interval(counts[1] - counts[0])
+        half = high - diff
         same = sum(np.allclose(new.loc[s, "curve"], old.loc[s, "curve"], rtol=1e-9, atol=0.0) for s in seeds)
         print(f"| {plant} | {target} | {len(seeds)} | {cells[0]} | {cells[1]} | {diff:+.2f} +- {half:.2f} | {same} | "
               f"{_cpu(old.loc[seeds])}, {_cpu(new.loc[seeds])} |")
