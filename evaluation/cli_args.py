@@ -31,6 +31,7 @@ __all__ = [
     "error_message",
     "import_modules",
     "int_at_least",
+    "job_count",
     "json_object",
     "positive_int",
 ]
@@ -75,6 +76,18 @@ def _int_at_least(text: str, low: int) -> int:
         raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {text!r}") from None
     if value < low:
         raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {value}")
+    return value
+
+
+def job_count(text: str) -> int:
+    """A count of worker processes (``--jobs``): a positive integer, or a negative one counted back from
+    the cores (``-1``: all of them), as joblib's ``n_jobs``."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a nonzero integer (-1: all cores), got {text!r}") from None
+    if value == 0:
+        raise argparse.ArgumentTypeError("must be a nonzero integer (-1: all cores, 1: no worker processes), got 0")
     return value
 
 

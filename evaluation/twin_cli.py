@@ -25,7 +25,7 @@ import json
 import warnings
 from pathlib import Path
 
-from evaluation.cli_args import int_at_least, positive_int
+from evaluation.cli_args import int_at_least, job_count, positive_int
 
 __all__ = ["add_parser"]
 
@@ -62,6 +62,11 @@ def add_parser(subparsers) -> None:
         p.add_argument("--quiet", action="store_true",
                        help="no progress bar (without it, a bar on stderr when stderr is a terminal)")
 
+    def jobs(p) -> None:
+        p.add_argument("--jobs", type=job_count, default=-1,
+                       help="worker processes for the fits (default -1: one per core; 1: none; the result is the "
+                            "same)")
+
     p = sub.add_parser("compare", help="fit %% and RMSE per experiment, overlay plots",
                        description="Fit the model to the data and print fit %% and RMSE per experiment; the "
                                    "overlay plot goes to out/twin/<data name>/compare.png unless --out says where.",
@@ -91,6 +96,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--folds", type=int_at_least(2), default=None,
                    help="folds of the cross-validation over experiments, 2 to the number of experiments "
                         "(default: 4, or one per experiment when there are fewer)")
+    jobs(p)
     p.set_defaults(handler=_diagnose)
     p = sub.add_parser("report", help="self-contained HTML report with the error ladder",
                        description="Build the error ladder (add the best effect, diagnose again, until nothing "
@@ -100,6 +106,7 @@ def add_parser(subparsers) -> None:
     common(p)
     p.add_argument("--out", required=True, help="output folder (index.html)")
     p.add_argument("--max-steps", type=positive_int, default=3, help="effects added at most (default 3)")
+    jobs(p)
     p.set_defaults(handler=_report)
 
 
@@ -297,7 +304,8 @@ def _diagnose(args) -> int:
     from agents.twin.workbench import diagnose
 
     data, spec, effects = _load(args)
-    result = diagnose(data, effects=effects, spec=spec, n_folds=args.folds, progress=_progress(args))
+    result = diagnose(data, effects=effects, spec=spec, n_folds=args.folds, progress=_progress(args),
+                      n_jobs=args.jobs)
     units = _units(args)
     step = result.step(result.best, units) if result.best is not None else None
     following = advice(result, result.current.spec.effect_names, args.data, units=units)
@@ -337,7 +345,7 @@ def _report(args) -> int:
 
     data, spec, effects = _load(args)
     rungs, diagnoses = error_ladder(data, effects=effects, spec=spec, max_steps=args.max_steps,
-                                    progress=_progress(args), units=_units(args))
+                                    progress=_progress(args), units=_units(args), n_jobs=args.jobs)
     fits = [diagnoses[0].current] + ([diagnoses[-1].current] if len(diagnoses) > 1 else [])
     analyses = [residuals(data, f) for f in fits]
     path = write_report(args.out, data, rungs, diagnoses, analyses, source=str(args.data), y_unit=_y_unit(args),

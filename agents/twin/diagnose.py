@@ -27,6 +27,7 @@ from agents.twin.ladder_text import rung_text
 from agents.twin.model import GreyFit, ModelSpec
 from agents.twin.noise_floor import NoiseFloor, noise_floor_estimate
 from agents.twin.ranking import Ranking, rank, validated_folds
+from agents.twin.workers import check_n_jobs, worker_processes
 
 __all__ = ["Diagnosis", "as_step", "diagnose"]
 
@@ -134,7 +135,7 @@ class Diagnosis:
 def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
              current: GreyFit | None = None, n_folds: int | None = None, bic_margin: float = 10.0,
              min_gain: float = 0.02, max_iter: int = 20, *, noise_gain: float = 0.05, skip_unexcited: bool = True,
-             screen_iter: int = 8, orders: bool = True, progress: bool | None = False,
+             screen_iter: int = 8, orders: bool = True, progress: bool | None = False, n_jobs: int | None = None,
              _nested: bool = False) -> Diagnosis:
     """Try every catalogued effect as an addition to the model and rank them on held-out experiments.
 
@@ -188,6 +189,11 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     progress : bool or None, default False
         A progress bar on stderr over the steps (each candidate's starts, the fits, the
         cross-validation); ``None``: only when stderr is a terminal.
+    n_jobs : int or None, default None
+        Worker processes for the fits that do not depend on one another (the candidates' starts, their
+        fits, the cross-validation's refits; :mod:`agents.twin.workers`): ``-1`` all cores; ``None`` the
+        active ``joblib.parallel_config`` (one process unless set), as in scikit-learn. The result does
+        not depend on it.
 
     Returns
     -------
@@ -210,29 +216,31 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     show them. Record the effect in at least two experiments.
     """
     n_folds = validated_folds(n_folds, data.n_records)
+    check_n_jobs(n_jobs)
     if not np.isfinite(noise_gain) or noise_gain < 0.0:
         raise ValueError(f"noise_gain: must be a finite number >= 0, got {noise_gain}")
     if int(screen_iter) < 1:
         raise ValueError(f"screen_iter: must be an integer >= 1, got {screen_iter}")
-    # records -> linear fit (and the effects the model already has)
-    if current is None:
-        current = GreyBoxTwin(effects=() if effects is None else effects, **_orders(spec), max_iter=max_iter
-                              ).fit(data).greybox_
-    # -> candidates
-    plan = candidate_plan(data, current, candidates, skip_unexcited, orders)
-    bar = progress_bar(len(plan.candidates) + 2, f"diagnose {current.spec.label}", progress, unit="step",
-                       leave=not _nested)
-    try:
-        # -> fits
-        noise = noise_floor_estimate(data)
-        fitted = fit_candidates(data, current, plan, max_iter, screen_iter, progress=bar, noise=noise.rmse)
-        bar.update(1)
-        # -> ranking
-        ranking = rank(data, fitted.current, fitted.fits, plan, noise, n_folds, bic_margin, min_gain, noise_gain,
-                       progress=bar)
-        bar.update(1)
-    finally:
-        bar.close()
+    with worker_processes(n_jobs):
+        # records -> linear fit (and the effects the model already has)
+        if current is None:
+            current = GreyBoxTwin(effects=() if effects is None else effects, **_orders(spec), max_iter=max_iter
+                                  ).fit(data).greybox_
+        # -> candidates
+        plan = candidate_plan(data, current, candidates, skip_unexcited, orders)
+        bar = progress_bar(len(plan.candidates) + 2, f"diagnose {current.spec.label}", progress, unit="step",
+                           leave=not _nested)
+        try:
+            # -> fits
+            noise = noise_floor_estimate(data)
+            fitted = fit_candidates(data, current, plan, max_iter, screen_iter, progress=bar, noise=noise.rmse)
+            bar.update(1)
+            # -> ranking
+            ranking = rank(data, fitted.current, fitted.fits, plan, noise, n_folds, bic_margin, min_gain,
+                           noise_gain, progress=bar)
+            bar.update(1)
+        finally:
+            bar.close()
     # -> report
     return Diagnosis(fitted.current, fitted.fits, ranking, noise, compare(data, fitted.current).fit_percent_all,
                      plan.unobservable, data)

@@ -8,9 +8,7 @@ simulations share vectorised passes.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -24,12 +22,9 @@ from agents.twin.linear_fit import linear_fit
 from agents.twin.model import GreyFit, ModelSpec, effect_items, effect_offset, fitted_parameters
 from agents.twin.noise_floor import quantization_step
 from agents.twin.simulation import simulate_sets
+from agents.twin.workers import map_independent
 
-__all__ = ["START_THREADS", "CandidateFits", "fit_candidates", "fit_model", "refine_grid_parameters"]
-
-#: Candidates whose starting problems are made at the same time (threads; see :func:`_starting_problems`).
-START_THREADS = min(2, os.cpu_count() or 1)
-
+__all__ = ["CandidateFits", "fit_candidates", "fit_model", "refine_grid_parameters"]
 
 @single_thread()
 def fit_model(data: GreyData, effects: Sequence | Mapping | None = None, spec: ModelSpec | None = None,
@@ -158,22 +153,19 @@ def fit_candidates(data: GreyData, current: GreyFit, plan: CandidatePlan, max_it
 
 
 def _starting_problems(data: GreyData, current: GreyFit, candidates: list, progress=None) -> dict[str, list]:
-    """``{name: problems}``: each candidate's starting problems, made :data:`START_THREADS` candidates at a time.
-
-    The starts (SRIVC profiles, screening simulations) of one candidate do not depend on another's, and
-    most of their time is spent in ``lfilter``, BLAS and the compiled stepping, which release the GIL.
-    """
-    def make(candidate) -> list:
-        return candidate.problems(data, current)
-
+    """``{name: problems}``: each candidate's starting problems (SRIVC profiles, screening simulations), which
+    do not depend on one another's (in the worker processes of :func:`agents.twin.workers.worker_processes`)."""
     made = {}
-    with ThreadPoolExecutor(max_workers=START_THREADS) as pool:
-        for candidate, problems in zip(candidates, pool.map(make, candidates)):
-            made[candidate.name] = problems
-            if progress is not None:
-                progress.set_postfix_str(f"starts of {candidate.name}")
-                progress.update(1)
+    for candidate, problems in zip(candidates, map_independent(_problems_of, [(c, data, current) for c in candidates])):
+        made[candidate.name] = problems
+        if progress is not None:
+            progress.set_postfix_str(f"starts of {candidate.name}")
+            progress.update(1)
     return made
+
+
+def _problems_of(candidate, data: GreyData, current: GreyFit) -> list[Problem]:
+    return candidate.problems(data, current)
 
 
 def _best_variant(data: GreyData, problems: list[Problem], floor: float | None = None, margin: float = 10.0,
@@ -203,9 +195,10 @@ def _best_variant(data: GreyData, problems: list[Problem], floor: float | None =
 def _screened_fit(data: GreyData, problems: list[Problem], max_iter: int, screen_iter: int) -> None:
     """Fit the current model (``problems[0]``, ``max_iter`` trial points) and the candidates (``screen_iter``).
 
-    The candidates whose cost is then below the current model's are fitted again
-    from their starts with all ``max_iter`` trial points (the same fit as without
-    the screen), in place in ``problems``.
+    The candidates whose cost is then below the current model's go on to all ``max_iter``
+    trial points (the same fit as without the screen: the iteration resumes where the screen
+    stopped, :func:`agents.twin.trust_region.trf`; one that cannot resume is fitted again from
+    its start), in place in ``problems``.
     """
     if max_iter <= screen_iter:
         fit_problems(data, problems, max_iter=max_iter)
@@ -214,9 +207,10 @@ def _screened_fit(data: GreyData, problems: list[Problem], max_iter: int, screen
     fit_problems(data, problems, budgets=[max_iter] + [screen_iter] * (len(problems) - 1))
     ahead = [i for i in range(1, len(problems)) if problems[i].cost < problems[0].cost]
     for i in ahead:
-        problems[i] = starts[i]
+        if problems[i].solver_state is None:
+            problems[i] = starts[i]
     if ahead:
-        fit_problems(data, [problems[i] for i in ahead], max_iter=max_iter)
+        fit_problems(data, [problems[i] for i in ahead], max_iter=max_iter, resume=True)
 
 
 def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit | None:

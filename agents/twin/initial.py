@@ -21,7 +21,7 @@ A record's model needs its initial state. Real data start in three ways:
 * ``"moving"``: the output is not flat before the excitation, or, with the excitation on
   from the first sample, it changes already in that sample, before an input at sample 0
   can move a plant at rest (a record cut from a long log). The rest level, the bias and
-  the free response's slopes are estimated (:func:`agents.twin.open_loop.simulate_rows`'
+  the free response's slopes are estimated (:func:`agents.twin.open_loop.simulate_open_loop`'
   ``initial``).
 
 :func:`initial_conditions` classifies the records from the data; ``initial=`` of

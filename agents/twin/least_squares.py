@@ -26,7 +26,6 @@ step) are not moved by the iteration; they are chosen from a grid
 from __future__ import annotations
 
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -35,21 +34,19 @@ from scipy.optimize._lsq.common import make_strictly_feasible  # least_squares' 
 from agents.twin.data import GreyData
 from agents.twin.jacobian import RecordQR, dense_jacobian
 from agents.twin.model import ModelSpec, fitted_parameters, residual_in_increments, to_increments
-from agents.twin.simulation import SIMULATION_BATCH_SAMPLES, Lockstep, simulate_sets
+from agents.twin.simulation import simulate_sets
 from agents.twin.trust_region import trf
+from agents.twin.workers import map_independent
 
-__all__ = ["DENSE_JACOBIANS_TOTAL_BYTES", "DENSE_JACOBIAN_MAX_BYTES", "JACOBIAN_PASS_SAMPLES", "Problem",
+__all__ = ["DENSE_JACOBIAN_MAX_BYTES", "JACOBIAN_PASS_SAMPLES", "Problem",
            "fit_problems", "jacobian", "make_problem", "residual"]
 
 #: Largest Jacobian (bytes as a dense float64 matrix) whose fit takes ``least_squares``' exact trust-region
 #: steps (the SVD of its compression record by record, :class:`agents.twin.jacobian.RecordQR`); a larger one
 #: takes the LSMR steps, and keeps fewer signals in memory.
 DENSE_JACOBIAN_MAX_BYTES = 32 * 2**20
-#: Largest sum of the dense Jacobians of the problems solved together in lock-step (bytes); above it
-#: each takes the LSMR steps, however small.
-DENSE_JACOBIANS_TOTAL_BYTES = 256 * 2**20
 #: Most samples (records times steps, all trial points together) simulated in one pass of a compressed
-#: Jacobian (about 8 MB per signal); problems in lock-step share :data:`SIMULATION_BATCH_SAMPLES` per pass.
+#: Jacobian (about 8 MB per signal).
 JACOBIAN_PASS_SAMPLES = 2**20
 
 
@@ -59,7 +56,9 @@ class Problem:
 
     ``theta`` holds the global parameters followed by ``y0`` and ``bias`` of
     each record of ``rows``, then, where a record starts moving, ``n_start`` initial-state
-    parameters per record (record by record). ``free`` marks what the iteration may move.
+    parameters per record (record by record). ``free`` marks what the iteration may move;
+    ``solver_state`` is the trust-region iteration's state after the last fit
+    (:func:`agents.twin.trust_region.trf`), from which a fit with ``resume=True`` goes on.
     """
 
     spec: ModelSpec
@@ -72,6 +71,7 @@ class Problem:
     tag: object = None
     cost: float = np.inf
     n_iter: int = 0
+    solver_state: dict | None = field(default=None, repr=False)
     residual: np.ndarray | None = field(default=None, repr=False)
     y_sim: np.ndarray | None = field(default=None, repr=False)
 
@@ -148,11 +148,12 @@ def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarra
 
 
 def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7, *,
-                 budgets: Sequence[int] | None = None) -> list[Problem]:
+                 budgets: Sequence[int] | None = None, resume: bool = False) -> list[Problem]:
     """Solve bounded least-squares problems of the simulation error with ``scipy.optimize.least_squares``.
 
     All problems are first simulated at their starts in one vectorised pass; each
-    problem with free parameters is then solved by the trust-region reflective
+    problem with free parameters is then solved alone, one after another (or in the worker
+    processes of :func:`agents.twin.workers.worker_processes`: the same values), by the trust-region reflective
     method (``method="trf"``) within its bounds, with the variables scaled by
     ``scale``, stopping when an accepted step lowers the cost by less than the
     fraction ``tol`` (``ftol``) or after ``max_iter`` trial points (``max_nfev =
@@ -177,6 +178,10 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
         Relative cost decrease that ends the iteration.
     budgets : sequence of int, optional
         Trial points of each problem, instead of ``max_iter`` for all.
+    resume : bool, default False
+        Go on from where the last fit of each problem stopped (its :attr:`Problem.solver_state`), with
+        ``max_iter`` counted from that fit's start: the steps one fit with the larger budget takes. A
+        problem without a state starts from its parameters.
 
     Returns
     -------
@@ -184,43 +189,39 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
         The same objects, with ``theta``, ``cost`` (sum of squared residuals, units of ``y`` squared),
         ``residual``, ``y_sim`` and ``n_iter`` (simulations of trial points) set.
     """
-    sims = simulate_sets(data, [(p.spec, p.theta, p.rows) for p in problems])
-    for p, y in zip(problems, sims):
+    fresh = [p for p in problems if not (resume and p.solver_state is not None)]  # a resumed one has its output
+    sims = simulate_sets(data, [(p.spec, p.theta, p.rows) for p in fresh])
+    for p, y in zip(fresh, sims):
         p.y_sim, p.residual = y, residual(data, p.rows, y, increments=residual_in_increments(p.spec))
         p.cost = float(np.sum(p.residual**2))
     budgets = [int(max_iter)] * len(problems) if budgets is None else [int(b) for b in budgets]
     if len(budgets) != len(problems):
         raise ValueError(f"budgets: need one per problem ({len(problems)}), got {len(budgets)}")
     todo = [(p, b) for p, b in zip(problems, budgets) if b > 0 and np.any(p.free & (p.lower < p.upper))]
-    if len(todo) == 1:
-        _solve(data, todo[0][0], todo[0][1], float(tol))
-    elif todo:
-        lockstep = Lockstep(data, len(todo))
-
-        def solve(p: Problem, budget: int) -> None:
-            try:
-                _solve(data, p, budget, float(tol), lockstep.simulate, n_parallel=len(todo))
-            finally:
-                lockstep.leave()
-
-        with ThreadPoolExecutor(max_workers=len(todo)) as pool:
-            for future in [pool.submit(solve, p, b) for p, b in todo]:
-                future.result()
+    # one problem at a time, each alone (in worker processes where the caller opened them,
+    # agents.twin.workers): its own exact steps, and one problem's signals in memory per process
+    pieces = [(data, p, b, float(tol), resume) for p, b in todo]
+    for p, solved in zip([p for p, _ in todo], map_independent(_solved, pieces)):
+        if solved is not p:  # solved in a worker process: its copy
+            p.theta, p.cost, p.n_iter, p.residual, p.y_sim, p.solver_state = (
+                solved.theta, solved.cost, solved.n_iter, solved.residual, solved.y_sim, solved.solver_state)
     return problems
 
 
-def _difference_layout(data: GreyData, p: Problem, simulate=None):
-    """``(simulate, free, rough, columns)`` of a forward-difference Jacobian of ``p``.
+def _solved(data: GreyData, p: Problem, max_iter: int, tol: float, resume: bool) -> Problem:
+    """``p`` solved in place (:func:`_solve`), returned (from a worker process: a copy)."""
+    _solve(data, p, max_iter, tol, resume)
+    return p
 
-    ``simulate`` defaults to :func:`simulate_sets` on ``data``; ``free`` are the moving
-    parameters; ``rough`` says a grid parameter (a quantized output) makes the
+
+def _difference_layout(p: Problem):
+    """``(free, rough, columns)`` of a forward-difference Jacobian of ``p``.
+
+    ``free`` are the moving parameters; ``rough`` says a grid parameter (a quantized output) makes the
     Jacobian be taken on the plant output before the sensor; ``columns`` groups the
     free parameters one per simulation: each global parameter alone, then all rest
     levels together and all biases together (each moves only its own record).
     """
-    if simulate is None:
-        def simulate(sets, true_output=False):
-            return simulate_sets(data, sets, true_output=true_output)
     free = np.flatnonzero(p.free & (p.lower < p.upper))
     g, k, m = p.n_global, p.rows.size, p.n_start
     rough = any(not smooth for name, options in p.spec.effects for _, smooth in fitted_parameters(name, options))
@@ -228,7 +229,7 @@ def _difference_layout(data: GreyData, p: Problem, simulate=None):
     columns += [group for first in (g, g + k) if (group := [j for j in free if first <= j < first + k])]
     # the initial-state parameters, one group per slot: slot s of every moving record at once
     columns += [group for s in range(m) if (group := [j for j in free if j >= g + 2 * k and (j - g - 2 * k) % m == s])]
-    return simulate, free, rough, columns
+    return free, rough, columns
 
 
 def _difference_sets(p: Problem, theta: np.ndarray, columns: list[list[int]]) -> tuple[list, list[float]]:
@@ -249,7 +250,7 @@ def _difference_sets(p: Problem, theta: np.ndarray, columns: list[list[int]]) ->
     return sets, steps
 
 
-def jacobian(data: GreyData, p: Problem, theta: np.ndarray, simulate=None) -> np.ndarray:
+def jacobian(data: GreyData, p: Problem, theta: np.ndarray) -> np.ndarray:
     """Forward-difference Jacobian of the residual of ``p`` with respect to its free parameters, at ``theta``.
 
     One simulation per free global parameter and one for each group of per-record
@@ -264,17 +265,15 @@ def jacobian(data: GreyData, p: Problem, theta: np.ndarray, simulate=None) -> np
         Its ``free`` mask, ``scale``, ``upper`` and ``rows`` are used.
     theta : ndarray
         All parameters of ``p`` (globals, rest levels, biases).
-    simulate : callable, optional
-        ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``).
 
     Returns
     -------
     ndarray of shape (len(p.rows) * n_steps, n_free)
         Units of ``y`` per unit of each free parameter.
     """
-    simulate, free, rough, columns = _difference_layout(data, p, simulate)
+    free, rough, columns = _difference_layout(p)
     sets, steps = _difference_sets(p, theta, columns)
-    ys = simulate([*sets, (p.spec, theta, p.rows)], true_output=rough)  # last the output at theta itself
+    ys = simulate_sets(data, [*sets, (p.spec, theta, p.rows)], true_output=rough)  # last the output at theta itself
     inc = residual_in_increments(p.spec)
     base = residual(data, p.rows, ys[-1], increments=inc)
     diffs = [(residual(data, p.rows, y, increments=inc) - base) / h for y, h in zip(ys, steps)]
@@ -294,35 +293,32 @@ def _dense_jacobian(p: Problem, free: np.ndarray, columns: list[list[int]], shar
     return dense_jacobian(shared, per_record, positions)
 
 
-def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None, n_parallel: int = 1) -> None:
+def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, resume: bool = False) -> None:
     """One :class:`Problem` by the trust-region reflective method from its start; see :func:`fit_problems`.
 
-    ``simulate(sets, true_output)`` runs the simulations (default :func:`simulate_sets` on ``data``);
-    ``n_parallel`` problems make their requests together (:class:`Lockstep`), so each asks for
-    its share of the samples of a pass at a time. The iteration is ``least_squares``' (trf;
-    :func:`agents.twin.trust_region.trf`) with a forward-difference Jacobian (:func:`jacobian`),
-    simulated and factorised a few records at a time (:data:`JACOBIAN_PASS_SAMPLES` samples per
-    pass) into :class:`~agents.twin.jacobian.RecordQR`. A Jacobian of at most
-    :data:`DENSE_JACOBIAN_MAX_BYTES` as a dense matrix (and :data:`DENSE_JACOBIANS_TOTAL_BYTES` for
-    all parallel problems) gets the exact trust-region steps of ``tr_solver="exact"`` (the same
-    steps as ``least_squares`` on the dense Jacobian, whose SVD took most of the time of a small
-    fit), and the simulated outputs of the current and the trial point are kept; a larger one gets
-    the 2-D subspace steps of ``tr_solver="lsmr"``, and memory linear in the records: beyond the
-    simulated output and residual at the current and the trial point, bounded (the final output is
+    With ``resume`` and a :attr:`Problem.solver_state`, the iteration goes on from where the last
+    fit of ``p`` stopped, up to ``max_iter`` trial points counted from that fit's start.
+
+    The iteration is ``least_squares``' (trf; :func:`agents.twin.trust_region.trf`) with a
+    forward-difference Jacobian (:func:`jacobian`), simulated and factorised a few records at a time
+    (:data:`JACOBIAN_PASS_SAMPLES` samples per pass) into :class:`~agents.twin.jacobian.RecordQR`. A
+    Jacobian of at most :data:`DENSE_JACOBIAN_MAX_BYTES` as a dense matrix gets the exact trust-region
+    steps of ``tr_solver="exact"`` (the same steps as ``least_squares`` on the dense Jacobian, whose SVD
+    took most of the time of a small fit), and the simulated outputs of the current and the trial point
+    are kept; a larger one gets the 2-D subspace steps of ``tr_solver="lsmr"``, and memory linear in the
+    records: beyond the simulated output and residual at the current and the trial point, bounded (the
+    final output is
     simulated again, once).
     """
-    simulate, free, rough, columns = _difference_layout(data, p, simulate)
+    free, rough, columns = _difference_layout(p)
     g, k, n = p.n_global, p.rows.size, data.u.shape[1]
     inc = residual_in_increments(p.spec)
-    size = 8 * k * n * free.size  # bytes of the Jacobian as a dense matrix
-    exact = size <= DENSE_JACOBIAN_MAX_BYTES and size * n_parallel <= DENSE_JACOBIANS_TOTAL_BYTES
+    exact = 8 * k * n * free.size <= DENSE_JACOBIAN_MAX_BYTES  # bytes of the Jacobian as a dense matrix
     start = p.theta.copy()
     n_shared = int(np.sum(free < g))
     positions = _record_positions(p, free, columns, n_shared)
-    # records per pass: at most JACOBIAN_PASS_SAMPLES samples of this problem, and SIMULATION_BATCH_SAMPLES
-    # of all problems in lock-step (as many passes per Jacobian as it takes, each one round of the lock-step)
-    n_sets = len(columns) + 1
-    per_pass = max(1, min(JACOBIAN_PASS_SAMPLES // (n * n_sets), SIMULATION_BATCH_SAMPLES // (n * n_sets * n_parallel)))
+    # records per pass: at most JACOBIAN_PASS_SAMPLES samples (as many passes per Jacobian as it takes)
+    per_pass = max(1, JACOBIAN_PASS_SAMPLES // (n * (len(columns) + 1)))
     # the current point (accepted: the lowest cost so far) and the last trial point, with their residuals
     # (and, with exact steps, their simulated outputs)
     at = {"key": None, "residual": p.residual, "y": p.y_sim}
@@ -338,7 +334,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
 
     def cost(x: np.ndarray) -> float:
         trial.update(key=None, residual=None, y=None)  # a rejected trial point's residual: freed first
-        y = simulate([(p.spec, full(x), p.rows)])[0]
+        y = simulate_sets(data, [(p.spec, full(x), p.rows)])[0]
         res = residual(data, p.rows, y, increments=inc)
         trial.update(key=x.tobytes(), residual=res, y=y if exact else None)
         return 0.5 * float(np.einsum("kt,kt->", res, res))
@@ -356,7 +352,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
             passes = [(p.spec, part(one[1], records), rows) for one in sets]
             if rough:  # the smooth output at x itself, first
                 passes.insert(0, (p.spec, part(theta, records), rows))
-            ys = simulate(passes, true_output=rough)
+            ys = simulate_sets(data, passes, true_output=rough)
             base = residual(data, rows, ys.pop(0), increments=inc) if rough else at["residual"][records]
             blocks = np.empty((len(ys), rows.size, n))
             for block, y, h in zip(blocks, ys, steps):
@@ -368,7 +364,11 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
 
     scale = np.where(p.scale[free] > 0, p.scale[free], 1.0)
     lower, upper = p.lower[free], p.upper[free]
-    x0 = make_strictly_feasible(np.clip(start[free], lower, upper), lower, upper)
+    resume = p.solver_state if resume and exact else None
+    # a resumed iteration goes on from its own point (strictly feasible already: moving it by make_strictly_feasible's
+    # step would change the steps)
+    x0 = start[free].copy() if resume is not None else make_strictly_feasible(np.clip(start[free], lower, upper),
+                                                                              lower, upper)
     y_start = p.y_sim
     if not exact:
         p.y_sim = at["y"] = None  # freed meanwhile: simulated again at the end
@@ -380,9 +380,9 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
         at.update(trial)
     at["key"] = x0.tobytes()
     cost0 = 0.5 * float(np.einsum("kt,kt->", at["residual"], at["residual"]))
-    x, _, nfev = trf(cost, system, x0, cost0, lower, upper, scale, ftol=tol, max_nfev=max_iter + 1,
-                     tr_solver="exact" if exact else "lsmr", n_rows=k * n)
-    p.n_iter += nfev - 1
+    x, _, nfev, state = trf(cost, system, x0, cost0, lower, upper, scale, ftol=tol, max_nfev=max_iter + 1,
+                            tr_solver="exact" if exact else "lsmr", n_rows=k * n, resume=resume)
+    p.n_iter += nfev - (1 if resume is None else resume["nfev"])
     if x.tobytes() != at["key"]:  # the last accepted step ended the iteration before its Jacobian
         at.update(trial)
     new_cost = float(np.einsum("kt,kt->", at["residual"], at["residual"]))
@@ -391,10 +391,12 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, simulate=None,
         p.residual, p.cost, y_start = at["residual"], new_cost, at["y"]
     at.clear()
     trial.clear()
+    # the iteration goes on from here only where p holds its point (and its steps are exact: trf's resume)
+    p.solver_state = state if exact and np.array_equal(p.theta[free], x) else None
     if exact:
         p.y_sim = y_start  # the output whose residual p has
         return
-    p.y_sim = simulate([(p.spec, p.theta, p.rows)])[0]  # the output whose residual p has (deterministic)
+    p.y_sim = simulate_sets(data, [(p.spec, p.theta, p.rows)])[0]  # the output whose residual p has (deterministic)
     if p.residual is None:
         p.residual = residual(data, p.rows, p.y_sim, increments=inc)
 

@@ -9,7 +9,6 @@ Problems solved in parallel threads meet in one pass (:class:`Lockstep`).
 from __future__ import annotations
 
 import os
-import threading
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 
@@ -19,7 +18,7 @@ from agents.twin.data import GreyData
 from agents.twin.model import ModelSpec
 from agents.twin.open_loop import simulate_open_loop
 
-__all__ = ["SIMULATION_BATCH_SAMPLES", "Lockstep", "simulate_both", "simulate_sets"]
+__all__ = ["SIMULATION_BATCH_SAMPLES", "simulate_both", "simulate_sets"]
 
 #: Most samples (records times steps) simulated in one vectorised pass (about 8 MB per signal).
 SIMULATION_BATCH_SAMPLES = 2**20
@@ -139,51 +138,3 @@ def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, 
     return [(np.full((rows.size, data.u.shape[1]), np.nan),) * 2 if pair is None else pair
             for pair, (_, _, rows) in zip(out, sets)]
 
-
-class Lockstep:
-    """Simulation requests of problems solved in parallel threads, run together in one vectorised pass.
-
-    Each thread runs one trust-region fit; its residual and Jacobian evaluations
-    call :meth:`simulate`, which waits until every thread still solving has made
-    its request, then simulates all requests at once (:func:`simulate_both`).
-    The rows of a batch do not interact, so every problem sees the values it
-    would see alone; only the per-call overhead of the time loop is shared.
-    """
-
-    def __init__(self, data: GreyData, n_workers: int) -> None:
-        self.data = data
-        self.active = n_workers
-        self.pending: list[tuple[list, dict]] = []
-        self.cond = threading.Condition()
-
-    def simulate(self, sets: list, true_output: bool = False) -> list[np.ndarray]:
-        slot: dict = {}
-        with self.cond:
-            self.pending.append((sets, slot))
-            if len(self.pending) >= self.active:
-                self._run()
-            while not slot:
-                self.cond.wait()
-        if "error" in slot:
-            raise slot["error"]
-        return [pair[1 if true_output else 0] for pair in slot["out"]]
-
-    def leave(self) -> None:
-        """A thread has finished; run the others' requests if they were waiting for it."""
-        with self.cond:
-            self.active -= 1
-            if self.pending and len(self.pending) >= self.active:
-                self._run()
-
-    def _run(self) -> None:  # called with the lock held
-        pending, self.pending = self.pending, []
-        try:
-            res = simulate_both(self.data, [one for sets, _ in pending for one in sets])
-            start = 0
-            for sets, slot in pending:
-                slot["out"] = res[start : start + len(sets)]
-                start += len(sets)
-        except Exception as exc:  # noqa: BLE001  (handed to every waiting thread)
-            for _, slot in pending:
-                slot["error"] = exc
-        self.cond.notify_all()

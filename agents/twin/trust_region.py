@@ -53,7 +53,7 @@ __all__ = ["trf"]
 def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tuple], x0: np.ndarray, cost0: float,
         lower: np.ndarray, upper: np.ndarray, x_scale: np.ndarray, *, ftol: float, xtol: float = 1e-12,
         gtol: float = 1e-12, max_nfev: int, tr_solver: str = "lsmr",
-        n_rows: int | None = None) -> tuple[np.ndarray, float, int]:
+        n_rows: int | None = None, resume: dict | None = None) -> tuple[np.ndarray, float, int, dict]:
     """Minimise ``cost(x)`` within bounds by trust-region reflective steps on a compressed Jacobian.
 
     Parameters
@@ -80,6 +80,11 @@ def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tupl
     n_rows : int, optional
         Rows of the uncompressed Jacobian ``J`` (default: those of ``J~``); ``"exact"``
         uses it, as ``least_squares`` does, in its rank test ``s_min > eps n_rows s_max``.
+    resume : dict, optional
+        The ``state`` an earlier call returned, ``x0`` and ``cost0`` its ``x`` and ``cost``: the iteration
+        goes on from there up to ``max_nfev`` (counted from its start). With ``"exact"`` steps it takes the
+        steps one call with the larger ``max_nfev`` would have taken: the trust radius and the
+        Levenberg-Marquardt parameter are carried, and the Jacobian at ``x`` is the same.
 
     Returns
     -------
@@ -87,11 +92,16 @@ def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tupl
     cost : float
     nfev : int
         Cost evaluations, the start included.
+    state : dict
+        ``{"delta", "alpha", "nfev", "stopped"}``: the trust radius, the Levenberg-Marquardt parameter,
+        ``nfev``, and whether a tolerance (not ``max_nfev``) ended the iteration.
     """
     if tr_solver not in ("lsmr", "exact"):
         raise ValueError(f"tr_solver: must be 'lsmr' or 'exact', got {tr_solver!r}")
     exact = tr_solver == "exact"
-    x, cost_x, nfev = x0.copy(), float(cost0), 1
+    x, cost_x, nfev = x0.copy(), float(cost0), 1 if resume is None else int(resume["nfev"])
+    if resume is not None and resume["stopped"]:
+        return x, cost_x, nfev, dict(resume)
     jac, f = _system(system, x, exact)
     m, n = jac.shape
     n_rows = m if n_rows is None else int(n_rows)
@@ -101,11 +111,15 @@ def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tupl
     v, dv = CL_scaling_vector(x, g, lower, upper)
     v[dv != 0] *= scale_inv[dv != 0]
     delta = norm(x0 * scale_inv / v**0.5) or 1.0
+    if resume is not None:
+        delta, alpha = float(resume["delta"]), float(resume["alpha"])
     f_augmented = np.zeros(m + n)
+    stopped = False
     while True:
         v, dv = CL_scaling_vector(x, g, lower, upper)
         g_norm = norm(g * v, ord=np.inf)
         if g_norm < gtol or nfev >= max_nfev:
+            stopped = g_norm < gtol
             break
         v[dv != 0] *= scale_inv[dv != 0]
         d = v**0.5 * scale  # Coleman-Li scaling after x_scale
@@ -152,12 +166,14 @@ def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tupl
         if reduction > 0:
             x, cost_x = x_new, cost_new
             if done:
+                stopped = True
                 break
             jac, f = _system(system, x, exact)
             g = jac.T @ f
         elif done:
+            stopped = True
             break
-    return x, cost_x, nfev
+    return x, cost_x, nfev, {"delta": delta, "alpha": alpha, "nfev": nfev, "stopped": stopped}
 
 
 def _system(system: Callable[[np.ndarray], tuple], x: np.ndarray, dense: bool) -> tuple:

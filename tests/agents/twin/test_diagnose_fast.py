@@ -1,4 +1,4 @@
-"""Fast paths of ``diagnose``: batched transfer functions, lockstep fits, skipped candidates, the noise rule.
+"""Fast paths of ``diagnose``: batched transfer functions, fits in worker processes, skipped candidates, the noise rule.
 
 Data as in ``test_workbench``: closed-loop step experiments of DCMotor-v0 (2 s, 1001 samples).
 """
@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from joblib import effective_n_jobs
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.candidates import candidate_problems
@@ -15,6 +16,7 @@ from agents.twin.least_squares import fit_problems
 from agents.twin.linear_fit import linear_fit
 from agents.twin.open_loop import _transfer_functions
 from agents.twin.workbench import diagnose
+from agents.twin.workers import worker_processes
 from gbo_envs.physics import ContinuousPlant
 from tests.support import loop_records
 
@@ -45,16 +47,47 @@ def test_batched_transfer_function_matches_the_state_space_recursion(plant):
     np.testing.assert_allclose(lfilter(num, den, u), y, rtol=0, atol=1e-9 * np.max(np.abs(y)))
 
 
-def test_lockstep_fits_equal_one_at_a_time():
+def test_fits_in_worker_processes_equal_one_at_a_time():
     data = _data({"saturation": {"limit": 150.0}})
     base = linear_fit(data)
     problems = candidate_problems(data, base, "saturation") + candidate_problems(data, base, "viscous_friction")
-    together = fit_problems(data, [_copy(p) for p in problems], max_iter=5)
+    with worker_processes(2):
+        assert effective_n_jobs(None) == 2  # not refused (a nested or threaded caller would get 1)
+        together = fit_problems(data, [_copy(p) for p in problems], max_iter=5)
     alone = [fit_problems(data, [_copy(p)], max_iter=5)[0] for p in problems]
     assert len(together) >= 2
     for a, b in zip(together, alone):
-        np.testing.assert_allclose(a.theta, b.theta, rtol=1e-9, atol=1e-12)
-        assert a.cost == pytest.approx(b.cost, rel=1e-9)
+        np.testing.assert_array_equal(a.theta, b.theta)
+        np.testing.assert_array_equal(a.residual, b.residual)
+        assert a.cost == b.cost and a.n_iter == b.n_iter > 0
+
+
+def test_a_resumed_fit_takes_the_steps_of_one_fit_with_the_whole_budget():
+    data = _data({"coulomb_friction": {"torque": 8.0}})
+    base = linear_fit(data)
+    problems = candidate_problems(data, base, "coulomb_friction") + candidate_problems(data, base, "saturation")
+    whole = fit_problems(data, [_copy(p) for p in problems], max_iter=12)
+    resumed = fit_problems(data, [_copy(p) for p in problems], max_iter=4)
+    assert all(p.solver_state is not None for p in resumed)
+    fit_problems(data, resumed, max_iter=12, resume=True)
+    for a, b in zip(whole, resumed):
+        np.testing.assert_array_equal(a.theta, b.theta)
+        np.testing.assert_array_equal(a.residual, b.residual)
+        assert a.cost == b.cost and a.n_iter == b.n_iter
+    assert any(p.n_iter > 4 for p in whole)  # the budget of the first fit did stop some
+
+
+def test_a_diagnosis_does_not_depend_on_its_worker_processes():
+    data = _data({"coulomb_friction": {"torque": 8.0}}, n=3)
+    one = diagnose(data, orders=False, n_jobs=1)
+    two = diagnose(data, orders=False, n_jobs=2)
+    assert one.to_dict() == two.to_dict()
+
+
+@pytest.mark.parametrize("n_jobs", [0, 1.5, "2", True])
+def test_n_jobs_is_checked(n_jobs):
+    with pytest.raises(ValueError, match="n_jobs"):
+        diagnose(_data(n=2), n_jobs=n_jobs)
 
 
 def test_fit_problems_budgets_are_checked():

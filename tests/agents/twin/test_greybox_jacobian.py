@@ -77,13 +77,17 @@ def test_compressed_jacobian_has_the_normal_equations_of_the_dense_one():
     np.testing.assert_allclose(jac.T @ rhs, dense.T @ f.ravel(), atol=1e-12)
 
 
+class _Stopped(Exception):
+    """Raised by the iteration of :func:`_capture_steps` once it has seen its first system."""
+
+
 def _capture_steps(monkeypatch):
     """Replace the trust-region iteration by one that records its step solver and first system, then stops."""
     seen = {}
 
     def first_system(cost, system, x0, *args, **kwargs):
         seen["system"], seen["tr_solver"] = system(x0), kwargs["tr_solver"]
-        raise StopIteration
+        raise _Stopped
 
     monkeypatch.setattr(greybox, "trf", first_system)
     return seen
@@ -94,7 +98,7 @@ def test_jacobian_below_the_dense_limit_gets_exact_steps(monkeypatch):
     base = linear_fit(data, refine=False)
     problem = make_problem(data, base.spec, base.theta, base.y0, base.bias, np.arange(data.n_records))
     seen = _capture_steps(monkeypatch)
-    with pytest.raises(StopIteration):
+    with pytest.raises(_Stopped):
         fit_problems(data, [problem], max_iter=5)
     assert seen["tr_solver"] == "exact"
 
@@ -141,7 +145,7 @@ def test_jacobian_above_the_dense_limit_is_compressed_per_record(monkeypatch):
     problem = make_problem(data, base.spec, base.theta, base.y0, base.bias, np.arange(data.n_records))
     monkeypatch.setattr(greybox, "DENSE_JACOBIAN_MAX_BYTES", 0)
     seen = _capture_steps(monkeypatch)
-    with pytest.raises(StopIteration):
+    with pytest.raises(_Stopped):
         fit_problems(data, [problem], max_iter=5)
     assert seen["tr_solver"] == "lsmr"
     jac, rhs = seen["system"]
@@ -188,6 +192,5 @@ def test_simulation_in_small_passes_equals_one_pass(monkeypatch):
     sets = [(base.spec, np.concatenate([base.theta * (1 + 0.01 * i), base.y0, base.bias]), rows) for i in range(3)]
     whole = simulate_sets(data, sets)
     monkeypatch.setattr(simulation, "SIMULATION_BATCH_SAMPLES", data.u.shape[1])
-    monkeypatch.setattr(greybox, "SIMULATION_BATCH_SAMPLES", data.u.shape[1])
     for a, b in zip(whole, simulate_sets(data, sets)):
         np.testing.assert_array_equal(a, b)
