@@ -2,8 +2,8 @@
 
 The pipeline's fourth stage (records, linear fit, candidates, **fits**, ranking, report).
 Every fit is a bounded least-squares problem of the simulation error
-(:mod:`agents.twin.least_squares`); many are solved together in lock-step, so that their
-simulations share vectorised passes.
+(:mod:`agents.twin.least_squares`), each solved alone; the problems of the candidates, which do not
+depend on one another, go to the worker processes of :mod:`agents.twin.workers` where a caller opened them.
 """
 
 from __future__ import annotations

@@ -177,8 +177,8 @@ def simulate_open_loop(
 
 @functools.lru_cache(maxsize=8192)
 def _sampled(plant: ContinuousPlant, dt: float) -> DiscretePlant:
-    """``plant.discretize(dt)``, remembered: a fit's finite-difference columns and its problems in lock-step ask
-    for the same plants again (35,204 discretisations of 7,187 plants in one diagnosis of 12 records). Shared
+    """``plant.discretize(dt)``, remembered: a fit's finite-difference columns and trial points ask for the
+    same plants again (35,204 discretisations of 7,187 plants in one diagnosis of 12 records). Shared
     between calls: its arrays are read-only."""
     sampled = plant.discretize(dt)
     for array in (sampled.phi, sampled.gamma0, sampled.gamma1, sampled.c, sampled.a, sampled.b):

@@ -3,7 +3,6 @@
 The rows of a pass do not interact (each row is one record under one model), so the
 grouping of sets into passes changes no value; it bounds the memory of a pass
 (:data:`SIMULATION_BATCH_SAMPLES`) and shares the per-call overhead of the time loop.
-Problems solved in parallel threads meet in one pass (:class:`Lockstep`).
 """
 
 from __future__ import annotations
