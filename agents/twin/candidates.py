@@ -36,6 +36,11 @@ __all__ = ["MAX_POLES", "ORDER_CANDIDATES", "Candidate", "CandidatePlan", "Order
 ORDER_CANDIDATES: dict[str, tuple[int, int]] = {"pole_pair": (2, 0), "pole": (1, 0), "zero": (0, 1)}
 #: Most poles an order candidate grows the linear part to.
 MAX_POLES = 6
+#: Effects whose starting grid is a scan (:func:`agents.twin.guesses.effect_starts`): each point's SRIVC profile
+#: starts from its neighbour's fit and takes :data:`SCAN_PROFILE_ITER` iterations (the first point and Brent's
+#: refinement between the best point's neighbours take the full ten from the state-variable filter).
+SCANNED_EFFECTS = ("saturation",)
+SCAN_PROFILE_ITER = 3
 
 
 @dataclass(frozen=True)
@@ -263,13 +268,18 @@ def _profile_problems(data, current, spec, name, starts, lo, hi, lower, upper, s
         results = []
         for start in starts:
             theta = np.concatenate([current.theta, np.clip(start, lo, hi)])
-            results.append((theta, profile(data, spec, theta, **settings)))
+            previous = results[-1][1] if results and name in SCANNED_EFFECTS else None
+            if previous is not None and np.isfinite(previous[0]):  # a scan: from its neighbour's fit, briefly
+                theta[: spec.n_linear] = previous[1][: spec.n_linear]
+                results.append((theta, profile(data, spec, theta, max_iter=SCAN_PROFILE_ITER, tol=settings["tol"],
+                                               warm=True)))
+            else:
+                results.append((theta, profile(data, spec, theta, **settings)))
         best = int(np.argmin([r[1][0] for r in results]))
         res = results[best][1]
         if lo.size == 1 and len(starts) > 1 and np.isfinite(res[0]):
             values = [float(r[0][g0]) for r in results]
-            a = values[max(best - 1, 0)]
-            b = values[min(best + 1, len(values) - 1)]
+            a, b = sorted((values[max(best - 1, 0)], values[min(best + 1, len(values) - 1)]))  # a scan runs downwards
             if b > a:
                 cache = {}
                 # an effect value the profile cannot fit (inf) goes to Brent as a finite value worse than every

@@ -101,6 +101,15 @@ STATEFUL_ACTUATORS = frozenset({"backlash", "cogging"})
 PROFILE_SAMPLES = 4096
 
 
+def _srivc_start(spec: ModelSpec, theta: np.ndarray, delay: float | None) -> tuple | None:
+    """``identify_linear``'s ``start`` from the linear part of ``theta`` (``[b_0 .. b_m, a_1 .. a_{n-k}]``, SRIVC's
+    order is ``[a.., b..]``), at the fixed ``delay``; ``None`` with a delay search or no linear part yet."""
+    linear = theta[: spec.n_linear]
+    if delay is None or not np.all(np.isfinite(linear)) or not np.any(linear):
+        return None
+    return np.concatenate([linear[spec.n_zeros + 1 :], linear[: spec.n_zeros + 1]]), delay
+
+
 def _records_through(data: GreyData, blocks: Sequence, output: str) -> list[dict]:
     """Records whose ``u`` is replaced by the plant input of the actuator ``blocks`` (speed from the measured y).
 
@@ -145,8 +154,8 @@ def _rest_through(data: GreyData, blocks: Sequence, output: str) -> np.ndarray:
 
 
 def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float | None = None,
-            max_iter: int = 20, tol: float = 1e-6,
-            delay_step: float | None = None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+            max_iter: int = 20, tol: float = 1e-6, delay_step: float | None = None,
+            warm: bool = False) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """SRIVC fit of the linear part on the plant input implied by ``spec``'s actuator blocks at ``theta``.
 
     Parameters
@@ -161,6 +170,9 @@ def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float
         SRIVC iterations and tolerance (:func:`agents.twin.identify.identify_linear`).
     delay_step : float, optional
         Spacing of the delay search in s (default one sample), refined between the best's neighbours.
+    warm : bool, default False
+        Start SRIVC from the linear part of ``theta`` (at a fixed delay), not from the state-variable-filter
+        fit: a scan over an effect parameter starts each point from its neighbour's fit.
 
     Returns
     -------
@@ -187,7 +199,8 @@ def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float
     try:
         fit: LinearIdentification = identify_linear(
             records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators, delay=delay,
-            max_delay=max_delay, max_iter=max_iter, tol=tol, rest_levels=rest, hold="zoh", delay_step=delay_step)
+            max_delay=max_delay, max_iter=max_iter, tol=tol, rest_levels=rest, hold="zoh", delay_step=delay_step,
+            start=_srivc_start(spec, theta, delay) if warm else None)
     except (ValueError, RuntimeError, np.linalg.LinAlgError):
         return np.inf, theta, np.zeros(data.n_records), np.zeros(data.n_records)
     out = theta.copy()
