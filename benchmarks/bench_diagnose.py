@@ -30,8 +30,11 @@ to read it per case.
 
 ``--command`` writes each case's records to a CSV (in ``--data DIR`` if given, so that another
 tree runs on the same data) and times the whole ``gbo twin diagnose FILE --quiet`` process
-(start-up, reading, the diagnosis, the advice), each run its own child (``os.wait4``): wall
-time, CPU time (user + system), system time, minor page faults and peak resident size. The
+(start-up, reading, the diagnosis in its worker processes, the advice), each run its own child
+(``os.wait4``): wall time, CPU time (user + system, the worker processes included), system time,
+minor page faults, peak resident size (``peak_rss_mb``: the largest single process) and the peak of
+the processes' proportional set sizes summed (``peak_pss_mb``: the memory the command takes, the
+pages its forked workers share with it counted once; sampled every 0.1 s, needs psutil). The
 children share one fresh numba cache folder (``NUMBA_CACHE_DIR``). First, apart, a child
 compiles the kernels into it (``compile_s``: what a user's very first command pays once) and
 another loads them from it (``cache_load_s``: what every later command pays); a tree without
@@ -50,6 +53,7 @@ import resource
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -140,18 +144,49 @@ def main(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int = 
             "heldout_rmse_top": None if top is None else top["rmse"], "noise_rmse": out["noise_rmse"]}
 
 
-def _run_child(args: list[str], env: dict) -> tuple[float, resource.struct_rusage, str]:
-    """Wall time, resource usage and standard output of one child process (``os.wait4``: its own figures)."""
+def _run_child(args: list[str], env: dict, memory: dict | None = None) -> tuple[float, resource.struct_rusage, str]:
+    """Wall time, resource usage and standard output of one child process (``os.wait4``: its own figures, with
+    ``ru_maxrss`` the largest of it and its worker processes). ``memory``, if given, gets ``"peak_pss_mb"``: the
+    largest sum, sampled every 0.1 s, of the proportional set sizes of the child and its worker processes (the
+    memory they take together, the pages they share counted once; needs psutil, else ``None``)."""
     start = time.perf_counter()
     with tempfile.TemporaryFile("w+") as out:
         proc = subprocess.Popen(args, stdout=out, stderr=subprocess.DEVNULL, text=True, env=env)
+        sampler = None
+        if memory is not None:
+            done = threading.Event()
+            sampler = threading.Thread(target=_sample_pss, args=(proc.pid, done, memory), daemon=True)
+            sampler.start()
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - start
+        if sampler is not None:
+            done.set()
+            sampler.join()
         proc.returncode = os.waitstatus_to_exitcode(status)
         if proc.returncode != 0:
             raise subprocess.CalledProcessError(proc.returncode, args)
         out.seek(0)
         return wall, usage, out.read()
+
+
+def _sample_pss(pid: int, done: threading.Event, memory: dict) -> None:
+    """Peak total PSS (MB) of process ``pid`` and its descendants until ``done``, into ``memory["peak_pss_mb"]``."""
+    try:
+        import psutil  # installed with the distributed extra (dask)
+    except ImportError:
+        memory["peak_pss_mb"] = None
+        return
+    peak = 0.0
+    while not done.wait(0.1):
+        total = 0
+        try:
+            root = psutil.Process(pid)
+            for p in [root, *root.children(recursive=True)]:
+                total += p.memory_full_info().pss
+        except (psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess):
+            continue  # a process ended between the listing and the reading: the next sample
+        peak = max(peak, total / 2**20)
+    memory["peak_pss_mb"] = round(peak)
 
 
 def compile_child(env: dict) -> dict:
@@ -184,15 +219,19 @@ def command(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int
         args = [sys.executable, "-m", "evaluation.cli", "twin", "diagnose", str(path), "--quiet"]
         for _ in range(repeat):
             load = os.getloadavg()[0]
-            wall, usage, stdout = _run_child(args, env or dict(os.environ))
+            memory: dict = {}
+            wall, usage, stdout = _run_child(args, env or dict(os.environ), memory)
             runs.append({"wall_s": round(wall, 2), "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
                          "system_s": round(usage.ru_stime, 2), "minor_faults": usage.ru_minflt,
-                         "peak_rss_mb": round(usage.ru_maxrss / 1024), "load": round(load, 2)})
+                         "peak_rss_mb": round(usage.ru_maxrss / 1024), "peak_pss_mb": memory.get("peak_pss_mb"),
+                         "load": round(load, 2)})
     best = next((line for line in stdout.splitlines() if line.startswith("best:")), None)
     return {"benchmark": "diagnose_command", "case": case, "n_experiments": n_experiments,
             "time_s": float(np.median([r["wall_s"] for r in runs])),
             "cpu_s": float(np.median([r["cpu_s"] for r in runs])),
-            "peak_rss_mb": max(r["peak_rss_mb"] for r in runs), "target_s": TARGET_S,
+            "peak_rss_mb": max(r["peak_rss_mb"] for r in runs),
+            "peak_pss_mb": max((r["peak_pss_mb"] for r in runs if r["peak_pss_mb"] is not None), default=None),
+            "target_s": TARGET_S,
             "target_rss_mb": TARGET_RSS_MB, "runs": runs, "best": best}
 
 
