@@ -7,7 +7,8 @@
   its first line (``# examples/x.py ...``), must appear verbatim in the file it
   names, and a test runs that file (``tests/agents/test_agents_api.py``).
 * ```` ```console ```` blocks are shell sessions: each ``$ gbo ...`` line runs
-  (``python -m evaluation.cli``) in one temporary folder, in order, and must
+  (``python -m evaluation.cli``) in a temporary folder (the commands on one
+  ``--db`` file in one folder, in order; each group a test of its own), and must
   exit 0 and print the lines below it (same matching as the doctests).
   ``$ make ...`` lines must name a Makefile target (they are what CI and a
   fresh machine run: ``make test`` runs this test); ``$ python3 -m venv`` and
@@ -89,19 +90,38 @@ def test_make_and_install_lines_are_what_the_makefile_runs():
                 assert words[1] == "install" and f'"{words[-1]}"' in makefile, command
 
 
-@pytest.mark.slow
-def test_readme_gbo_commands_print_what_the_readme_shows(tmp_path):
-    checker = doctest.OutputChecker()
-    env = {**os.environ, "PYTHONPATH": str(REPO_ROOT), "COLUMNS": "120"}
-    (tmp_path / "examples").symlink_to(REPO_ROOT / "examples")  # the bundled data, as from the checkout
+def _gbo_sessions() -> list[list[tuple[str, str]]]:
+    """The ``$ gbo ...`` lines of the console blocks with their output, in groups that run in one folder:
+    commands on the same ``--db`` file form one group, in order (a tuning session, then what reads it);
+    every other command is a group of its own."""
+    groups: list[list[tuple[str, str]]] = []
+    by_db: dict[str, list] = {}
     for code in _blocks("console"):
         for command, expected in _sessions(code):
             words = shlex.split(command)
             if words[0] != "gbo":
                 continue
-            done = subprocess.run([sys.executable, "-m", "evaluation.cli", *words[1:]], cwd=tmp_path, env=env,
-                                  capture_output=True, text=True, timeout=600)
-            assert done.returncode == 0, f"{command}: exit {done.returncode}\n{done.stderr}"
-            if expected:
-                assert checker.check_output(expected, done.stdout, FLAGS), \
-                    f"{command}: README shows\n{expected}\nbut it printed\n{done.stdout}"
+            db = words[words.index("--db") + 1] if "--db" in words else None
+            if db is not None and db in by_db:
+                by_db[db].append((command, expected))
+                continue
+            groups.append([(command, expected)])
+            if db is not None:
+                by_db[db] = groups[-1]
+    return groups
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("session", _gbo_sessions(), ids=lambda group: " ".join(shlex.split(group[0][0])[:3]))
+def test_readme_gbo_commands_print_what_the_readme_shows(session, tmp_path):
+    checker = doctest.OutputChecker()
+    env = {**os.environ, "PYTHONPATH": str(REPO_ROOT), "COLUMNS": "120"}
+    (tmp_path / "examples").symlink_to(REPO_ROOT / "examples")  # the bundled data, as from the checkout
+    for command, expected in session:
+        words = shlex.split(command)
+        done = subprocess.run([sys.executable, "-m", "evaluation.cli", *words[1:]], cwd=tmp_path, env=env,
+                              capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, f"{command}: exit {done.returncode}\n{done.stderr}"
+        if expected:
+            assert checker.check_output(expected, done.stdout, FLAGS), \
+                f"{command}: README shows\n{expected}\nbut it printed\n{done.stdout}"
