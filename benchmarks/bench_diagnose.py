@@ -32,9 +32,10 @@ to read it per case.
 tree runs on the same data) and times the whole ``gbo twin diagnose FILE --quiet`` process
 (start-up, reading, the diagnosis in its worker processes, the advice), each run its own child
 (``os.wait4``): wall time, CPU time (user + system, the worker processes included), system time,
-minor page faults, peak resident size (``peak_rss_mb``: the largest single process) and the peak of
-the processes' proportional set sizes summed (``peak_pss_mb``: the memory the command takes, the
-pages its forked workers share with it counted once; sampled every 0.1 s, needs psutil). The
+minor page faults, peak resident size (``peak_rss_mb``: the largest single process) and, with
+``--pss``, the peak of the processes' proportional set sizes summed (``peak_pss_mb``: the memory the
+command takes, the pages its forked workers share with it counted once; sampled every 0.1 s, needs
+psutil; the sampling slows the command by about 1 s, so time it in a run without ``--pss``). The
 children share one fresh numba cache folder (``NUMBA_CACHE_DIR``). First, apart, a child
 compiles the kernels into it (``compile_s``: what a user's very first command pays once) and
 another loads them from it (``cache_load_s``: what every later command pays); a tree without
@@ -204,11 +205,12 @@ def compile_child(env: dict) -> dict:
 
 
 def command(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int = 0, repeat: int = 1,
-            env: dict | None = None, data: Path | None = None) -> dict:
+            env: dict | None = None, data: Path | None = None, pss: bool = False) -> dict:
     """``gbo twin diagnose`` on the records of ``case`` as a user runs it, timed as a whole process.
 
     ``data``: a folder holding the case's CSV (written there first if missing), so that other trees
-    run on the same data; by default a temporary one.
+    run on the same data; by default a temporary one. ``pss``: also sample the processes' total PSS
+    (the sampling slows the command by about 1 s on the project machine: time it in another run).
     """
     runs = []
     with tempfile.TemporaryDirectory() as folder:
@@ -219,11 +221,11 @@ def command(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int
         args = [sys.executable, "-m", "evaluation.cli", "twin", "diagnose", str(path), "--quiet"]
         for _ in range(repeat):
             load = os.getloadavg()[0]
-            memory: dict = {}
+            memory: dict | None = {} if pss else None
             wall, usage, stdout = _run_child(args, env or dict(os.environ), memory)
             runs.append({"wall_s": round(wall, 2), "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
                          "system_s": round(usage.ru_stime, 2), "minor_faults": usage.ru_minflt,
-                         "peak_rss_mb": round(usage.ru_maxrss / 1024), "peak_pss_mb": memory.get("peak_pss_mb"),
+                         "peak_rss_mb": round(usage.ru_maxrss / 1024), "peak_pss_mb": (memory or {}).get("peak_pss_mb"),
                          "load": round(load, 2)})
     best = next((line for line in stdout.splitlines() if line.startswith("best:")), None)
     return {"benchmark": "diagnose_command", "case": case, "n_experiments": n_experiments,
@@ -241,6 +243,8 @@ if __name__ == "__main__":
     parser.add_argument("--experiments", type=int, default=12)
     parser.add_argument("--repeat", type=int, default=1, help="runs per case; the median time is printed")
     parser.add_argument("--command", action="store_true", help="time the gbo twin diagnose command instead")
+    parser.add_argument("--pss", action="store_true", help="with --command: also sample the total PSS of the command "
+                                                           "and its worker processes (slows it by about 1 s)")
     parser.add_argument("--data", type=Path, help="with --command: folder of the cases' CSV files (written if "
                                                   "missing), to run other trees on the same data")
     args = parser.parse_args()
@@ -250,8 +254,8 @@ if __name__ == "__main__":
             child_env = dict(os.environ, NUMBA_CACHE_DIR=cache)
             print(json.dumps(compile_child(child_env)), flush=True)
             for name in names:
-                print(json.dumps(command(name, args.experiments, repeat=args.repeat, env=child_env, data=args.data)),
-                      flush=True)
+                print(json.dumps(command(name, args.experiments, repeat=args.repeat, env=child_env, data=args.data,
+                                         pss=args.pss)), flush=True)
     else:
         for name in names:
             print(json.dumps(main(name, args.experiments, repeat=args.repeat)), flush=True)
