@@ -69,11 +69,16 @@ def int_at_least(low: int):
     return parse
 
 
-def _int_at_least(text: str, low: int) -> int:
+def _integer(text: str, expected: str) -> int:
+    """``text`` as an integer, or the one-line error saying what was ``expected``."""
     try:
-        value = int(text)
+        return int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+
+
+def _int_at_least(text: str, low: int) -> int:
+    value = _integer(text, f"an integer >= {low}")
     if value < low:
         raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {value}")
     return value
@@ -82,10 +87,7 @@ def _int_at_least(text: str, low: int) -> int:
 def job_count(text: str) -> int:
     """A count of worker processes (``--jobs``): a positive integer, or a negative one counted back from
     the cores (``-1``: all of them), as joblib's ``n_jobs``."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a nonzero integer (-1: all cores), got {text!r}") from None
+    value = _integer(text, "a nonzero integer (-1: all cores)")
     if value == 0:
         raise argparse.ArgumentTypeError("must be a nonzero integer (-1: all cores, 1: no worker processes), got 0")
     return value
