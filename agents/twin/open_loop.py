@@ -149,15 +149,20 @@ def simulate_open_loop(
         if not np.any(initial):
             initial = None
 
-    # plant-side blocks, then one exact discretisation per distinct plant
+    # plant-side blocks, then one exact discretisation per distinct plant; rows with the same plant, plant-side
+    # blocks and experiment share them (a fit's Jacobian passes repeat each plant for all its records)
     continuous, discrete = [], []
+    shared: dict[tuple, tuple[ContinuousPlant, DiscretePlant]] = {}
     for row in range(batch):
-        p = plants[row]
-        for block in chains[row]:
-            if block.side == "plant":
+        plant_blocks = [block for block in chains[row] if block.side == "plant"]
+        key = (id(plants[row]), *map(id, plant_blocks), int(index[row]))
+        if key not in shared:
+            p = plants[row]
+            for block in plant_blocks:
                 p = block.modify_plant(p, int(index[row]))
-        continuous.append(p)
-        discrete.append(_sampled(p, float(dt)))
+            shared[key] = p, _sampled(p, float(dt))
+        continuous.append(shared[key][0])
+        discrete.append(shared[key][1])
     direct = np.array([all(b.side == "plant" or b.name in MEMORYLESS_EFFECTS for b in chain) for chain in chains])
     # both paths write their rows straight into the outputs (no copies of a part's results)
     out = {"y": np.empty((batch, n)), "y_true": np.empty((batch, n)), "v": np.empty((batch, n)),
@@ -404,7 +409,8 @@ def _transfer_functions(discrete: list[DiscretePlant]) -> dict[int, tuple[np.nda
             num[:, k] += cg[:, 0]
             num[:, k + 1] += cg[:, 1]
         for i, d in enumerate(plants):
-            out[id(d)] = (np.trim_zeros(num[i], "b"), den[i])
+            nonzero = np.flatnonzero(num[i])
+            out[id(d)] = (num[i, : nonzero[-1] + 1 if nonzero.size else 0], den[i])  # trailing zeros trimmed
     return out
 
 

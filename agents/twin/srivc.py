@@ -127,6 +127,11 @@ class Signals:
     r2: np.ndarray
     free: np.ndarray
 
+    def at_samples(self, x: np.ndarray) -> np.ndarray:
+        """``x[..., rows]``: the measured samples of signals on the filter grid (``x`` itself where the grid is
+        the samples' own, ``hold="zoh"``: no copy)."""
+        return x if self.rows.size == x.shape[-1] else x[..., self.rows]
+
 
 @dataclass(frozen=True)
 class SrivcResult:
@@ -242,9 +247,9 @@ def _equations(orders: Orders, batches: list[Signals], den: np.ndarray, delay: f
     for sig in batches:
         fy = _Prefilter(den, sig.h, 0.0)
         fu = _Prefilter(den, sig.h, delay)
-        ys = fy.states(sig.y_fine)[:, :, sig.rows]  # (S1) y_f^{(n-1)} .. y_f^{(0)}
+        ys = sig.at_samples(fy.states(sig.y_fine))  # (S1) y_f^{(n-1)} .. y_f^{(0)}
         us_fine = fu.states(sig.u_fine)
-        us = us_fine[:, :, sig.rows]  # (S1) u_f^{(n-1)} .. u_f^{(0)}
+        us = sig.at_samples(us_fine)  # (S1) u_f^{(n-1)} .. u_f^{(0)}
         target = sig.y - np.tensordot(den[1:], ys, axes=1)  # y_f^{(n)}
         u_cols = [us[n - 1 - m + j] for j in range(m + 1)]  # u_f^{(m)} .. u_f^{(0)}
         phi = np.stack([-ys[i] for i in range(n - k)] + u_cols, axis=-1)  # (S3)
@@ -252,16 +257,16 @@ def _equations(orders: Orders, batches: list[Signals], den: np.ndarray, delay: f
             zeta = phi
         else:
             x_hat = _output(orders, theta_aux, us_fine)  # (S2)
-            xs = fy.states(x_hat)[:, :, sig.rows]
+            xs = sig.at_samples(fy.states(x_hat))
             zeta = np.stack([-xs[i] for i in range(n - k)] + u_cols, axis=-1)  # (S3)
         if offset and sig.free.any():
             ones = np.ones((1, sig.u_fine.shape[1]))
             if free_offsets:  # any y_0 A(p)/A_f(p) 1 - u_0 B(p)/A_f(p) 1(t - tau)
-                s_y = fy.states(ones)[:, 0, sig.rows]
-                s_u = fu.states(ones)[:, 0, sig.rows]
+                s_y = sig.at_samples(fy.states(ones)[:, 0])
+                s_u = sig.at_samples(fu.states(ones)[:, 0])
                 nuisance = np.column_stack([np.ones(sig.rows.size), *s_y, *s_u[n - 1 - m :]])
             else:  # y_0 and u_0 through the auxiliary model's step response
-                step = _output(orders, theta_aux, fu.states(ones))[0, sig.rows]
+                step = sig.at_samples(_output(orders, theta_aux, fu.states(ones))[0])
                 nuisance = np.column_stack([np.ones(sig.rows.size), step])
             q = _projector(nuisance)
             if sig.free.all():
@@ -367,10 +372,10 @@ def simulate(orders: Orders, theta: np.ndarray, delay: float, sig: Signals, offs
     """
     den = orders.den(theta)
     fu = _Prefilter(den, sig.h, delay)
-    x = _output(orders, theta, fu.states(sig.u_fine))[:, sig.rows]
+    x = sig.at_samples(_output(orders, theta, fu.states(sig.u_fine)))
     if not offset or not sig.free.any():
         return sig.y_ref[:, None] + x, sig.y_ref.copy(), sig.u_ref.copy()
-    step = _output(orders, theta, fu.states(np.ones((1, sig.u_fine.shape[1]))))[0, sig.rows]
+    step = sig.at_samples(_output(orders, theta, fu.states(np.ones((1, sig.u_fine.shape[1]))))[0])
     basis = np.column_stack([np.ones(sig.rows.size), step])
     coef = np.linalg.lstsq(basis, (sig.y - x).T, rcond=None)[0]  # (2, n_records)
     coef[:, ~sig.free] = 0.0  # pinned rest levels
