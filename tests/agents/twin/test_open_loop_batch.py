@@ -76,3 +76,20 @@ def test_a_moving_start_of_a_plant_that_overflows_diverges_without_lapack(capfd)
     alone = simulate_open_loop(good, u[:1], 0.001, (), initial=np.array([[2.0]]))
     assert np.isnan(res.y[0]).all() and np.array_equal(res.y[1], alone.y[0])
     assert "DLASCL" not in "".join(capfd.readouterr())
+
+
+def test_plant_side_blocks_remembered_by_value_give_each_row_its_own_plant():
+    """Rows whose plant-side blocks differ in any parameter, option or experiment get their own plant (the
+    modified plants are remembered by the blocks' values): the same as each row simulated alone."""
+    chains = [build_effects({"compliance": {"frequency": 40.0, "damping": d}}) for d in (0.05, 0.2)]
+    chains += [build_effects({"compliance": {"frequency": 40.0, "damping": 0.05, "measured": "motor"}})]
+    chains += [build_effects({"drift": {"rate": 0.1}})] * 2
+    index = np.array([0, 0, 0, 1, 4])
+    u = np.tile(np.where(np.arange(300) < 20, 0.0, 10.0), (len(chains), 1))
+    for _ in range(2):  # the second pass reads the remembered plants
+        batch = simulate_open_loop(SPEED, u, 0.002, chains, experiment_index=index)
+        for row, chain in enumerate(chains):
+            alone = simulate_open_loop(SPEED, u[row], 0.002, build_effects({b.name: b.params for b in chain}),
+                                       experiment_index=int(index[row]))
+            np.testing.assert_array_equal(batch.y[row], alone.y[0])
+    assert len({round(float(batch.y[row, -1]), 9) for row in range(len(chains))}) == len(chains)
