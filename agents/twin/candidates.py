@@ -108,7 +108,8 @@ class OrderCandidate:
             problems.append(make_problem(data, spec, theta, y0, bias, rows, lower, upper, scale, tag=self.name))
         thetas = [np.concatenate([linear, [delay], effects]) for linear in self.factor_starts(data, current)]
         sims = simulate_sets(data, [(spec, np.concatenate([th, current.nuisance()]), rows) for th in thetas])
-        costs = [float(np.sum(np.where(data.mask, y - data.y, 0.0) ** 2)) for y in sims]
+        with np.errstate(over="ignore"):  # a diverged start's output overflows its square: its cost is inf
+            costs = [float(np.sum(np.where(data.mask, y - data.y, 0.0) ** 2)) for y in sims]
         for i in np.argsort(np.where(np.isfinite(costs), costs, np.inf))[:n_keep]:
             if np.isfinite(costs[i]):
                 problems.append(make_problem(data, spec, thetas[i], current.y0.copy(), current.bias.copy(), rows,
@@ -270,9 +271,8 @@ def _profile_problems(data, current, spec, name, starts, lo, hi, lower, upper, s
             theta = np.concatenate([current.theta, np.clip(start, lo, hi)])
             previous = results[-1][1] if results and name in SCANNED_EFFECTS else None
             if previous is not None and np.isfinite(previous[0]):  # a scan: from its neighbour's fit, briefly
-                theta[: spec.n_linear] = previous[1][: spec.n_linear]
                 results.append((theta, profile(data, spec, theta, max_iter=SCAN_PROFILE_ITER, tol=settings["tol"],
-                                               warm=True)))
+                                               warm=previous[1][: spec.n_linear])))
             else:
                 results.append((theta, profile(data, spec, theta, **settings)))
         best = int(np.argmin([r[1][0] for r in results]))

@@ -364,11 +364,11 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, resume: bool =
 
     scale = np.where(p.scale[free] > 0, p.scale[free], 1.0)
     lower, upper = p.lower[free], p.upper[free]
-    resume = p.solver_state if resume and exact else None
+    state = p.solver_state if resume and exact else None  # where the last fit's iteration stopped, if it goes on
     # a resumed iteration goes on from its own point (strictly feasible already: moving it by make_strictly_feasible's
     # step would change the steps)
-    x0 = start[free].copy() if resume is not None else make_strictly_feasible(np.clip(start[free], lower, upper),
-                                                                              lower, upper)
+    x0 = start[free].copy() if state is not None else make_strictly_feasible(np.clip(start[free], lower, upper),
+                                                                             lower, upper)
     y_start = p.y_sim
     if not exact:
         p.y_sim = at["y"] = None  # freed meanwhile: simulated again at the end
@@ -380,9 +380,9 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, resume: bool =
         at.update(trial)
     at["key"] = x0.tobytes()
     cost0 = 0.5 * float(np.einsum("kt,kt->", at["residual"], at["residual"]))
-    x, _, nfev, state = trf(cost, system, x0, cost0, lower, upper, scale, ftol=tol, max_nfev=max_iter + 1,
-                            tr_solver="exact" if exact else "lsmr", n_rows=k * n, resume=resume)
-    p.n_iter += nfev - (1 if resume is None else resume["nfev"])
+    x, _, nfev, end_state = trf(cost, system, x0, cost0, lower, upper, scale, ftol=tol, max_nfev=max_iter + 1,
+                                tr_solver="exact" if exact else "lsmr", n_rows=k * n, resume=state)
+    p.n_iter += nfev - (1 if state is None else state["nfev"])
     if x.tobytes() != at["key"]:  # the last accepted step ended the iteration before its Jacobian
         at.update(trial)
     new_cost = float(np.einsum("kt,kt->", at["residual"], at["residual"]))
@@ -392,7 +392,7 @@ def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, resume: bool =
     at.clear()
     trial.clear()
     # the iteration goes on from here only where p holds its point (and its steps are exact: trf's resume)
-    p.solver_state = state if exact and np.array_equal(p.theta[free], x) else None
+    p.solver_state = end_state if exact and np.array_equal(p.theta[free], x) else None
     if exact:
         p.y_sim = y_start  # the output whose residual p has
         return

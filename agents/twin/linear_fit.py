@@ -101,11 +101,10 @@ STATEFUL_ACTUATORS = frozenset({"backlash", "cogging"})
 PROFILE_SAMPLES = 4096
 
 
-def _srivc_start(spec: ModelSpec, theta: np.ndarray, delay: float | None) -> tuple | None:
-    """``identify_linear``'s ``start`` from the linear part of ``theta`` (``[b_0 .. b_m, a_1 .. a_{n-k}]``, SRIVC's
-    order is ``[a.., b..]``), at the fixed ``delay``; ``None`` with a delay search or no linear part yet."""
-    linear = theta[: spec.n_linear]
-    if delay is None or not np.all(np.isfinite(linear)) or not np.any(linear):
+def _srivc_start(spec: ModelSpec, linear: np.ndarray | None, delay: float | None) -> tuple | None:
+    """``identify_linear``'s ``start`` from a linear part ``[b_0 .. b_m, a_1 .. a_{n-k}]`` (SRIVC's order is
+    ``[a.., b..]``), at the fixed ``delay``; ``None`` without one, with a delay search or an unusable one."""
+    if linear is None or delay is None or not np.all(np.isfinite(linear)) or not np.any(linear):
         return None
     return np.concatenate([linear[spec.n_zeros + 1 :], linear[: spec.n_zeros + 1]]), delay
 
@@ -155,7 +154,7 @@ def _rest_through(data: GreyData, blocks: Sequence, output: str) -> np.ndarray:
 
 def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float | None = None,
             max_iter: int = 20, tol: float = 1e-6, delay_step: float | None = None,
-            warm: bool = False) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+            warm: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """SRIVC fit of the linear part on the plant input implied by ``spec``'s actuator blocks at ``theta``.
 
     Parameters
@@ -170,9 +169,9 @@ def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float
         SRIVC iterations and tolerance (:func:`agents.twin.identify.identify_linear`).
     delay_step : float, optional
         Spacing of the delay search in s (default one sample), refined between the best's neighbours.
-    warm : bool, default False
-        Start SRIVC from the linear part of ``theta`` (at a fixed delay), not from the state-variable-filter
-        fit: a scan over an effect parameter starts each point from its neighbour's fit.
+    warm : ndarray of shape (spec.n_linear,), optional
+        A linear part ``[b_0 .. b_m, a_1 .. a_{n-k}]`` to start SRIVC from (at a fixed delay) instead of the
+        state-variable-filter fit: a scan over an effect parameter starts each point from its neighbour's fit.
 
     Returns
     -------
@@ -200,7 +199,7 @@ def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float
         fit: LinearIdentification = identify_linear(
             records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators, delay=delay,
             max_delay=max_delay, max_iter=max_iter, tol=tol, rest_levels=rest, hold="zoh", delay_step=delay_step,
-            start=_srivc_start(spec, theta, delay) if warm else None)
+            start=_srivc_start(spec, warm, delay))
     except (ValueError, RuntimeError, np.linalg.LinAlgError):
         return np.inf, theta, np.zeros(data.n_records), np.zeros(data.n_records)
     out = theta.copy()

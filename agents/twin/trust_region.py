@@ -105,14 +105,14 @@ def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tupl
     jac, f = _system(system, x, exact)
     m, n = jac.shape
     n_rows = m if n_rows is None else int(n_rows)
-    alpha = 0.0  # the Levenberg-Marquardt parameter of the exact steps, carried from step to step
     g = jac.T @ f
     scale, scale_inv = x_scale, 1.0 / x_scale
-    v, dv = CL_scaling_vector(x, g, lower, upper)
-    v[dv != 0] *= scale_inv[dv != 0]
-    delta = norm(x0 * scale_inv / v**0.5) or 1.0
-    if resume is not None:
+    if resume is not None:  # the trust radius and Levenberg-Marquardt parameter where the last fit stopped
         delta, alpha = float(resume["delta"]), float(resume["alpha"])
+    else:  # least_squares' initial radius; alpha, of the exact steps, is carried from step to step
+        v, dv = CL_scaling_vector(x, g, lower, upper)
+        v[dv != 0] *= scale_inv[dv != 0]
+        delta, alpha = norm(x0 * scale_inv / v**0.5) or 1.0, 0.0
     f_augmented = np.zeros(m + n)
     stopped = False
     while True:
