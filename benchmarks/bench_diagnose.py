@@ -145,16 +145,16 @@ def main(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int = 
             "heldout_rmse_top": None if top is None else top["rmse"], "noise_rmse": out["noise_rmse"]}
 
 
-def _run_child(args: list[str], env: dict, memory: dict | None = None) -> tuple[float, resource.struct_rusage, str]:
-    """Wall time, resource usage and standard output of one child process (``os.wait4``: its own figures, with
-    ``ru_maxrss`` the largest of it and its worker processes). ``memory``, if given, gets ``"peak_pss_mb"``: the
-    largest sum, sampled every 0.1 s, of the proportional set sizes of the child and its worker processes (the
-    memory they take together, the pages they share counted once; needs psutil, else ``None``)."""
+def _run_child(args: list[str], env: dict, pss: bool = False) -> tuple[float, resource.struct_rusage, str, int | None]:
+    """Wall time, resource usage, standard output and peak total PSS (MB) of one child process (``os.wait4``: its
+    own figures, with ``ru_maxrss`` the largest of it and its worker processes). With ``pss``, the largest sum,
+    sampled every 0.1 s, of the proportional set sizes of the child and its worker processes (the memory they take
+    together, the pages they share counted once; needs psutil, else ``None``); without, ``None``."""
     start = time.perf_counter()
     with tempfile.TemporaryFile("w+") as out:
         proc = subprocess.Popen(args, stdout=out, stderr=subprocess.DEVNULL, text=True, env=env)
-        sampler = None
-        if memory is not None:
+        sampler, memory = None, {}
+        if pss:
             done = threading.Event()
             sampler = threading.Thread(target=_sample_pss, args=(proc.pid, done, memory), daemon=True)
             sampler.start()
@@ -167,7 +167,7 @@ def _run_child(args: list[str], env: dict, memory: dict | None = None) -> tuple[
         if proc.returncode != 0:
             raise subprocess.CalledProcessError(proc.returncode, args)
         out.seek(0)
-        return wall, usage, out.read()
+        return wall, usage, out.read(), memory.get("peak_pss_mb")
 
 
 def _sample_pss(pid: int, done: threading.Event, memory: dict) -> None:
@@ -196,7 +196,7 @@ def compile_child(env: dict) -> dict:
     out = {"benchmark": "diagnose_compile"}
     for label in ("compile", "cache_load"):
         try:
-            wall, usage, stdout = _run_child(args, env)
+            wall, usage, stdout, _ = _run_child(args, env)
         except subprocess.CalledProcessError:  # a tree without compiled kernels
             return {**out, "compile_s": None}
         out[f"{label}_s"] = round(float(stdout.strip()), 2)
@@ -221,11 +221,10 @@ def command(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int
         args = [sys.executable, "-m", "evaluation.cli", "twin", "diagnose", str(path), "--quiet"]
         for _ in range(repeat):
             load = os.getloadavg()[0]
-            memory: dict | None = {} if pss else None
-            wall, usage, stdout = _run_child(args, env or dict(os.environ), memory)
+            wall, usage, stdout, peak_pss = _run_child(args, env or dict(os.environ), pss)
             runs.append({"wall_s": round(wall, 2), "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
                          "system_s": round(usage.ru_stime, 2), "minor_faults": usage.ru_minflt,
-                         "peak_rss_mb": round(usage.ru_maxrss / 1024), "peak_pss_mb": (memory or {}).get("peak_pss_mb"),
+                         "peak_rss_mb": round(usage.ru_maxrss / 1024), "peak_pss_mb": peak_pss,
                          "load": round(load, 2)})
     best = next((line for line in stdout.splitlines() if line.startswith("best:")), None)
     return {"benchmark": "diagnose_command", "case": case, "n_experiments": n_experiments,
