@@ -32,6 +32,7 @@ from agents.twin.model import FITTED_PARAMETERS, GreyFit, effect_offset, fitted_
 from agents.twin.noise_floor import NoiseFloor
 from agents.twin.simulation import simulate_sets
 from agents.twin.uncertainty import parameter_intervals
+from agents.twin.workers import map_independent
 from gbo_envs.physics.effects import EFFECTS, describe_effect
 
 __all__ = ["CLEAR_HELDOUT_GAIN", "DEFAULT_FOLDS", "NUISANCE_REFIT_ITER", "Ranking", "effect_intervals", "effect_size",
@@ -264,20 +265,12 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
         validation = "training error (one experiment: nothing to hold out)"
     bic = n * np.log(np.maximum(rss, 1e-300) / n) + np.array([m.n_params for m in models]) * np.log(n)
     cands = []
-    for i, name in enumerate(order, start=1):
+    described = map_independent(_described, [(data, current, fits[name], name) for name in order])
+    for i, (name, (grown, params, intervals, size, evidence)) in enumerate(zip(order, described), start=1):
         fit = fits[name]
-        grown = fit.spec.n_linear != current.spec.n_linear  # an order candidate
-        if grown:
-            change = order_change(name, current, fit)
-            params = {key: value["value"] for key, value in change.items()}
-            intervals = {key: {**value, "std": "n/a"} for key, value in change.items()}
-            size = rmse(output_error(fit.y_sim, current.y_sim, data.mask, fit.spec, data.closed_loop), mask=data.mask)
-        else:
-            params = fit.effect_params.get(name, {})
-            intervals, size = effect_intervals(data, fit, name), effect_size(data, fit)
         entry = {"effect": name, "kind": "order" if grown else "effect", "rmse": float(np.sqrt(rss[i] / n)),
                  "delta_bic": float(bic[i] - bic[0]), "params": jsonable(params, finite=True),
-                 "evidence": effect_evidence(name, data, current, fit), "train_rmse": float(fit.rmse),
+                 "evidence": evidence, "train_rmse": float(fit.rmse),
                  "share": _share(current, fit), "extra_params": int(fit.n_params - current.n_params),
                  "effect_rms": float(size) if np.isfinite(size) else 0.0, "fitted": True, "intervals": intervals}
         if name in plan.notes:
@@ -314,6 +307,23 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
     if blind_pairs and suggestion is None:
         suggestion = REVEALING_EXPERIMENTS.get(blind_pairs[0][0], separating_experiment(*blind_pairs[0]))
     return Ranking(cands, best, cur_rmse, validation, pairs + blind_pairs, suggestion)
+
+
+def _described(data: GreyData, current: GreyFit, fit: GreyFit, name: str) -> tuple:
+    """``(grown, params, intervals, effect_rms, evidence)`` of candidate ``name`` fitted as ``fit``: whether it grows
+    the linear part, its parameters with their intervals, the RMS its effect itself makes (or, for a grown
+    order, the change of the output) and the evidence in words. Each candidate's apart from the others' (in the
+    worker processes of :func:`agents.twin.workers.worker_processes`)."""
+    grown = fit.spec.n_linear != current.spec.n_linear  # an order candidate
+    if grown:
+        change = order_change(name, current, fit)
+        params = {key: value["value"] for key, value in change.items()}
+        intervals = {key: {**value, "std": "n/a"} for key, value in change.items()}
+        size = rmse(output_error(fit.y_sim, current.y_sim, data.mask, fit.spec, data.closed_loop), mask=data.mask)
+    else:
+        params = fit.effect_params.get(name, {})
+        intervals, size = effect_intervals(data, fit, name), effect_size(data, fit)
+    return grown, params, intervals, size, effect_evidence(name, data, current, fit)
 
 
 def _share(current: GreyFit, fit: GreyFit) -> float:
