@@ -53,7 +53,7 @@ def worker_processes(n_jobs: int | None) -> Iterator[None]:
         if effective_n_jobs(None) == 1:  # one job, or refused where forking cannot nest (a worker, a thread)
             yield
             return
-        with Parallel() as pool:  # one pool for every map of the block: forked once
+        with Parallel(batch_size=1) as pool:  # one pool for every map of the block: forked once
             token = _POOL.set((os.getpid(), pool))
             try:
                 yield
