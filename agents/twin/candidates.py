@@ -286,12 +286,10 @@ def _profile_problems(data, current, spec, name, starts, lo, hi, lower, upper, s
                 # fitted one: its parabolic steps subtract the values, and inf - inf warned "invalid value"
                 worst = 2.0 * max(r[1][0] for r in results if np.isfinite(r[1][0])) or 1.0
 
-                warm = res[1][: spec.n_linear]  # Brent's points lie next to the best start: SRIVC from its fit
-
                 def cost(x: float) -> float:
                     th = results[best][0].copy()
                     th[g0] = x
-                    cache[x] = profile(data, spec, th, warm=warm, **settings)
+                    cache[x] = profile(data, spec, th, **settings)
                     return cache[x][0] if np.isfinite(cache[x][0]) else worst
 
                 minimize_scalar(cost, bounds=(a, b), method="bounded", options={"maxiter": 6,
