@@ -36,7 +36,7 @@ from agents.twin.jacobian import RecordQR, dense_jacobian
 from agents.twin.model import ModelSpec, fitted_parameters, residual_in_increments, to_increments
 from agents.twin.simulation import simulate_sets
 from agents.twin.trust_region import trf
-from agents.twin.workers import map_independent
+from agents.twin.workers import map_independent, workers_available
 
 __all__ = ["DENSE_JACOBIAN_MAX_BYTES", "JACOBIAN_PASS_SAMPLES", "Problem",
            "fit_problems", "jacobian", "make_problem", "residual"]
@@ -189,18 +189,18 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
         The same objects, with ``theta``, ``cost`` (sum of squared residuals, units of ``y`` squared),
         ``residual``, ``y_sim`` and ``n_iter`` (simulations of trial points) set.
     """
-    fresh = [p for p in problems if not (resume and p.solver_state is not None)]  # a resumed one has its output
-    sims = simulate_sets(data, [(p.spec, p.theta, p.rows) for p in fresh])
-    for p, y in zip(fresh, sims):
-        p.y_sim, p.residual = y, residual(data, p.rows, y, increments=residual_in_increments(p.spec))
-        p.cost = float(np.sum(p.residual**2))
     budgets = [int(max_iter)] * len(problems) if budgets is None else [int(b) for b in budgets]
     if len(budgets) != len(problems):
         raise ValueError(f"budgets: need one per problem ({len(problems)}), got {len(budgets)}")
     todo = [(p, b) for p, b in zip(problems, budgets) if b > 0 and np.any(p.free & (p.lower < p.upper))]
+    fresh = {id(p) for p in problems if not (resume and p.solver_state is not None)}  # a resumed one has its output
+    # the starts in one vectorised pass here, or each in the worker process that solves it (the same values: the
+    # rows of a pass do not interact), which keeps this process's memory and time free of them
+    elsewhere = {id(p) for p, _ in todo} & fresh if workers_available() else set()
+    _at_start(data, [p for p in problems if id(p) in fresh - elsewhere])
     # one problem at a time, each alone (in worker processes where the caller opened them,
     # agents.twin.workers): its own exact steps, and one problem's signals in memory per process
-    pieces = [(data, p, b, float(tol), resume) for p, b in todo]
+    pieces = [(data, p, b, float(tol), resume, id(p) in elsewhere) for p, b in todo]
     for p, solved in zip([p for p, _ in todo], map_independent(_solved, pieces)):
         if solved is not p:  # solved in a worker process: its copy
             p.theta, p.cost, p.n_iter, p.residual, p.y_sim, p.solver_state = (
@@ -208,8 +208,18 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     return problems
 
 
-def _solved(data: GreyData, p: Problem, max_iter: int, tol: float, resume: bool) -> Problem:
-    """``p`` solved in place (:func:`_solve`), returned (from a worker process: a copy)."""
+def _at_start(data: GreyData, problems: list[Problem]) -> None:
+    """Simulate ``problems`` at their parameters in one vectorised pass: their ``y_sim``, ``residual`` and ``cost``."""
+    for p, y in zip(problems, simulate_sets(data, [(p.spec, p.theta, p.rows) for p in problems])):
+        p.y_sim, p.residual = y, residual(data, p.rows, y, increments=residual_in_increments(p.spec))
+        p.cost = float(np.sum(p.residual**2))
+
+
+def _solved(data: GreyData, p: Problem, max_iter: int, tol: float, resume: bool, start: bool) -> Problem:
+    """``p`` solved in place (:func:`_solve`; first simulated at its start, :func:`_at_start`, when ``start``),
+    returned (from a worker process: a copy)."""
+    if start:
+        _at_start(data, [p])
     _solve(data, p, max_iter, tol, resume)
     return p
 

@@ -24,7 +24,7 @@ from contextvars import ContextVar
 
 from joblib import Parallel, delayed, effective_n_jobs, parallel_config
 
-__all__ = ["check_n_jobs", "map_independent", "worker_processes"]
+__all__ = ["check_n_jobs", "map_independent", "worker_processes", "workers_available"]
 
 #: The pool of the innermost :func:`worker_processes` block, with the process that owns it (a forked worker
 #: inherits the variable, and runs its own maps one by one).
@@ -61,6 +61,12 @@ def worker_processes(n_jobs: int | None) -> Iterator[None]:
                 _POOL.reset(token)
 
 
+def workers_available() -> bool:
+    """Whether :func:`map_independent` would run two or more pieces in worker processes here."""
+    owner, pool = _POOL.get() or (None, None)
+    return owner == os.getpid() or effective_n_jobs(None) > 1
+
+
 def map_independent(fn: Callable, args: Iterable[tuple]) -> Iterator:
     """``fn(*a)`` for each ``a`` of ``args``, in order: all at once from the worker processes of
     :func:`worker_processes` (or of the active joblib configuration), or one by one as computed here
@@ -72,7 +78,7 @@ def map_independent(fn: Callable, args: Iterable[tuple]) -> Iterator:
     owner, pool = _POOL.get() or (None, None)
     if owner != os.getpid():
         pool = None
-    if len(args) < 2 or (pool is None and effective_n_jobs(None) == 1):
+    if len(args) < 2 or not workers_available():
         return (fn(*a) for a in args)
     return iter((pool or Parallel())(delayed(fn)(*a) for a in args))
 
