@@ -38,16 +38,9 @@ ORDER_CANDIDATES: dict[str, tuple[int, int]] = {"pole_pair": (2, 0), "pole": (1,
 MAX_POLES = 6
 #: Effects whose starting grid is a scan (:func:`agents.twin.guesses.effect_starts`): each point's SRIVC profile
 #: starts from its neighbour's fit and takes :data:`SCAN_PROFILE_ITER` iterations (the first point and Brent's
-#: refinement between the best point's neighbours take :data:`PROFILE_ITER` from the state-variable filter).
+#: refinement between the best point's neighbours take the full ten from the state-variable filter).
 SCANNED_EFFECTS = ("saturation",)
 SCAN_PROFILE_ITER = 3
-#: SRIVC iterations of an effect's profile point from the state-variable filter (:func:`_profile_problems`). The
-#: profile ranks the starts and gives the least-squares fit its start; on data with an effect the linear part
-#: lacks, SRIVC rarely meets its tolerance (1e-5) within 10. With 6 instead of 10, 12 of the 13 cases of
-#: ``benchmarks/bench_diagnose.py`` give the same best effect with its parameters within 1.3e-7 relative;
-#: Coulomb friction's fit moved to another minimum (held-out RMSE 0.10680 -> 0.10698, RMSE on all data 0.1082 ->
-#: 0.1060), and the candidates' starts took a fifth less CPU time (2026-11-27).
-PROFILE_ITER = 6
 
 
 @dataclass(frozen=True)
@@ -263,7 +256,7 @@ def _profile_problems(data, current, spec, name, starts, lo, hi, lower, upper, s
     """Starting point on the SRIVC profile of the new effect's parameter(s), then one bounded problem."""
     from scipy.optimize import minimize_scalar
 
-    settings = {"max_iter": PROFILE_ITER, "tol": 1e-5}
+    settings = {"max_iter": 10, "tol": 1e-5}
     rows = np.arange(data.n_records)
     g0 = current.theta.size
     if name == "time_delay":  # 16 delays up to the longest, then the bounded search between the best's neighbours
