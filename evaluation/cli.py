@@ -134,8 +134,7 @@ def run() -> int:
     down) the exit is the normal one, which waits for them. In-process callers use :func:`main`, which returns.
     """
     code = main()
-    if multiprocessing.active_children() or any(t.is_alive() and not t.daemon and t is not threading.main_thread()
-                                                 for t in threading.enumerate()):
+    if not _alone():
         return code
     atexit._run_exitfuncs()  # what sys.exit would run
     for stream in (sys.stdout, sys.stderr):
@@ -144,6 +143,12 @@ def run() -> int:
         except OSError:  # a reader that went away (gbo ... | head): nothing left to write to
             pass
     os._exit(code)
+
+
+def _alone() -> bool:
+    """Whether no child process and no non-daemon thread but the main one is alive."""
+    threads = (t for t in threading.enumerate() if t is not threading.main_thread())
+    return not multiprocessing.active_children() and not any(t.is_alive() and not t.daemon for t in threads)
 
 
 if __name__ == "__main__":
