@@ -335,8 +335,10 @@ def candidate_problems(data: GreyData, current: GreyFit, name: str, options: Map
                                 for th, b in zip(thetas, biases)])
     costs = []
     for y in sims:
-        err = np.where(data.mask, y - data.y, 0.0)
-        costs.append(float(np.sum(err**2)) if np.all(np.isfinite(err)) else np.inf)
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverged start: its cost is inf either way
+            err = np.where(data.mask, y - data.y, 0.0)
+            cost = float(np.sum(err**2))
+        costs.append(cost if np.isfinite(cost) else np.inf)
     order = np.argsort(costs)[:n_keep]
     problems = []
     for i in order:

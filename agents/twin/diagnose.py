@@ -221,7 +221,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
         raise ValueError(f"noise_gain: must be a finite number >= 0, got {noise_gain}")
     if int(screen_iter) < 1:
         raise ValueError(f"screen_iter: must be an integer >= 1, got {screen_iter}")
-    with worker_processes(n_jobs):
+    with worker_processes(n_jobs, shared=(data,)):
         # records -> linear fit (and the effects the model already has)
         if current is None:
             current = GreyBoxTwin(effects=() if effects is None else effects, **_orders(spec), max_iter=max_iter

@@ -140,8 +140,9 @@ def quantization_scan(data: GreyData, base: GreyFit, span: float, n_best: int = 
     ys = (base.y_sim if y_true is None else y_true).ravel()[idx]
     y = data.y.ravel()[idx]
     e = y - ys
-    df = 0.4 / span
-    freqs = 10.0 / span + df * np.arange(int(np.ceil(990.0 / 0.4)))
+    lowest, highest, spacing = 10.0, 1000.0, 0.4  # frequencies in cycles per output span: steps 0.1 .. 1e-3 of it
+    df = spacing / span
+    freqs = lowest / span + df * np.arange(int(np.ceil((highest - lowest) / spacing)))
     power = np.empty(freqs.size)
     step = np.exp(-2j * np.pi * df * ys)
     for start in range(0, freqs.size, 500):  # exp(-2 pi i f ys) from the block's first frequency by steps of df

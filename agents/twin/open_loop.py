@@ -32,12 +32,10 @@ one that holds it, ``command_for`` of the actuator blocks applied to
 
 from __future__ import annotations
 
-import collections
 import copy
 import functools
-import threading
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.signal import lfilter
@@ -180,34 +178,40 @@ def simulate_open_loop(
     return OpenLoopResult(**out)
 
 
-#: Plants already modified by plant-side blocks, by value (:func:`_modified`); bounded like :func:`_sampled`'s cache.
-_MODIFIED: collections.OrderedDict = collections.OrderedDict()
-_MODIFIED_SIZE = 8192
-_MODIFIED_LOCK = threading.Lock()
+@dataclass(frozen=True)
+class _BlocksByValue:
+    """Plant-side blocks that compare and hash by value: each block's class and
+    :attr:`~gbo_envs.physics.block.EffectBlock.params` (what ``build_effects`` rebuilds it from)."""
+
+    value: tuple
+    blocks: tuple = field(compare=False)
 
 
 def _modified(plant: ContinuousPlant, blocks: Sequence[EffectBlock], experiment_index: int) -> ContinuousPlant:
-    """``plant`` through the plant-side ``blocks`` at ``experiment_index``, remembered by value: a block is
-    its class and :attr:`~gbo_envs.physics.block.EffectBlock.params` (what ``build_effects`` rebuilds it
-    from), and a fit's trial points and Jacobian columns ask for the same few modified plants again (13,620
-    compliance products in one diagnosis of 12 records). A block whose parameters do not hash is applied anew."""
+    """``plant`` through the plant-side ``blocks`` at ``experiment_index``, remembered by value
+    (:func:`_modified_by_value`). A block whose parameters do not hash (arrays) is applied anew."""
+    if not blocks:
+        return plant
+    by_value = _BlocksByValue(tuple((type(b), tuple(b.params.items())) for b in blocks), tuple(blocks))
     try:
-        key = (plant, experiment_index, tuple((type(b), tuple(b.params.items())) for b in blocks))
-        hash(key)
-    except TypeError:  # unhashable parameter values (arrays)
-        key = None
-    with _MODIFIED_LOCK:  # simulation passes run in threads (agents.twin.simulation)
-        hit = _MODIFIED.get(key) if key is not None else None
-        if hit is not None:
-            _MODIFIED.move_to_end(key)
-            return hit
+        hash(by_value)
+    except TypeError:
+        return _through(plant, blocks, experiment_index)
+    return _modified_by_value(plant, experiment_index, by_value)
+
+
+@functools.lru_cache(maxsize=8192)
+def _modified_by_value(plant: ContinuousPlant, experiment_index: int, blocks: _BlocksByValue) -> ContinuousPlant:
+    """:func:`_through`, remembered: a fit's trial points and Jacobian columns ask for the same few modified
+    plants again (the compliance block multiplied its polynomials into the plant 13,620 times in one
+    diagnosis of the dead-zone bench case, 12 records)."""
+    return _through(plant, blocks.blocks, experiment_index)
+
+
+def _through(plant: ContinuousPlant, blocks: Sequence[EffectBlock], experiment_index: int) -> ContinuousPlant:
+    """``plant`` modified by each plant-side block in turn (:meth:`EffectBlock.modify_plant`)."""
     for block in blocks:
         plant = block.modify_plant(plant, experiment_index)
-    if key is not None:
-        with _MODIFIED_LOCK:
-            _MODIFIED[key] = plant
-            if len(_MODIFIED) > _MODIFIED_SIZE:
-                _MODIFIED.popitem(last=False)
     return plant
 
 

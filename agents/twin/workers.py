@@ -12,6 +12,8 @@ Why forked processes: the Python between the compiled parts holds the GIL, so tw
 made the Coulomb case of ``benchmarks/bench_diagnose.py`` only 10 % faster; forked workers
 start in milliseconds with the parent's imports and compiled kernels, where joblib's default
 ``loky`` workers are fresh interpreters that import them again (2 s each on the project machine).
+The workers are forked at the first map of a :func:`worker_processes` block, once the parent has
+loaded the compiled replay, so that they inherit it.
 """
 
 from __future__ import annotations
@@ -19,16 +21,56 @@ from __future__ import annotations
 import numbers
 import os
 from collections.abc import Callable, Iterable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from contextvars import ContextVar
+from dataclasses import dataclass
 
 from joblib import Parallel, delayed, effective_n_jobs, parallel_config
 
 __all__ = ["check_n_jobs", "map_independent", "worker_processes", "workers_available"]
 
-#: The pool of the innermost :func:`worker_processes` block, with the process that owns it (a forked worker
-#: inherits the variable, and runs its own maps one by one).
-_POOL: ContextVar[tuple[int, Parallel] | None] = ContextVar("agents_twin_worker_pool", default=None)
+
+@dataclass(frozen=True)
+class _Shared:
+    """Stands, in a piece sent to a worker, for the block's shared object number ``index``."""
+
+    index: int
+
+
+class _Pool:
+    """The worker processes of one :func:`worker_processes` block, forked at the block's first map.
+
+    Forking late lets the workers inherit what the parent loaded before it: the compiled
+    kernels (:mod:`gbo_envs.physics.kernels`; loading them from numba's cache took each
+    worker 0.4 s of CPU on the project machine), the modules imported on first use, and the
+    block's ``shared`` objects, which a piece then names instead of carrying them pickled (the
+    records: 1 MB in each of the 250 pieces of a diagnosis of 12 x 2,501 samples).
+    """
+
+    def __init__(self, stack: ExitStack, shared: tuple):
+        self.owner = os.getpid()
+        self.shared = shared
+        self._stack = stack
+        self._parallel: Parallel | None = None
+
+    def naming_shared(self, args: tuple) -> tuple:
+        """``args`` with each shared object replaced by its :class:`_Shared` name."""
+        return tuple(next((_Shared(i) for i, s in enumerate(self.shared) if a is s), a) for a in args)
+
+    def parallel(self) -> Parallel:
+        """joblib's pool, forked on the first call: one piece per dispatch (joblib's automatic
+        batches left a worker idle at a map's end: Coulomb case, 0.99 / 0.62 s of busy time on the two)."""
+        if self._parallel is None:
+            from gbo_envs.physics.kernels import warm_up  # imports numba: not at import time
+
+            warm_up(("open_loop",))  # loaded once here, inherited by the workers
+            self._parallel = self._stack.enter_context(Parallel(batch_size=1))
+        return self._parallel
+
+
+#: The pool of the innermost :func:`worker_processes` block (a forked worker inherits the variable, and runs
+#: its own maps one by one: the pool belongs to the process that opened the block).
+_POOL: ContextVar[_Pool | None] = ContextVar("agents_twin_worker_pool", default=None)
 
 
 def check_n_jobs(n_jobs) -> int | None:
@@ -43,30 +85,36 @@ def check_n_jobs(n_jobs) -> int | None:
 
 
 @contextmanager
-def worker_processes(n_jobs: int | None) -> Iterator[None]:
-    """Within it, :func:`map_independent` uses ``n_jobs`` forked worker processes, forked once (``None``:
-    the caller's joblib configuration is left as it is)."""
+def worker_processes(n_jobs: int | None, shared: tuple = ()) -> Iterator[None]:
+    """Within it, :func:`map_independent` uses ``n_jobs`` forked worker processes, forked once, at the
+    first map (``None``: the caller's joblib configuration is left as it is).
+
+    ``shared`` objects (that do not change within the block) reach the workers by the fork, not
+    pickled with each piece that takes them as an argument.
+    """
     if check_n_jobs(n_jobs) is None:
         yield
         return
-    with parallel_config(backend="multiprocessing", n_jobs=n_jobs):
+    with parallel_config(backend="multiprocessing", n_jobs=n_jobs), ExitStack() as stack:
         if effective_n_jobs(None) == 1:  # one job, or refused where forking cannot nest (a worker, a thread)
             yield
             return
-        # one pool for every map of the block, forked once; one piece per dispatch (joblib's automatic batches
-        # left a worker idle at a map's end: Coulomb case, 0.99 / 0.62 s of busy time on the two)
-        with Parallel(batch_size=1) as pool:
-            token = _POOL.set((os.getpid(), pool))
-            try:
-                yield
-            finally:
-                _POOL.reset(token)
+        token = _POOL.set(_Pool(stack, tuple(shared)))
+        try:
+            yield
+        finally:
+            _POOL.reset(token)
+
+
+def _own_pool() -> _Pool | None:
+    """The pool of the innermost :func:`worker_processes` block if this process opened it."""
+    pool = _POOL.get()
+    return pool if pool is not None and pool.owner == os.getpid() else None
 
 
 def workers_available() -> bool:
     """Whether :func:`map_independent` would run two or more pieces in worker processes here."""
-    owner, _ = _POOL.get() or (None, None)
-    return owner == os.getpid() or effective_n_jobs(None) > 1
+    return _own_pool() is not None or effective_n_jobs(None) > 1
 
 
 def map_independent(fn: Callable, args: Iterable[tuple]) -> Iterator:
@@ -77,10 +125,15 @@ def map_independent(fn: Callable, args: Iterable[tuple]) -> Iterator:
     ``fn`` and the arguments must pickle (a module-level function; numpy arrays, dataclasses).
     """
     args = list(args)
-    owner, pool = _POOL.get() or (None, None)
-    if owner != os.getpid():
-        pool = None
-    if len(args) < 2 or not workers_available():
-        return (fn(*a) for a in args)
-    return iter((pool or Parallel(batch_size=1))(delayed(fn)(*a) for a in args))
+    pool = _own_pool()
+    if len(args) >= 2 and pool is not None:
+        return iter(pool.parallel()(delayed(_with_shared)(fn, *pool.naming_shared(a)) for a in args))
+    if len(args) >= 2 and effective_n_jobs(None) > 1:  # the caller's own joblib configuration
+        return iter(Parallel(batch_size=1)(delayed(fn)(*a) for a in args))
+    return (fn(*a) for a in args)
 
+
+def _with_shared(fn: Callable, *args):
+    """``fn(*args)`` in a worker, each :class:`_Shared` name replaced by the object it inherited."""
+    shared = _POOL.get().shared
+    return fn(*(shared[a.index] if isinstance(a, _Shared) else a for a in args))

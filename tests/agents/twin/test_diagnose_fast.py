@@ -5,6 +5,8 @@ Data as in ``test_workbench``: closed-loop step experiments of DCMotor-v0 (2 s, 
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 from joblib import effective_n_jobs
@@ -16,7 +18,7 @@ from agents.twin.least_squares import fit_problems
 from agents.twin.linear_fit import linear_fit
 from agents.twin.open_loop import _transfer_functions
 from agents.twin.workbench import diagnose
-from agents.twin.workers import worker_processes
+from agents.twin.workers import map_independent, worker_processes
 from gbo_envs.physics import ContinuousPlant
 from tests.support import loop_records
 
@@ -60,6 +62,26 @@ def test_fits_in_worker_processes_equal_one_at_a_time():
         np.testing.assert_array_equal(a.theta, b.theta)
         np.testing.assert_array_equal(a.residual, b.residual)
         assert a.cost == b.cost and a.n_iter == b.n_iter > 0
+
+
+def _where_and_what(data: GreyData, other: np.ndarray) -> tuple[int, int, int]:
+    return os.getpid(), id(data), id(other)
+
+
+def test_workers_are_forked_at_the_first_map_with_the_replay_loaded_and_the_shared_records(monkeypatch):
+    import gbo_envs.physics.kernels as kernels
+
+    loads = []
+    monkeypatch.setattr(kernels, "warm_up", lambda which=("closed_loop", "open_loop"): loads.append(which) or 0.0)
+    data, other = _data(n=2), np.arange(3.0)
+    with worker_processes(2, shared=(data,)):
+        assert loads == []  # nothing forked, nothing loaded before a map needs the workers
+        first = list(map_independent(_where_and_what, [(data, other)] * 4))
+        second = list(map_independent(_where_and_what, [(data, other)] * 4))
+    assert loads == [("open_loop",)]  # once, in this process, before the fork: the workers inherit it
+    assert {pid for pid, _, _ in first + second} - {os.getpid()}  # the pieces ran in the workers
+    assert all(d == id(data) for _, d, _ in first + second)  # the fork's copy of the shared records
+    assert all(o != id(other) for _, _, o in first + second)  # an argument not shared arrives pickled
 
 
 def test_a_resumed_fit_takes_the_steps_of_one_fit_with_the_whole_budget():
