@@ -36,9 +36,14 @@ __all__ = ["MAX_POLES", "ORDER_CANDIDATES", "Candidate", "CandidatePlan", "Order
 ORDER_CANDIDATES: dict[str, tuple[int, int]] = {"pole_pair": (2, 0), "pole": (1, 0), "zero": (0, 1)}
 #: Most poles an order candidate grows the linear part to.
 MAX_POLES = 6
+#: SRIVC iterations (and relative tolerance) of a point on a new effect's profile, from the state-variable
+#: filter. Six made the starts a fifth cheaper but lost the Coulomb friction of ``benchmarks/real_like_sets.py``'s
+#: asymmetric-friction set (cogging was named: RMSE 3.22 -> 2.28, where ten give -> 0.595; docs/design.md).
+PROFILE_ITER = 10
+PROFILE_TOL = 1e-5
 #: Effects whose starting grid is a scan (:func:`agents.twin.guesses.effect_starts`): each point's SRIVC profile
 #: starts from its neighbour's fit and takes :data:`SCAN_PROFILE_ITER` iterations (the first point and Brent's
-#: refinement between the best point's neighbours take the full ten from the state-variable filter).
+#: refinement between the best point's neighbours take the full :data:`PROFILE_ITER` from the state-variable filter).
 SCANNED_EFFECTS = ("saturation",)
 SCAN_PROFILE_ITER = 3
 
@@ -256,7 +261,7 @@ def _profile_problems(data, current, spec, name, starts, lo, hi, lower, upper, s
     """Starting point on the SRIVC profile of the new effect's parameter(s), then one bounded problem."""
     from scipy.optimize import minimize_scalar
 
-    settings = {"max_iter": 10, "tol": 1e-5}
+    settings = {"max_iter": PROFILE_ITER, "tol": PROFILE_TOL}
     rows = np.arange(data.n_records)
     g0 = current.theta.size
     if name == "time_delay":  # 16 delays up to the longest, then the bounded search between the best's neighbours

@@ -19,7 +19,8 @@ from agents.twin.data import GreyData
 from agents.twin.identify import LinearIdentification, identify_linear
 from agents.twin.least_squares import Problem, fit_problems, make_problem
 from agents.twin.model import GreyFit, ModelSpec, effect_offset
-from agents.twin.records import as_records, decimate_records
+from agents.twin.records import decimate_records
+from gbo_envs.experiment import Experiment
 
 __all__ = ["PROFILE_EFFECTS", "PROFILE_SAMPLES", "STATEFUL_ACTUATORS", "linear_fit", "profile", "step_start"]
 
@@ -109,7 +110,7 @@ def _srivc_start(spec: ModelSpec, linear: np.ndarray | None, delay: float | None
     return np.concatenate([linear[spec.n_zeros + 1 :], linear[: spec.n_zeros + 1]]), delay
 
 
-def _records_through(data: GreyData, blocks: Sequence, output: str) -> list[dict]:
+def _records_through(data: GreyData, blocks: Sequence, output: str) -> list[Experiment]:
     """Records whose ``u`` is replaced by the plant input of the actuator ``blocks`` (speed from the measured y).
 
     A ``drift`` of the plant's gain scales each record's input by its factor
@@ -132,8 +133,15 @@ def _records_through(data: GreyData, blocks: Sequence, output: str) -> list[dict
     else:  # maps of (u, speed): every sample at once, the same values
         for block in actuators:
             u = block.actuate(u, speed)
-    return [{"t": data.t[k][data.mask[k]], "r": data.r[k][data.mask[k]], "u": u[k][data.mask[k]],
-             "y": data.y[k][data.mask[k]]} for k in range(data.n_records)]
+    u = np.asarray(u, dtype=float)
+    u.setflags(write=False)  # rows of read-only arrays are shared by the records, not copied (Experiment)
+
+    def row(signal: np.ndarray, k: int) -> np.ndarray:
+        return signal[k] if data.mask[k].all() else signal[k][data.mask[k]]
+
+    # indexed by position, as identify_linear numbers the rest levels' rows
+    return [Experiment(gains=(), t=row(data.t, k), r=row(data.r, k), u=row(u, k), y=row(data.y, k), index=k)
+            for k in range(data.n_records)]
 
 
 def _rest_through(data: GreyData, blocks: Sequence, output: str) -> np.ndarray:
@@ -191,11 +199,11 @@ def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float
         delay = float(theta[nl] + sum(b.delay for b in blocks if b.name == "time_delay"))
     else:
         delay, max_delay = None, float(max_delay)
-    records = _records_through(data, blocks, spec.output)
-    rest = _rest_through(data, blocks, spec.output)  # pinned records: their rest command through the blocks
-    if int(data.mask.sum(axis=1).max()) > PROFILE_SAMPLES:  # the mean input over each hold: the same impulse
-        records = decimate_records(as_records(records), PROFILE_SAMPLES, mean_input=True)
-    try:
+    try:  # a plant input the blocks make non-finite is refused by the records (ValueError): no fit there
+        records = _records_through(data, blocks, spec.output)
+        rest = _rest_through(data, blocks, spec.output)  # pinned records: their rest command through the blocks
+        if int(data.mask.sum(axis=1).max()) > PROFILE_SAMPLES:  # the mean input over each hold: the same impulse
+            records = decimate_records(records, PROFILE_SAMPLES, mean_input=True)
         fit: LinearIdentification = identify_linear(
             records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators, delay=delay,
             max_delay=max_delay, max_iter=max_iter, tol=tol, rest_levels=rest, hold="zoh", delay_step=delay_step,

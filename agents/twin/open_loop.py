@@ -41,14 +41,19 @@ import numpy as np
 from scipy.signal import lfilter
 
 from gbo_envs.physics.block import EffectBlock
+from gbo_envs.physics.compliance import Compliance
 from gbo_envs.physics.lti import ContinuousPlant, DiscretePlant
+from gbo_envs.physics.plant_effects import TimeDelay
 
-__all__ = ["MEMORYLESS_EFFECTS", "OpenLoopResult", "simulate_open_loop"]
+__all__ = ["MEMORYLESS_EFFECTS", "SAME_IN_EVERY_EXPERIMENT", "OpenLoopResult", "simulate_open_loop"]
 
 #: Catalogue effects that are static maps ignoring the speed (no state): rows whose actuator and
 #: sensor blocks are all of these are simulated without a loop over time (the whole record is
 #: mapped through the blocks at once and filtered exactly by the linear plant).
 MEMORYLESS_EFFECTS = frozenset({"saturation", "dead_zone", "offset", "quantization"})
+#: Catalogue plant-side blocks whose ``modify_plant`` ignores the experiment index: rows of one plant with
+#: only these share one modified plant whatever their experiment (a drift, or a user's block, does not).
+SAME_IN_EVERY_EXPERIMENT = (Compliance, TimeDelay)
 
 
 @dataclass(frozen=True, eq=False)
@@ -155,9 +160,11 @@ def simulate_open_loop(
     shared: dict[tuple, tuple[ContinuousPlant, DiscretePlant]] = {}
     for row in range(batch):
         plant_blocks = [block for block in chains[row] if block.side == "plant"]
-        key = (id(plants[row]), *map(id, plant_blocks), int(index[row]))
+        # the experiment only counts for a block that may change the plant between experiments (drift)
+        experiment = 0 if all(type(b) in SAME_IN_EVERY_EXPERIMENT for b in plant_blocks) else int(index[row])
+        key = (id(plants[row]), *map(id, plant_blocks), experiment)
         if key not in shared:
-            p = _modified(plants[row], plant_blocks, int(index[row]))
+            p = _modified(plants[row], plant_blocks, experiment)
             shared[key] = p, _sampled(p, float(dt))
         continuous.append(shared[key][0])
         discrete.append(shared[key][1])
@@ -181,10 +188,15 @@ def simulate_open_loop(
 @dataclass(frozen=True)
 class _BlocksByValue:
     """Plant-side blocks that compare and hash by value: each block's class and
-    :attr:`~gbo_envs.physics.block.EffectBlock.params` (what ``build_effects`` rebuilds it from)."""
+    :attr:`~gbo_envs.physics.block.EffectBlock.params` (what ``build_effects`` rebuilds it from).
+    ``hash_`` is the value's hash, computed once (the cache looks it up on every row of a simulation)."""
 
     value: tuple
+    hash_: int = field(compare=False)
     blocks: tuple = field(compare=False)
+
+    def __hash__(self) -> int:
+        return self.hash_
 
 
 def _modified(plant: ContinuousPlant, blocks: Sequence[EffectBlock], experiment_index: int) -> ContinuousPlant:
@@ -192,9 +204,9 @@ def _modified(plant: ContinuousPlant, blocks: Sequence[EffectBlock], experiment_
     (:func:`_modified_by_value`). A block whose parameters do not hash (arrays) is applied anew."""
     if not blocks:
         return plant
-    by_value = _BlocksByValue(tuple((type(b), tuple(b.params.items())) for b in blocks), tuple(blocks))
+    value = tuple((type(b), tuple(b.params.items())) for b in blocks)
     try:
-        hash(by_value)
+        by_value = _BlocksByValue(value, hash(value), tuple(blocks))
     except TypeError:
         return _through(plant, blocks, experiment_index)
     return _modified_by_value(plant, experiment_index, by_value)

@@ -112,9 +112,18 @@ def _own_pool() -> _Pool | None:
     return pool if pool is not None and pool.owner == os.getpid() else None
 
 
+def _workers() -> _Pool | Parallel | None:
+    """Where :func:`map_independent` sends pieces: this process's own pool, else the caller's joblib
+    configuration when it has more than one job, else nowhere (``None``: here, one by one)."""
+    pool = _own_pool()
+    if pool is not None:
+        return pool
+    return Parallel(batch_size=1) if effective_n_jobs(None) > 1 else None
+
+
 def workers_available() -> bool:
     """Whether :func:`map_independent` would run two or more pieces in worker processes here."""
-    return _own_pool() is not None or effective_n_jobs(None) > 1
+    return _workers() is not None
 
 
 def map_independent(fn: Callable, args: Iterable[tuple]) -> Iterator:
@@ -125,11 +134,11 @@ def map_independent(fn: Callable, args: Iterable[tuple]) -> Iterator:
     ``fn`` and the arguments must pickle (a module-level function; numpy arrays, dataclasses).
     """
     args = list(args)
-    pool = _own_pool()
-    if len(args) >= 2 and pool is not None:
-        return iter(pool.parallel()(delayed(_with_shared)(fn, *pool.naming_shared(a)) for a in args))
-    if len(args) >= 2 and effective_n_jobs(None) > 1:  # the caller's own joblib configuration
-        return iter(Parallel(batch_size=1)(delayed(fn)(*a) for a in args))
+    workers = _workers() if len(args) >= 2 else None
+    if isinstance(workers, _Pool):
+        return iter(workers.parallel()(delayed(_with_shared)(fn, *workers.naming_shared(a)) for a in args))
+    if workers is not None:  # the caller's own joblib configuration
+        return iter(workers(delayed(fn)(*a) for a in args))
     return (fn(*a) for a in args)
 
 

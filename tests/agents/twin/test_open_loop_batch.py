@@ -93,3 +93,27 @@ def test_plant_side_blocks_remembered_by_value_give_each_row_its_own_plant():
                                        experiment_index=int(index[row]))
             np.testing.assert_array_equal(batch.y[row], alone.y[0])
     assert len({round(float(batch.y[row, -1]), 9) for row in range(len(chains))}) == len(chains)
+
+
+def test_a_plant_block_the_same_in_every_experiment_modifies_the_plant_once_for_all(monkeypatch):
+    """A compliance (one plant in every experiment) is applied once for the rows of six experiments; a drift
+    (a plant per experiment) once per experiment. Each row is as simulated alone."""
+    from agents.twin import open_loop
+    from gbo_envs.physics.compliance import Compliance
+    from gbo_envs.physics.plant_effects import Drift
+
+    calls = {Compliance: 0, Drift: 0}
+    for cls in calls:
+        def counted(self, plant, experiment_index, _original=cls.modify_plant, _cls=cls):
+            calls[_cls] += 1
+            return _original(self, plant, experiment_index)
+        monkeypatch.setattr(cls, "modify_plant", counted)
+    open_loop._modified_by_value.cache_clear()
+    index = np.arange(6)
+    u = np.tile(np.where(np.arange(300) < 20, 0.0, 10.0), (6, 1))
+    for effects in ({"compliance": {"frequency": 40.0, "damping": 0.1}}, {"drift": {"rate": 0.1}}):
+        batch = simulate_open_loop(SPEED, u, 0.002, build_effects(effects), experiment_index=index)
+        for row in range(6):
+            alone = simulate_open_loop(SPEED, u[row], 0.002, build_effects(effects), experiment_index=int(index[row]))
+            np.testing.assert_array_equal(batch.y[row], alone.y[0])
+    assert calls == {Compliance: 1, Drift: 6}
