@@ -2,22 +2,25 @@
 
 A diagnosis is mostly fits that do not depend on one another: the candidates' starting
 problems, their least-squares fits, the cross-validation's refits. :func:`map_independent`
-runs such pieces in the worker processes of joblib's active configuration
-(:func:`worker_processes` sets it: ``n_jobs`` forked processes, joblib's ``"multiprocessing"``
-backend), and one after another in this process when that configuration has one job (joblib's
-default). Every piece is computed by the same code from the same inputs either way, so the
-results do not depend on ``n_jobs``.
+runs such pieces in the worker processes of a :func:`worker_processes` block (``n_jobs`` forked
+processes), or of the caller's joblib configuration, and one after another in this process when
+there is one job (joblib's default). Every piece is computed by the same code from the same inputs
+either way, so the results do not depend on ``n_jobs``.
 
 Why forked processes: the Python between the compiled parts holds the GIL, so two threads
 made the Coulomb case of ``benchmarks/bench_diagnose.py`` only 10 % faster; forked workers
 start in milliseconds with the parent's imports and compiled kernels, where joblib's default
 ``loky`` workers are fresh interpreters that import them again (2 s each on the project machine).
 The workers are forked at the first map of a :func:`worker_processes` block, once the parent has
-loaded the compiled replay, so that they inherit it.
+loaded the compiled replay, so that they inherit it. They are a plain ``multiprocessing`` pool:
+joblib's ``"multiprocessing"`` backend, used before, starts loky's resource tracker for its
+memmapping folders, which these pieces never use, and that tracker is one more fresh interpreter
+importing joblib and numpy (0.4 s of CPU at the first map of every command).
 """
 
 from __future__ import annotations
 
+import multiprocessing
 import numbers
 import os
 from collections.abc import Callable, Iterable, Iterator
@@ -38,7 +41,7 @@ class _Shared:
 
 
 class _Pool:
-    """The worker processes of one :func:`worker_processes` block, forked at the block's first map.
+    """The ``n_jobs`` worker processes of one :func:`worker_processes` block, forked at the block's first map.
 
     Forking late lets the workers inherit what the parent loaded before it: the compiled
     kernels (:mod:`gbo_envs.physics.kernels`; loading them from numba's cache took each
@@ -47,25 +50,25 @@ class _Pool:
     records: 1 MB in each of the 250 pieces of a diagnosis of 12 x 2,501 samples).
     """
 
-    def __init__(self, stack: ExitStack, shared: tuple):
+    def __init__(self, stack: ExitStack, shared: tuple, n_jobs: int):
         self.owner = os.getpid()
         self.shared = shared
+        self.n_jobs = n_jobs
         self._stack = stack
-        self._parallel: Parallel | None = None
+        self._processes = None
 
-    def naming_shared(self, args: tuple) -> tuple:
-        """``args`` with each shared object replaced by its :class:`_Shared` name."""
-        return tuple(next((_Shared(i) for i, s in enumerate(self.shared) if a is s), a) for a in args)
-
-    def parallel(self) -> Parallel:
-        """joblib's pool, forked on the first call: one piece per dispatch (joblib's automatic
-        batches left a worker idle at a map's end: Coulomb case, 0.99 / 0.62 s of busy time on the two)."""
-        if self._parallel is None:
+    def map(self, fn: Callable, args: list[tuple]) -> list:
+        """``fn(*a)`` for each ``a`` of ``args`` in the workers, in order, one piece per dispatch (batches of
+        pieces left a worker idle at a map's end: Coulomb case, 0.99 / 0.62 s of busy time on the two)."""
+        if self._processes is None:
             from gbo_envs.physics.kernels import warm_up  # imports numba: not at import time
 
             warm_up(("open_loop",))  # loaded once here, inherited by the workers
-            self._parallel = self._stack.enter_context(Parallel(batch_size=1))
-        return self._parallel
+            # left by terminating the workers: every map has returned by then, or is abandoned by an error
+            self._processes = self._stack.enter_context(multiprocessing.get_context("fork").Pool(self.n_jobs))
+        pieces = [(fn, tuple(next((_Shared(i) for i, s in enumerate(self.shared) if a is s), a) for a in piece))
+                  for piece in args]
+        return self._processes.map(_with_shared, pieces, chunksize=1)
 
 
 #: The pool of the innermost :func:`worker_processes` block (a forked worker inherits the variable, and runs
@@ -87,7 +90,8 @@ def check_n_jobs(n_jobs) -> int | None:
 @contextmanager
 def worker_processes(n_jobs: int | None, shared: tuple = ()) -> Iterator[None]:
     """Within it, :func:`map_independent` uses ``n_jobs`` forked worker processes, forked once, at the
-    first map (``None``: the caller's joblib configuration is left as it is).
+    first map (``None``: the caller's joblib configuration is left as it is). Where processes cannot
+    be forked (Windows), or where forking cannot nest (a worker, a thread), the pieces run one by one.
 
     ``shared`` objects (that do not change within the block) reach the workers by the fork, not
     pickled with each piece that takes them as an argument.
@@ -95,11 +99,13 @@ def worker_processes(n_jobs: int | None, shared: tuple = ()) -> Iterator[None]:
     if check_n_jobs(n_jobs) is None:
         yield
         return
+    # joblib's rules for n_jobs: a negative count from the cores; one job in a daemon process or a thread
     with parallel_config(backend="multiprocessing", n_jobs=n_jobs), ExitStack() as stack:
-        if effective_n_jobs(None) == 1:  # one job, or refused where forking cannot nest (a worker, a thread)
+        jobs = effective_n_jobs(None)
+        if jobs == 1 or "fork" not in multiprocessing.get_all_start_methods():
             yield
             return
-        token = _POOL.set(_Pool(stack, tuple(shared)))
+        token = _POOL.set(_Pool(stack, tuple(shared), jobs))
         try:
             yield
         finally:
@@ -136,13 +142,15 @@ def map_independent(fn: Callable, args: Iterable[tuple]) -> Iterator:
     args = list(args)
     workers = _workers() if len(args) >= 2 else None
     if isinstance(workers, _Pool):
-        return iter(workers.parallel()(delayed(_with_shared)(fn, *workers.naming_shared(a)) for a in args))
+        return iter(workers.map(fn, args))
     if workers is not None:  # the caller's own joblib configuration
         return iter(workers(delayed(fn)(*a) for a in args))
     return (fn(*a) for a in args)
 
 
-def _with_shared(fn: Callable, *args):
-    """``fn(*args)`` in a worker, each :class:`_Shared` name replaced by the object it inherited."""
+def _with_shared(piece: tuple):
+    """``fn(*args)`` of ``piece = (fn, args)`` in a worker, each :class:`_Shared` name replaced by the object it
+    inherited."""
+    fn, args = piece
     shared = _POOL.get().shared
     return fn(*(shared[a.index] if isinstance(a, _Shared) else a for a in args))
