@@ -35,14 +35,3 @@ def study_tuners(tuner_registry, monkeypatch, request):
     monkeypatch.delitem(sys.modules, "benchmarks.study_tuners", raising=False)
     request.addfinalizer(lambda: sys.modules.pop("benchmarks.study_tuners", None))
     return tuner_registry
-
-
-def pytest_collection_modifyitems(items):
-    """Modules with a ``slow`` test first, each module's tests together and in their order.
-
-    pytest-xdist hands the tests out in this order, so the workers end on tests of milliseconds rather
-    than one finishing a test of tens of seconds (the README's ``gbo bench suite``, collected last) while
-    the other waits: the longest first, as a scheduler does.
-    """
-    slow = {item.module for item in items if item.get_closest_marker("slow")}
-    items.sort(key=lambda item: getattr(item, "module", None) not in slow)
