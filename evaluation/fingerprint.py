@@ -63,6 +63,8 @@ class SourceTree:
     def __init__(self, commit: str | None = None) -> None:
         self.commit = commit
         self._cache: dict[str, tuple[str, bytes] | None] = {}
+        self._syntax: dict[str, ast.Module] = {}
+        self._imports: dict[tuple[str, tuple[str, ...]], frozenset[str]] = {}
 
     def read(self, module: str) -> tuple[str, bytes] | None:
         """``(relative path, source bytes)`` of ``module``, or None when it is not a module of the tree."""
@@ -74,6 +76,13 @@ class SourceTree:
         """Whether ``module`` is a package (its source is an ``__init__.py``)."""
         found = self.read(module)
         return found is not None and found[0].endswith("__init__.py")
+
+    def syntax(self, module: str) -> ast.Module:
+        """The parsed source of ``module`` (which must be a module of the tree), parsed once per tree: the
+        closures of a suite's tuners and plants read the same modules again and again."""
+        if module not in self._syntax:
+            self._syntax[module] = ast.parse(self.read(module)[1])
+        return self._syntax[module]
 
     def _read(self, module: str) -> tuple[str, bytes] | None:
         parts = module.split(".")
@@ -160,12 +169,19 @@ def reread_sources() -> None:
     _working_tree.cache_clear()
 
 
-def _imports(module: str, tree: SourceTree, packages: tuple[str, ...]) -> set[str]:
-    """The project modules ``module`` imports (names imported from a package resolved to their module)."""
-    found = tree.read(module)
-    if found is None:
+def _imports(module: str, tree: SourceTree, packages: tuple[str, ...]) -> frozenset[str]:
+    """The project modules ``module`` imports (names imported from a package resolved to their module),
+    found once per tree."""
+    key = (module, packages)
+    if key not in tree._imports:
+        tree._imports[key] = frozenset(_read_imports(module, tree, packages))
+    return tree._imports[key]
+
+
+def _read_imports(module: str, tree: SourceTree, packages: tuple[str, ...]) -> set[str]:
+    if tree.read(module) is None:
         return set()
-    syntax = ast.parse(found[1])
+    syntax = tree.syntax(module)
     package = module if tree.is_package(module) else module.rpartition(".")[0]
     out: set[str] = set()
     for node in ast.walk(syntax):
@@ -198,7 +214,7 @@ def _resolve_name(base: str, name: str, tree: SourceTree, packages: tuple[str, .
         return f"{base}.{name}"
     if depth > 5 or not tree.is_package(base):
         return base
-    syntax = ast.parse(tree.read(base)[1])
+    syntax = tree.syntax(base)
     for node in syntax.body:
         if isinstance(node, ast.ImportFrom):
             source = _absolute(node, base)
