@@ -420,16 +420,17 @@ LAYOUTS = {"versus": _versus, "columns": _columns_layout, "sections": _sections,
            "list": _list_layout}
 
 
-def _optimum_shifts(study, out: Path) -> dict:
+def _optimum_shifts(study, out: Path | None) -> dict:
     """Plant -> ``{"optimum_shift": cells}``: the grid cell of its ground-truth optimum against that of the
-    study's first plant with the same gains (Chebyshev distance in cells of the study's grid)."""
-    import gbo_envs
+    study's first plant with the same gains (Chebyshev distance in cells of the study's grid); the cells are
+    cached in ``out/optima.json`` (:func:`evaluation.curves.plant_optimum_cell`)."""
+    from evaluation.curves import plant_optimum_cell
 
+    cache = None if out is None else Path(out) / "optima.json"
     cells, names, shifts = {}, {}, {}
     for plant in study.plants:
-        truth = gbo_envs.ground_truth(plant.env_id, resolution=study.resolution, **plant.env_kwargs)
-        cells[plant.label] = np.unravel_index(np.argmin(truth.costs), truth.costs.shape)
-        names[plant.label] = tuple(truth.gain_names)
+        cells[plant.label], names[plant.label] = plant_optimum_cell(plant.env_id, plant.env_kwargs,
+                                                                    study.resolution, cache)
     for plant in study.plants:
         base = next(p.label for p in study.plants if names[p.label] == names[plant.label])
         shifts[plant.label] = {"optimum_shift": int(max(abs(int(a) - int(b)) for a, b in
@@ -450,7 +451,7 @@ def comparison_lines(study, curves: pd.DataFrame, optima: dict[str, np.ndarray],
     optima : dict
         ``J*_k`` per plant label.
     out : Path, optional
-        The study's folder (unused for now beyond caching ground truths).
+        The study's folder: its ``optima.json`` caches the ground truths' optimum cells.
     """
     layout = study.report.get("table", "versus")
     if layout not in LAYOUTS:

@@ -38,7 +38,7 @@ from agents.jsonable import jsonable
 from gbo_envs.atomic_write import atomic_write
 
 __all__ = ["CURVE_COLUMNS", "CURVES_FILE", "change_at", "curves_from_results", "experiments_to_target",
-           "load_curves", "plant_optima", "read_curves", "run_summary", "write_curves"]
+           "load_curves", "plant_optima", "plant_optimum_cell", "read_curves", "run_summary", "write_curves"]
 
 CURVES_FILE = "curves.parquet"
 CURVE_COLUMNS = ["study", "plant", "tuner", "tuner_name", "params", "env_id", "env_kwargs", "budget", "batch", "seed",
@@ -131,13 +131,46 @@ def plant_optima(env_id: str, env_kwargs: dict, budget: int, resolution: int = 1
     if key in known:
         return np.asarray(known[key], dtype=float)
     optima = _compute_optima(env_id, env_kwargs, budget, resolution)
-    if cache is not None:
-        known = _read_json(cache)
-        known[key] = optima.tolist()
-        Path(cache).parent.mkdir(parents=True, exist_ok=True)
-        with atomic_write(Path(cache)) as handle:
-            json.dump(known, handle, indent=1, sort_keys=True)
+    _write_entry(cache, key, optima.tolist())
     return optima
+
+
+def plant_optimum_cell(env_id: str, env_kwargs: dict, resolution: int = 100,
+                       cache: Path | str | None = None) -> tuple[tuple[int, ...], tuple[str, ...]]:
+    """The grid cell of the plant's ground-truth optimum (:func:`gbo_envs.ground_truth`) and the gains' names.
+
+    Cached in the JSON file ``cache`` beside :func:`plant_optima`'s entries, under a key of env, kwargs,
+    resolution and the plant's source hash: a rig's live grid takes a minute of CPU.
+
+    Returns
+    -------
+    cell : tuple of int
+        Index of the minimum on the ``resolution`` x ``resolution`` grid, one per gain.
+    gain_names : tuple of str
+    """
+    from evaluation.fingerprint import plant_modules, source_hash
+
+    key = "cell:" + _optima_key(env_id, env_kwargs, 0, resolution, source_hash(plant_modules(env_id)))
+    known = _read_json(cache).get(key)
+    if known is None:
+        import gbo_envs
+
+        truth = gbo_envs.ground_truth(env_id, resolution=resolution, **env_kwargs)
+        cell = np.unravel_index(np.argmin(truth.costs), truth.costs.shape)
+        known = {"cell": [int(i) for i in cell], "gain_names": list(truth.gain_names)}
+        _write_entry(cache, key, known)
+    return tuple(known["cell"]), tuple(known["gain_names"])
+
+
+def _write_entry(cache: Path | str | None, key: str, value) -> None:
+    """Add ``key: value`` to the JSON file ``cache`` (atomically; nothing without a file)."""
+    if cache is None:
+        return
+    known = _read_json(cache)
+    known[key] = value
+    Path(cache).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(Path(cache)) as handle:
+        json.dump(known, handle, indent=1, sort_keys=True)
 
 
 def _optima_key(env_id: str, env_kwargs: dict, budget: int, resolution: int, plant_hash: str) -> str:

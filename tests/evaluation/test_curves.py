@@ -8,7 +8,7 @@ import pytest
 
 import agents
 import gbo_envs  # noqa: F401  (registers the envs)
-from evaluation.curves import change_at, experiments_to_target, plant_optima
+from evaluation.curves import change_at, experiments_to_target, plant_optima, plant_optimum_cell
 from evaluation.study_runner import best_true_cost_now
 
 
@@ -55,3 +55,14 @@ def test_the_ratio_judges_the_best_gains_so_far_on_the_plant_of_each_experiment(
     assert moving[15] == pytest.approx(1.0)  # the new optimum tried on the new plant
     assert moving[16] == pytest.approx(1.0)  # and still the best known afterwards
     assert ratios([old] * 16)[15] > 1.5  # the old optimum costs about 2 J* on the changed plant
+
+
+def test_the_optimum_cell_is_the_ground_truths_and_is_computed_once(tmp_path, monkeypatch):
+    cache = tmp_path / "optima.json"
+    truth = gbo_envs.ground_truth("gbo_envs/DCMotor-v0", resolution=12)
+    cell, names = plant_optimum_cell("gbo_envs/DCMotor-v0", {}, 12, cache)
+    assert cell == np.unravel_index(np.argmin(truth.costs), truth.costs.shape) and names == tuple(truth.gain_names)
+    monkeypatch.setattr(gbo_envs, "ground_truth", lambda *a, **k: pytest.fail("computed again"))
+    assert plant_optimum_cell("gbo_envs/DCMotor-v0", {}, 12, cache) == (cell, names)
+    with pytest.raises(pytest.fail.Exception):  # another resolution is another cell
+        plant_optimum_cell("gbo_envs/DCMotor-v0", {}, 13, cache)
