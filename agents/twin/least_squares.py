@@ -201,8 +201,10 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     # one problem at a time, each alone (in worker processes where the caller opened them,
     # agents.twin.workers): its own exact steps, and one problem's signals in memory per process
     # (a problem simulated at its start in its worker goes without its old output: 0.5 MB of 12 x 2,501 samples)
-    pieces = [(data, replace(p, residual=None, y_sim=None) if away else p, b, float(tol), resume, away)
-              for p, b, away in ((p, b, id(p) in elsewhere) for p, b in todo)]
+    pieces = []
+    for p, b in todo:
+        away = id(p) in elsewhere
+        pieces.append((data, replace(p, residual=None, y_sim=None) if away else p, b, float(tol), resume, away))
     for p, solved in zip([p for p, _ in todo], map_independent(_solved, pieces)):
         if solved is not p:  # solved in a worker process: its copy
             p.theta, p.cost, p.n_iter, p.residual, p.y_sim, p.solver_state = (

@@ -16,6 +16,11 @@ loaded the compiled replay, so that they inherit it. They are a plain ``multipro
 joblib's ``"multiprocessing"`` backend, used before, starts loky's resource tracker for its
 memmapping folders, which these pieces never use, and that tracker is one more fresh interpreter
 importing joblib and numpy (0.4 s of CPU at the first map of every command).
+
+Where forking is not safe, on macOS (Python's documentation: its system libraries may start
+threads, and a forked child of such a process can crash; Python starts processes by ``spawn``
+there since 3.8), or not available (Windows), the pieces go to joblib's default ``loky`` workers
+instead: fresh interpreters, each piece pickled with the records it takes.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ from __future__ import annotations
 import multiprocessing
 import numbers
 import os
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import ExitStack, contextmanager
 from contextvars import ContextVar
@@ -31,6 +37,9 @@ from dataclasses import dataclass
 from joblib import Parallel, delayed, effective_n_jobs, parallel_config
 
 __all__ = ["check_n_jobs", "map_independent", "worker_processes", "workers_available"]
+
+#: Whether this platform forks safely a process that has loaded numpy's BLAS (not macOS; no fork on Windows).
+FORK_IS_SAFE = "fork" in multiprocessing.get_all_start_methods() and sys.platform != "darwin"
 
 
 @dataclass(frozen=True)
@@ -91,18 +100,23 @@ def check_n_jobs(n_jobs) -> int | None:
 def worker_processes(n_jobs: int | None, shared: tuple = ()) -> Iterator[None]:
     """Within it, :func:`map_independent` uses ``n_jobs`` forked worker processes, forked once, at the
     first map (``None``: the caller's joblib configuration is left as it is). Where processes cannot
-    be forked (Windows), or where forking cannot nest (a worker, a thread), the pieces run one by one.
+    be forked safely (:data:`FORK_IS_SAFE`: macOS, Windows), ``n_jobs`` of joblib's ``loky`` workers;
+    where processes cannot nest (a worker, a thread), the pieces run one by one.
 
-    ``shared`` objects (that do not change within the block) reach the workers by the fork, not
+    ``shared`` objects (that do not change within the block) reach forked workers by the fork, not
     pickled with each piece that takes them as an argument.
     """
     if check_n_jobs(n_jobs) is None:
         yield
         return
+    if not FORK_IS_SAFE:
+        with parallel_config(backend="loky", n_jobs=n_jobs):
+            yield
+        return
     # joblib's rules for n_jobs: a negative count from the cores; one job in a daemon process or a thread
     with parallel_config(backend="multiprocessing", n_jobs=n_jobs), ExitStack() as stack:
         jobs = effective_n_jobs(None)
-        if jobs == 1 or "fork" not in multiprocessing.get_all_start_methods():
+        if jobs == 1:
             yield
             return
         token = _POOL.set(_Pool(stack, tuple(shared), jobs))
@@ -118,18 +132,10 @@ def _own_pool() -> _Pool | None:
     return pool if pool is not None and pool.owner == os.getpid() else None
 
 
-def _workers() -> _Pool | Parallel | None:
-    """Where :func:`map_independent` sends pieces: this process's own pool, else the caller's joblib
-    configuration when it has more than one job, else nowhere (``None``: here, one by one)."""
-    pool = _own_pool()
-    if pool is not None:
-        return pool
-    return Parallel(batch_size=1) if effective_n_jobs(None) > 1 else None
-
-
 def workers_available() -> bool:
-    """Whether :func:`map_independent` would run two or more pieces in worker processes here."""
-    return _workers() is not None
+    """Whether :func:`map_independent` would run two or more pieces in worker processes here: this process's
+    own pool, or the caller's joblib configuration with more than one job."""
+    return _own_pool() is not None or effective_n_jobs(None) > 1
 
 
 def map_independent(fn: Callable, args: Iterable[tuple]) -> Iterator:
@@ -140,12 +146,12 @@ def map_independent(fn: Callable, args: Iterable[tuple]) -> Iterator:
     ``fn`` and the arguments must pickle (a module-level function; numpy arrays, dataclasses).
     """
     args = list(args)
-    workers = _workers() if len(args) >= 2 else None
-    if isinstance(workers, _Pool):
-        return iter(workers.map(fn, args))
-    if workers is not None:  # the caller's own joblib configuration
-        return iter(workers(delayed(fn)(*a) for a in args))
-    return (fn(*a) for a in args)
+    if len(args) < 2 or not workers_available():
+        return (fn(*a) for a in args)
+    pool = _own_pool()
+    if pool is not None:
+        return iter(pool.map(fn, args))
+    return iter(Parallel(batch_size=1)(delayed(fn)(*a) for a in args))  # the caller's joblib configuration
 
 
 def _with_shared(piece: tuple):

@@ -223,3 +223,22 @@ def test_the_saturation_scan_finds_a_limit_whose_profile_is_a_narrow_v():
     problems = fit_problems(data, candidate_problems(data, base, "saturation"), max_iter=20)
     best = min(problems, key=lambda p: p.cost)
     assert best.theta[base.theta.size] == pytest.approx(138.0, rel=0.005)
+
+
+def test_where_forking_is_unsafe_the_pieces_go_to_loky_workers_with_the_same_results(monkeypatch):
+    """macOS (its system libraries may start threads before a fork) and Windows (no fork): joblib's loky workers."""
+    import agents.twin.workers as workers
+
+    data = _data({"saturation": {"limit": 150.0}}, n=2)
+    base = linear_fit(data, refine=False)
+    problems = candidate_problems(data, base, "saturation")
+    monkeypatch.setattr(workers, "FORK_IS_SAFE", False)
+    with worker_processes(2, shared=(data,)):
+        assert workers._own_pool() is None and workers.workers_available()
+        pids = set(map_independent(_where_and_what, [(data, np.arange(3.0))] * 4))
+        elsewhere = fit_problems(data, [_copy(p) for p in problems], max_iter=3)
+    assert os.getpid() not in {pid for pid, _, _ in pids}
+    here = fit_problems(data, [_copy(p) for p in problems], max_iter=3)
+    for a, b in zip(elsewhere, here):
+        np.testing.assert_array_equal(a.theta, b.theta)
+        assert a.cost == b.cost and a.n_iter == b.n_iter
