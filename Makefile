@@ -23,12 +23,15 @@ chromium:
 
 # torch first, pinned to the CPU build, so that stable-baselines3 never pulls a CUDA build; then the project's
 # bytecode, as pip writes it for a regular install: where PYTHONDONTWRITEBYTECODE is set (Docker images, CI) every
-# command would otherwise compile the project's modules again (0.17 s of each gbo twin diagnose)
+# command would otherwise compile the project's modules again (0.17 s of each gbo twin diagnose); then the compiled
+# simulation, into numba's cache beside the package (gbo_envs/physics/kernels.py): compiled once here (8 s), not
+# by the first command, nor by each process of make test that needs it first
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install --progress-bar on "torch==2.13.0"
 	$(PIP) install --progress-bar on -e ".[all]"
 	$(PY) -m compileall -q agents gbo_envs evaluation
+	$(PY) -c "from gbo_envs.physics.kernels import warm_up; print(f'compiled kernels: {warm_up():.1f} s')"
 	touch $(STAMP)
 
 demo: setup
