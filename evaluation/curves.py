@@ -150,6 +150,7 @@ def plant_optimum_cell(env_id: str, env_kwargs: dict, resolution: int = 100,
     """
     from evaluation.fingerprint import plant_modules, source_hash
 
+    # budget 0 in the key: the cell is the first plant's, whatever the run length
     key = "cell:" + _optima_key(env_id, env_kwargs, 0, resolution, source_hash(plant_modules(env_id)))
     known = _read_json(cache).get(key)
     if known is None:
