@@ -57,14 +57,18 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import gymnasium as gym
 import numpy as np
 
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin.csvio import records_from_loop, write_csv
-from agents.twin.data import GreyData
-from agents.twin.workbench import diagnose
+
+# The workbench's modules are imported where the records are made or diagnosed in this process: with
+# --command on CSVs that exist, an older tree (PYTHONPATH) is timed though it lacks them (3345589 has
+# no agents.twin.data).
+if TYPE_CHECKING:
+    from agents.twin.data import GreyData
 
 #: Reference step through zero speed, for the effects that need a speed (and command) reversal.
 REVERSAL = (-30.0, 30.0)
@@ -98,6 +102,8 @@ TARGET_RSS_MB = 400.0
 def case_records(case: str, n_experiments: int = 12, seed: int = 0) -> tuple[list, tuple[str, ...]]:
     """The records of ``case`` at ``n_experiments`` random gains (uniform on the env's action space), and
     the env's gain names."""
+    from agents.twin.csvio import records_from_loop
+
     env_id, kwargs, step = CASES[case]
     env = gym.make(env_id, **kwargs)
     low, high = env.action_space.low, env.action_space.high
@@ -108,6 +114,8 @@ def case_records(case: str, n_experiments: int = 12, seed: int = 0) -> tuple[lis
 
 def case_data(case: str, n_experiments: int = 12, seed: int = 0) -> GreyData:
     """:func:`case_records` as the workbench's data."""
+    from agents.twin.data import GreyData
+
     return GreyData.from_records(case_records(case, n_experiments, seed)[0])
 
 
@@ -121,6 +129,8 @@ def _warm_up() -> float | None:
 
 
 def main(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int = 0, repeat: int = 1) -> dict:
+    from agents.twin.workbench import diagnose
+
     compile_s = _warm_up()
     data = case_data(case, n_experiments, seed)
     times, cpu = [], []
@@ -216,6 +226,8 @@ def command(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int
     with tempfile.TemporaryDirectory() as folder:
         path = Path(data or folder) / f"{case}.csv"
         if not path.exists():
+            from agents.twin.csvio import write_csv
+
             records, gain_names = case_records(case, n_experiments, seed)
             write_csv(records, path, gain_names=gain_names)
         args = [sys.executable, "-m", "evaluation.cli", "twin", "diagnose", str(path), "--quiet"]
