@@ -2,10 +2,34 @@
 
 from __future__ import annotations
 
+import os
+
 import gymnasium as gym
 import pytest
 
 import gbo_envs  # noqa: F401  (registers the envs)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _torch_threads_share_the_cores_between_the_workers():
+    """Under pytest-xdist, torch's intra-op threads limited to the worker's share of the cores.
+
+    torch starts one OpenMP thread per core in every process: with ``-n 2`` on two cores two workers
+    running BoTorch at the same time had four spinning threads on two cores, and a BoTorch run took
+    5-8 times as long (``test_same_seed_reproduces_the_run[botorch]``: 19 s instead of 2.4 s). The study
+    workers run torch on one thread for the same reason (``evaluation.study_runner``). BLAS is left at
+    its default: ``test_shared_helpers`` checks that ``single_thread`` restores it. (The collection of
+    the whole suite imports torch anyway.)
+    """
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1:
+        try:
+            import torch
+        except ImportError:  # the suite without the extras that bring torch
+            torch = None
+        if torch is not None:
+            torch.set_num_threads(max(1, (os.cpu_count() or 1) // workers))
+    yield
 
 
 @pytest.fixture(scope="module")
