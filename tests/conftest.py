@@ -3,11 +3,31 @@
 from __future__ import annotations
 
 import os
+import sys
 
 import gymnasium as gym
 import pytest
 
 import gbo_envs  # noqa: F401  (registers the envs)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_make_collect_report(collector):
+    """The test modules' assertion-rewritten bytecode cached (``__pycache__/*-pytest-*.pyc``), also where
+    PYTHONDONTWRITEBYTECODE is set (Docker images, CI; ``make setup`` writes the project's bytecode for the
+    same reason).
+
+    pytest writes its rewrite of a test module only when ``sys.dont_write_bytecode`` is false, and reads a
+    cached one either way: without it every run rewrote the suite's asserts in each xdist worker, 4-5 s of
+    the 12 s each worker collects. Only the import of a test module (its collection) writes bytecode.
+    """
+    if not isinstance(collector, pytest.Module) or not sys.dont_write_bytecode:
+        return (yield)
+    sys.dont_write_bytecode = False
+    try:
+        return (yield)
+    finally:
+        sys.dont_write_bytecode = True
 
 
 @pytest.fixture(scope="session", autouse=True)
