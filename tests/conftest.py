@@ -31,25 +31,32 @@ def pytest_make_collect_report(collector):
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _torch_threads_share_the_cores_between_the_workers():
-    """Under pytest-xdist, torch's intra-op threads limited to the worker's share of the cores.
+def _threads_share_the_cores_between_the_workers():
+    """Under pytest-xdist, torch's and the BLAS's threads limited to the worker's share of the cores.
 
-    torch starts one OpenMP thread per core in every process: with ``-n 2`` on two cores two workers
-    running BoTorch at the same time had four spinning threads on two cores, and a BoTorch run took
-    5-8 times as long (``test_same_seed_reproduces_the_run[botorch]``: 19 s instead of 2.4 s). The study
-    workers run torch on one thread for the same reason (``evaluation.study_runner``). BLAS is left at
-    its default: ``test_shared_helpers`` checks that ``single_thread`` restores it. (The collection of
-    the whole suite imports torch anyway.)
+    torch and OpenBLAS each start one thread per core in every process, and their idle threads spin: with
+    ``-n 2`` on two cores, two workers running BoTorch or scikit-learn's GP at the same time had four
+    spinning threads of each on two cores. Two such processes side by side took 5-8 times as long per
+    BoTorch run (``test_same_seed_reproduces_the_run[botorch]``: 19 s instead of 2.4 s) and 3 times as
+    long for skopt and bayes-opt. The study workers run single-threaded for the same reason
+    (``evaluation.study_runner``, ``agents.thread_limits``). ``test_shared_helpers`` sets the BLAS
+    threads it checks ``single_thread`` against itself. (The collection of the whole suite imports torch.)
     """
     workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    if workers > 1:
-        try:
-            import torch
-        except ImportError:  # the suite without the extras that bring torch
-            torch = None
-        if torch is not None:
-            torch.set_num_threads(max(1, (os.cpu_count() or 1) // workers))
-    yield
+    if workers <= 1:
+        yield
+        return
+    share = max(1, (os.cpu_count() or 1) // workers)
+    try:
+        import torch
+    except ImportError:  # the suite without the extras that bring torch
+        torch = None
+    if torch is not None:
+        torch.set_num_threads(share)
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=share, user_api="blas"):
+        yield
 
 
 @pytest.fixture(scope="module")
