@@ -28,13 +28,21 @@ def _setup(tuner, env, seed=0):
     return tuner
 
 
-# -- which twin ----------------------------------------------------------------------------------------
-@pytest.mark.slow
-def test_auto_twin_picks_up_a_known_effect_within_ten_experiments():
+@pytest.fixture(scope="module")
+def saturated_run():
+    """Guided BO (auto twin) after 10 experiments of DCMotor-v0 behind a 138-unit drive limit, seed 0: the one
+    run that two tests read (which twin it found; that it read no plant change)."""
     # a 138-unit drive limit (holding 306 rad/s takes 134.6) clips every transient of DCMotor-v0
     env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 138.0}})
     tuner = GuidedBO(**FAST)
     tuner.run(env, budget=10, seed=0)
+    return tuner
+
+
+# -- which twin ----------------------------------------------------------------------------------------
+@pytest.mark.slow
+def test_auto_twin_picks_up_a_known_effect_within_ten_experiments(saturated_run):
+    tuner = saturated_run
     found = [c for c in tuner.twin_changes_ if "saturation" in c["effects"]]
     assert found, [c["text"] for c in tuner.twin_changes_]
     assert found[0]["experiment"] <= 10
@@ -321,13 +329,11 @@ def test_a_load_change_is_read_on_the_responses_and_the_twin_follows_the_new_pla
 
 
 @pytest.mark.slow
-def test_a_time_invariant_plant_with_an_effect_is_not_read_as_a_change():
+def test_a_time_invariant_plant_with_an_effect_is_not_read_as_a_change(saturated_run):
     """Records that no twin of the current structure explains together, nor the later ones alone, call for the
     diagnosis, not for a reset: on DCMotor-v0 with a hidden saturation the linear twin's refits stay on every
     record and the twin gains the effect."""
-    env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 138.0}})
-    tuner = GuidedBO(**FAST)
-    tuner.run(env, budget=10, seed=0)
+    tuner = saturated_run
     assert tuner.reinitializations_ == 0 and len(tuner._twin_records) == 10
     assert "saturation" in _effect_names(tuner)
 

@@ -55,6 +55,19 @@ def _threads(user_api: str) -> list[int]:
     return [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == user_api]
 
 
+@pytest.fixture
+def blas_on_two_threads():
+    """BLAS on two threads during the test, whatever the machine's cores or the suite's limit (make test's
+    xdist workers run BLAS on one thread: tests/conftest.py), so that a limit to one thread and its
+    restoring both show."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert set(_threads("blas")) == {2}
+        yield
+
+
+@pytest.mark.usefixtures("blas_on_two_threads")
 def test_single_thread_limits_blas_inside_and_restores_after():
     before = _threads("blas")
     assert before, "numpy should have loaded a BLAS"
@@ -63,6 +76,7 @@ def test_single_thread_limits_blas_inside_and_restores_after():
     assert _threads("blas") == before
 
 
+@pytest.mark.usefixtures("blas_on_two_threads")
 def test_single_thread_decorates_each_call_anew():
     @single_thread()
     def inside() -> list[int]:
@@ -71,6 +85,7 @@ def test_single_thread_decorates_each_call_anew():
     assert inside() == inside() == [1] * len(_threads("blas"))
 
 
+@pytest.mark.usefixtures("blas_on_two_threads")
 def test_single_thread_inside_a_block_of_the_same_pools_sets_no_limit(monkeypatch):
     from threadpoolctl import ThreadpoolController
 
