@@ -38,7 +38,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import lfilter
 
 from gbo_envs.physics.block import EffectBlock
 from gbo_envs.physics.compliance import Compliance
@@ -90,6 +89,7 @@ def simulate_open_loop(
     bias: np.ndarray | float = 0.0,
     experiment_index: np.ndarray | int = 0,
     initial: np.ndarray | None = None,
+    command_rows: np.ndarray | None = None,
 ) -> OpenLoopResult:
     """Replay recorded commands through plants with effect blocks, vectorised over rows.
 
@@ -118,6 +118,9 @@ def simulate_open_loop(
         sample moves from the rest state so that the free response, with the output unchanged at
         the first sample, has the mean slope ``initial[:, j]`` (output units per s) over the first
         ``j + 1`` samples (``j = 0 .. m - 1``, at most the row's order minus one). Default: at rest.
+    command_rows : array_like of int, shape (batch,), optional
+        The row of ``u`` each row replays, so that many rows replay one record without copies of it
+        (``u`` of shape (records, n_steps)); default: row ``r`` replays ``u[r]``.
 
     Returns
     -------
@@ -139,7 +142,15 @@ def simulate_open_loop(
     163.9
     """
     u = np.atleast_2d(np.asarray(u, dtype=float))
-    batch, n = u.shape
+    n = u.shape[1]
+    if command_rows is None:
+        commands = np.arange(u.shape[0], dtype=np.int64)
+    else:
+        commands = np.asarray(command_rows, dtype=np.int64).reshape(-1)
+        if commands.size and (commands.min() < 0 or commands.max() >= u.shape[0]):
+            raise ValueError(f"command_rows: rows of u are 0 .. {u.shape[0] - 1}, got {commands.min()} .. "
+                             f"{commands.max()}")
+    batch = commands.size
     if not np.isfinite(dt) or dt <= 0.0:
         raise ValueError(f"dt: sample time must be > 0 s, got {dt}")
     plants = [plant] * batch if isinstance(plant, ContinuousPlant) else list(plant)
@@ -155,20 +166,27 @@ def simulate_open_loop(
             initial = None
 
     # plant-side blocks, then one exact discretisation per distinct plant; rows with the same plant, plant-side
-    # blocks and experiment share them (a fit's Jacobian passes repeat each plant for all its records)
+    # blocks and experiment share them (a fit's Jacobian passes repeat each plant for all its records). What a
+    # chain of blocks implies is found once per distinct chain (the rows of one parameter set share their chain).
+    traits = {}
+    for chain in chains:
+        if id(chain) not in traits:
+            plant_blocks = tuple(block for block in chain if block.side == "plant")
+            traits[id(chain)] = (plant_blocks, all(type(b) in SAME_IN_EVERY_EXPERIMENT for b in plant_blocks),
+                                 all(b.side == "plant" or b.name in MEMORYLESS_EFFECTS for b in chain))
     continuous, discrete = [], []
     shared: dict[tuple, tuple[ContinuousPlant, DiscretePlant]] = {}
     for row in range(batch):
-        plant_blocks = [block for block in chains[row] if block.side == "plant"]
+        plant_blocks, same_everywhere, _ = traits[id(chains[row])]
         # the experiment only counts for a block that may change the plant between experiments (drift)
-        experiment = 0 if all(type(b) in SAME_IN_EVERY_EXPERIMENT for b in plant_blocks) else int(index[row])
-        key = (id(plants[row]), *map(id, plant_blocks), experiment)
+        experiment = 0 if same_everywhere else int(index[row])
+        key = (id(plants[row]), id(chains[row]) if plant_blocks else 0, experiment)
         if key not in shared:
             p = _modified(plants[row], plant_blocks, experiment)
             shared[key] = p, _sampled(p, float(dt))
         continuous.append(shared[key][0])
         discrete.append(shared[key][1])
-    direct = np.array([all(b.side == "plant" or b.name in MEMORYLESS_EFFECTS for b in chain) for chain in chains])
+    direct = np.array([traits[id(chain)][2] for chain in chains], dtype=bool)
     # both paths write their rows straight into the outputs (no copies of a part's results)
     out = {"y": np.empty((batch, n)), "y_true": np.empty((batch, n)), "v": np.empty((batch, n)),
            "u_rest": np.empty(batch), "v_rest": np.empty(batch)}
@@ -178,10 +196,10 @@ def simulate_open_loop(
             continue
         start = None if initial is None else initial[rows]
         if rows.size < batch:
-            fn([continuous[r] for r in rows], [discrete[r] for r in rows], [chains[r] for r in rows], u, rows, dt,
-               y0[rows], bias[rows], out, start)
+            fn([continuous[r] for r in rows], [discrete[r] for r in rows], [chains[r] for r in rows], u,
+               commands[rows], rows, dt, y0[rows], bias[rows], out, start)
         else:
-            fn(continuous, discrete, chains, u, rows, dt, y0, bias, out, start)
+            fn(continuous, discrete, chains, u, commands, rows, dt, y0, bias, out, start)
     return OpenLoopResult(**out)
 
 
@@ -244,11 +262,13 @@ def _row_chains(effects, batch: int) -> list[tuple[EffectBlock, ...]]:
         return [effects] * batch
     if len(effects) != batch:
         raise ValueError(f"effects: need one chain of blocks or one per row ({batch}), got {len(effects)}")
-    chains = []
+    chains, checked = [], set()
     for row, chain in enumerate(effects):
-        chain = tuple(chain)
-        if not all(isinstance(b, EffectBlock) for b in chain):
-            raise ValueError(f"effects: row {row} must be a sequence of effect blocks, got {chain!r}")
+        chain = tuple(chain)  # the same object for a tuple: rows of one chain share it, and it is checked once
+        if id(chain) not in checked:
+            if not all(isinstance(b, EffectBlock) for b in chain):
+                raise ValueError(f"effects: row {row} must be a sequence of effect blocks, got {chain!r}")
+            checked.add(id(chain))
         chains.append(chain)
     return chains
 
@@ -284,7 +304,8 @@ class _Rest:
     continuous: list
     discrete: list
     groups: list
-    source: np.ndarray  # row of the batch (of ``u`` and the outputs) of each sorted row
+    source: np.ndarray  # row of the batch (of the outputs) of each sorted row
+    commands: np.ndarray  # row of ``u`` each sorted row replays
     bias: np.ndarray
     y_true0: np.ndarray  # true rest output (sensors inverted)
     x0: np.ndarray  # plant state at rest, (batch, order)
@@ -294,11 +315,13 @@ class _Rest:
     dx: np.ndarray | None = None  # the state's move from rest of a row that starts moving, (batch, order)
 
 
-def _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt: float, column: bool, initial=None) -> _Rest:
+def _prepare_rest(continuous, discrete, chains, commands, rows, y0, bias, dt: float, column: bool,
+                  initial=None) -> _Rest:
     """Sort the rows, then go from the measured ``y0`` to the rest state.
 
     Measured ``y0`` -> true output (sensors inverted) -> plant equilibrium -> holding
-    command (actuators inverted). ``rows`` are the rows of the batch these rows are;
+    command (actuators inverted). ``rows`` are the rows of the batch these rows are, ``commands``
+    the rows of ``u`` they replay;
     ``column``: the blocks take column parameters (the direct path) rather than one
     value per row (the stepping path).
     """
@@ -318,7 +341,8 @@ def _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt: float, colum
     if initial is not None:  # a start that is not at rest: the state moves, the output at the first sample does not
         dx = _moving_start(discrete, initial[perm], dt, x0.shape[1])
         x0 = x0 + dx
-    return _Rest(continuous=continuous, discrete=discrete, groups=groups, source=np.asarray(rows)[perm], bias=bias,
+    return _Rest(continuous=continuous, discrete=discrete, groups=groups, source=np.asarray(rows)[perm],
+                 commands=np.asarray(commands, dtype=np.int64)[perm], bias=bias,
                  y_true0=y_true0, x0=x0, v_rest=v_rest, u_rest=u_rest,
                  lags=np.array([d.delay_steps for d in discrete], dtype=np.int64), dx=dx)
 
@@ -353,9 +377,9 @@ def _moving_start(discrete: list[DiscretePlant], initial: np.ndarray, dt: float,
 def _free_response(d: DiscretePlant, dx: np.ndarray, n: int) -> np.ndarray:
     """``c Phi^q dx`` for ``q = 0 .. n - 1``: the free response of the rows ``dx`` (shape (rows, order)) of one plant.
 
-    As the impulse response ``h`` of ``c (zI - Phi)^-1 dx`` (``h[q + 1] = c Phi^q dx``), filtered by
-    ``scipy.signal.lfilter`` with the numerator ``c M_k dx`` and denominator of the Faddeev-LeVerrier
-    recursion of :func:`_transfer_functions`.
+    As the impulse response ``h`` of ``c (zI - Phi)^-1 dx`` (``h[q + 1] = c Phi^q dx``), filtered (as
+    ``scipy.signal.lfilter`` does: :func:`gbo_envs.physics.kernels.lfilter_rows`) with the numerator ``c M_k dx``
+    and denominator of the Faddeev-LeVerrier recursion of :func:`_transfer_functions`.
     """
     order = d.order
     den = np.zeros(order + 1)
@@ -366,9 +390,11 @@ def _free_response(d: DiscretePlant, dx: np.ndarray, n: int) -> np.ndarray:
         mk = d.phi @ mk + den[k - 1] * np.eye(order)
         den[k] = -np.trace(d.phi @ mk) / k
         num[:, k] = dx[:, :order] @ (mk.T @ d.c)  # c M_k dx, per row
-    impulse = np.zeros(n + 1)
-    impulse[0] = 1.0
-    return np.stack([lfilter(b, den, impulse)[1:] for b in num])
+    from gbo_envs.physics import kernels  # numba is imported by the first simulation, not with this module
+
+    impulse = np.zeros((1, n + 1))
+    impulse[0, 0] = 1.0
+    return kernels.lfilter_rows(num, den, impulse, source=np.zeros(num.shape[0], dtype=np.int64))[:, 1:]
 
 
 def _scatter(out: dict, rest: _Rest, **values: np.ndarray) -> None:
@@ -382,19 +408,50 @@ def _scatter(out: dict, rest: _Rest, **values: np.ndarray) -> None:
             out[name][rest.source] = value
 
 
-def _direct(continuous, discrete, chains, u, rows, dt, y0, bias, out, initial=None) -> None:
+def _direct(continuous, discrete, chains, u, commands, rows, dt, y0, bias, out, initial=None) -> None:
     """Rows ``rows`` whose blocks are static maps: ``y = S(y_rest + P(z) (A(u_delayed) + bias - v_rest))``.
 
-    The actuator map ``A`` and the sensor map ``S`` act on the whole record at
-    once (their parameters as column vectors, one per row); ``P(z)`` is the
-    exact sampled plant without its whole-sample delay, run on the deviation
-    from rest with ``scipy.signal.lfilter``. The results go into the rows
-    ``rows`` of the outputs ``out``. (``dt`` is unused: the arguments are those of :func:`_stepping`.)
+    ``A`` is the actuator and ``S`` the sensor map; ``P(z)`` is the exact sampled plant without its
+    whole-sample delay, run on the deviation from rest as ``scipy.signal.lfilter`` runs it. In the
+    compiled kernel (:func:`gbo_envs.physics.kernels.open_loop_direct_kernel`, one pass over the samples)
+    when it knows every block of the rows, else in :func:`_direct_numpy`: the same numbers. The results
+    go into the rows ``rows`` of the outputs ``out``.
     """
+    from gbo_envs.physics import kernels  # numba is imported by the first simulation, not with this module
+
+    column = not all(kernels.known(b) for chain in chains for b in chain if b.side != "plant")
+    rest = _prepare_rest(continuous, discrete, chains, commands, rows, y0, bias, dt, column=column, initial=initial)
+    if column:
+        _direct_numpy(rest, u, out)
+        return
+    batch, n = len(rest.discrete), u.shape[1]
+    sensors, actuators = _packed(rest.groups, batch, dt)
+    tf = _transfer_functions(rest.discrete)
+    width = max(max(num.size, den.size) for num, den in tf.values())
+    num_rows, den_rows = np.zeros((batch, width)), np.zeros((batch, width))
+    num_len, den_len = np.empty(batch, dtype=np.int64), np.empty(batch, dtype=np.int64)
+    for row, d in enumerate(rest.discrete):
+        num, den = tf[id(d)]
+        num_rows[row, : num.size], den_rows[row, : den.size] = num, den
+        num_len[row], den_len[row] = num.size, den.size
+    free_row, free = _free_responses(rest, n)
+    kernels.open_loop_direct_kernel(num_rows, den_rows, num_len, den_len, _kernel_input(u), rest.commands,
+                                    rest.source, rest.lags,
+                                    rest.u_rest, rest.bias, rest.v_rest, rest.y_true0, free_row, free,
+                                    sensors.code, sensors.params, sensors.state, actuators.code, actuators.params,
+                                    actuators.state, out["y"], out["y_true"], out["v"])
+    out["u_rest"][rest.source] = rest.u_rest
+    out["v_rest"][rest.source] = rest.v_rest
+
+
+def _direct_numpy(rest: _Rest, u: np.ndarray, out: dict) -> None:
+    """:func:`_direct` in numpy (blocks the kernel does not know): the maps act on whole records at once,
+    their parameters as column vectors, one per row."""
+    from gbo_envs.physics import kernels
+
     n = u.shape[1]
-    rest = _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt, column=True, initial=initial)
     discrete, groups, bias, v_rest = rest.discrete, rest.groups, rest.bias, rest.v_rest
-    v = _delayed(u, rest.source, rest.lags, rest.u_rest)
+    v = _delayed(u, rest.commands, rest.lags, rest.u_rest)
     for sl, _, actuators in groups:
         for stage in actuators:
             for block, part in stage.parts:
@@ -406,13 +463,13 @@ def _direct(continuous, discrete, chains, u, rows, dt, y0, bias, out, initial=No
     same_plant: dict[int, list[int]] = {}
     for row, d in enumerate(discrete):
         same_plant.setdefault(id(d), []).append(row)
-    for key, idx in same_plant.items():  # one lfilter call per distinct plant, row by row along the last axis
+    for key, idx in same_plant.items():  # one filter per distinct plant, row by row along the last axis
         num, den = tf_cache[key]
         idx = np.array(idx)
-        y_true[idx] = rest.y_true0[idx, None] + lfilter(num, den, v[idx] - v_rest[idx, None], axis=-1)
-    if rest.dx is not None:  # rows that start moving: their free response from the moved state
-        for row in np.flatnonzero(np.any(rest.dx != 0.0, axis=1)):
-            y_true[row] += _free_response(discrete[row], rest.dx[row : row + 1], n)[0]
+        y_true[idx] = rest.y_true0[idx, None] + kernels.lfilter_rows(num, den, v[idx] - v_rest[idx, None])
+    free_row, free = _free_responses(rest, n)
+    for row in np.flatnonzero(free_row >= 0):  # rows that start moving: their free response from the moved state
+        y_true[row] += free[free_row[row]]
     y = y_true.copy()
     for sl, sensors, _ in groups:
         for stage in sensors:
@@ -420,6 +477,39 @@ def _direct(continuous, discrete, chains, u, rows, dt, y0, bias, out, initial=No
                 idx = _global(sl, part)
                 y[idx] = block.measure(y[idx])
     _scatter(out, rest, y=y, y_true=y_true, v=v)
+
+
+def _free_responses(rest: _Rest, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(free_row, free)``: for each sorted row, its row of ``free`` (the free response from its moved state,
+    :func:`_free_response`, shape (moving, n)), or -1 for a row that starts at rest."""
+    free_row = np.full(len(rest.discrete), -1, dtype=np.int64)
+    if rest.dx is None:
+        return free_row, np.zeros((0, n))
+    moving = np.flatnonzero(np.any(rest.dx != 0.0, axis=1))
+    free_row[moving] = np.arange(moving.size)
+    free = np.empty((moving.size, n))
+    for i, row in enumerate(moving):
+        free[i] = _free_response(rest.discrete[row], rest.dx[row : row + 1], n)[0]
+    return free_row, free
+
+
+def _kernel_input(u: np.ndarray) -> np.ndarray:
+    """The commands as the kernels take them: one compiled signature, a C-ordered writeable float array."""
+    return u if u.flags.c_contiguous and u.flags.writeable and u.dtype == float else np.array(u, dtype=float,
+                                                                                               order="C")
+
+
+def _packed(groups, batch: int, dt: float):
+    """``(sensors, actuators)``: the rows' blocks packed for the kernels (:func:`gbo_envs.physics.kernels.pack_blocks`),
+    each ``None`` when a block of its side is unknown to them."""
+    from gbo_envs.physics import kernels
+
+    sides = {}
+    for side in ("sensor", "actuator"):
+        parts = [(j, block, _global(sl, part)) for sl, sensors, actuators in groups
+                 for j, stage in enumerate(sensors if side == "sensor" else actuators) for block, part in stage.parts]
+        sides[side] = kernels.pack_blocks(parts, batch, dt)
+    return sides["sensor"], sides["actuator"]
 
 
 def _transfer_functions(discrete: list[DiscretePlant]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
@@ -462,7 +552,7 @@ def _transfer_functions(discrete: list[DiscretePlant]) -> dict[int, tuple[np.nda
 
 
 def _delayed(u: np.ndarray, source: np.ndarray, lags: np.ndarray, u_rest: np.ndarray) -> np.ndarray:
-    """Rows ``source`` of the commands ``u`` (shape (batch, n_steps)), row ``i`` delayed by ``lags[i]`` >= 0 samples
+    """Rows ``source`` of the commands ``u`` (shape (records, n_steps)), row ``i`` delayed by ``lags[i]`` >= 0 samples
     and preceded by ``u_rest[i]``; filled by slices per distinct delay (no index arrays of the data's size)."""
     batch, n = source.size, u.shape[1]
     out = np.empty((batch, n))
@@ -481,9 +571,12 @@ def _delayed(u: np.ndarray, source: np.ndarray, lags: np.ndarray, u_rest: np.nda
 
 def _sorted_rows(chains) -> np.ndarray:
     """Row order that makes rows with the same block classes, then the same blocks, contiguous."""
-    signature = [repr(tuple((type(b).__name__, b.side) for b in chain if b.side != "plant")) for chain in chains]
-    return np.array(sorted(range(len(chains)), key=lambda r: (signature[r], tuple(id(b) for b in chains[r]))),
-                    dtype=int)
+    keys: dict[int, tuple] = {}  # per distinct chain: the rows of one parameter set share theirs
+    for chain in chains:
+        if id(chain) not in keys:
+            keys[id(chain)] = (repr(tuple((type(b).__name__, b.side) for b in chain if b.side != "plant")),
+                               tuple(id(b) for b in chain))
+    return np.array(sorted(range(len(chains)), key=lambda r: keys[id(chains[r])]), dtype=int)
 
 
 def _flat(fn, values: np.ndarray) -> np.ndarray:
@@ -514,7 +607,11 @@ def _holding_command(groups, u_rest: np.ndarray, speed0: np.ndarray, dt: float, 
 
 def _groups(chains, column: bool):
     """Contiguous runs of rows with the same block classes: ``(slice, sensor stages, actuator stages)``."""
-    signature = [tuple((type(b), b.side) for b in chain if b.side != "plant") for chain in chains]
+    stepped: dict[int, tuple] = {}  # per distinct chain: its actuator and sensor blocks
+    for chain in chains:
+        if id(chain) not in stepped:
+            stepped[id(chain)] = tuple(b for b in chain if b.side != "plant")
+    signature = [tuple((type(b), b.side) for b in stepped[id(chain)]) for chain in chains]
     rng = np.random.default_rng(12345)
     groups = []
     start, batch = 0, len(chains)
@@ -522,7 +619,7 @@ def _groups(chains, column: bool):
         stop = start
         while stop < batch and signature[stop] == signature[start]:
             stop += 1
-        blocks = [[b for b in chains[r] if b.side != "plant"] for r in range(start, stop)]
+        blocks = [stepped[id(chains[r])] for r in range(start, stop)]
         stages = [_Stage([row[j] for row in blocks], rng, column) for j in range(len(blocks[0]))]
         groups.append((slice(start, stop), [s for s in stages if s.side == "sensor"],
                        [s for s in stages if s.side == "actuator"]))
@@ -563,19 +660,31 @@ class _Stage:
 
 
 def _merged(blocks: list[EffectBlock], rng: np.random.Generator, column: bool) -> EffectBlock | None:
-    """One block whose numeric parameters are per-row arrays, if its class computes them row-wise correctly."""
+    """One block whose numeric parameters are per-row arrays, if its class computes them row-wise correctly.
+
+    Probed: on random inputs, the merged block must give what each row's own block gives. Rows that share a
+    block object (the records of one parameter set) are probed together through that block.
+    """
     first = blocks[0]
-    if any(type(b) is not type(first) for b in blocks) or any(
-            getattr(b, name) != getattr(first, name) for b in blocks for name in type(first).options):
+    distinct = {id(b): b for b in blocks}
+    if any(type(b) is not type(first) for b in distinct.values()) or any(
+            getattr(b, name) != getattr(first, name) for b in distinct.values() for name in type(first).options):
         return None
     merged = copy.copy(first)
+    rows_of: dict[int, list[int]] = {}
+    for row, b in enumerate(blocks):
+        rows_of.setdefault(id(b), []).append(row)
     for name in first.param_names:
-        values = np.array([float(getattr(b, name)) for b in blocks])
+        values = np.empty(len(blocks))
+        for key, rows in rows_of.items():
+            values[rows] = float(getattr(distinct[key], name))
         if np.all(values == values[0]):
             continue
         setattr(merged, name, values[:, None] if column else values)
     size = len(blocks)
-    scale = np.array([b.magnitude for b in blocks])
+    scale = np.empty(size)
+    for key, rows in rows_of.items():
+        scale[rows] = distinct[key].magnitude
     scale = np.where(np.isfinite(scale), np.maximum(np.abs(scale), 1.0), 1.0)
     shape = (size, 3) if column else (size,)
     probe_u = rng.normal(0.0, 1.5, shape) * (scale[:, None] if column else scale)
@@ -585,10 +694,11 @@ def _merged(blocks: list[EffectBlock], rng: np.random.Generator, column: bool) -
             merged.reset(size, None, 1e-3)
             got = merged.measure(probe_u) if first.side == "sensor" else merged.actuate(probe_u, probe_s)
             want = np.empty(shape)
-            for i, b in enumerate(blocks):
-                b.reset(1, None, 1e-3)
-                want[i] = np.asarray(b.measure(probe_u[i : i + 1]) if first.side == "sensor" else b.actuate(
-                    probe_u[i : i + 1], probe_s[i : i + 1]), dtype=float)[0]
+            for key, rows in rows_of.items():
+                b = distinct[key]
+                b.reset(len(rows), None, 1e-3)
+                want[rows] = np.asarray(b.measure(probe_u[rows]) if first.side == "sensor" else b.actuate(
+                    probe_u[rows], probe_s[rows]), dtype=float)
             got = np.broadcast_to(np.asarray(got, dtype=float), shape)
     except (ValueError, TypeError):
         return None
@@ -597,7 +707,7 @@ def _merged(blocks: list[EffectBlock], rng: np.random.Generator, column: bool) -
     return merged
 
 
-def _stepping(continuous, discrete, chains, u, rows, dt, y0, bias, out, initial=None) -> None:
+def _stepping(continuous, discrete, chains, u, commands, rows, dt, y0, bias, out, initial=None) -> None:
     """Sample-by-sample simulation of the rows ``rows``, grouped by the classes of their blocks.
 
     The rows may have plants of different orders. The rest state and the blocks' start are
@@ -606,7 +716,7 @@ def _stepping(continuous, discrete, chains, u, rows, dt, y0, bias, out, initial=
     sensor block of the rows, else in :func:`_step_numpy`, which gives the same numbers.
     The results go into the rows ``rows`` of the outputs ``out``.
     """
-    rest = _prepare_rest(continuous, discrete, chains, rows, y0, bias, dt, column=False, initial=initial)
+    rest = _prepare_rest(continuous, discrete, chains, commands, rows, y0, bias, dt, column=False, initial=initial)
     continuous, discrete, groups = rest.continuous, rest.discrete, rest.groups
     batch, order = rest.x0.shape
     # per row: [Phi Gamma0 Gamma1] of its order, padded with zeros to the largest order
@@ -621,22 +731,16 @@ def _stepping(continuous, discrete, chains, u, rows, dt, y0, bias, out, initial=
         c_rows[row, :m] = d.c
         speed_rows[row, :m] = d.c if p.output != "position" else d.velocity_row()
 
-    from gbo_envs.physics import kernels  # numba is imported on the first stepping simulation
+    from gbo_envs.physics import kernels  # numba is imported by the first simulation, not with this module
 
-    sides = {}
-    for side in ("sensor", "actuator"):
-        parts = [(j, block, _global(sl, part)) for sl, sensors, actuators in groups
-                 for j, stage in enumerate(sensors if side == "sensor" else actuators) for block, part in stage.parts]
-        sides[side] = kernels.pack_blocks(parts, batch, dt)
-    if sides["sensor"] is None or sides["actuator"] is None:
+    sensors, actuators = _packed(groups, batch, dt)
+    if sensors is None or actuators is None:
         y, y_true, v = _step_numpy(groups, rest, u, transition, c_rows, speed_rows)
         _scatter(out, rest, y=y, y_true=y_true, v=v)
         return
-    sensors, actuators = sides["sensor"], sides["actuator"]
-    if not (u.flags.c_contiguous and u.flags.writeable):  # one compiled signature: a C-ordered writeable array
-        u = np.array(u, dtype=float, order="C")
     kernels.open_loop_kernel(np.array([d.order for d in discrete], dtype=np.int64), transition, c_rows, speed_rows,
-                             u, rest.source, rest.lags, rest.u_rest, rest.bias, rest.x0, rest.v_rest,
+                             _kernel_input(u), rest.commands, rest.source, rest.lags, rest.u_rest, rest.bias, rest.x0,
+                             rest.v_rest,
                              sensors.code, sensors.params, sensors.state, actuators.code, actuators.params,
                              actuators.state, out["y"], out["y_true"], out["v"])
     out["u_rest"][rest.source] = rest.u_rest
@@ -653,7 +757,7 @@ def _step_numpy(groups, rest: _Rest, u, transition, c_rows, speed_rows):
     batch, order = rest.x0.shape
     n = u.shape[1]
     bias = rest.bias
-    u_delayed = np.ascontiguousarray(_delayed(u, rest.source, rest.lags, rest.u_rest).T)  # (n, batch)
+    u_delayed = np.ascontiguousarray(_delayed(u, rest.commands, rest.lags, rest.u_rest).T)  # (n, batch)
     # batch-last layout: every operation of a step is elementwise over the rows (a batched matmul of
     # tiny matrices costs 17 us with 360 rows, the elementwise products and sum 4.5 us)
     transition = np.ascontiguousarray(transition.transpose(1, 2, 0))

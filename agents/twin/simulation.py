@@ -95,45 +95,48 @@ def _nuisance(tail: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 
 def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]]) -> list[tuple]:
-    """``(measurement, plant output before the sensors)`` of each set, in one vectorised pass."""
-    plants, chains, u, y0, bias, start, index, owner = [], [], [], [], [], [], [], []
-    for s, (spec, theta, rows) in enumerate(sets):
+    """``(measurement, plant output before the sensors)`` of each set, in one vectorised pass.
+
+    Every row replays its record's commands in ``data.u`` itself (``command_rows``, no copy of them),
+    and each set's outputs are its rows of the pass's outputs (views: a set's rows are contiguous).
+    """
+    plants, chains, commands, y0, bias, start, index, spans = [], [], [], [], [], [], [], []
+    first = 0
+    for spec, theta, rows in sets:
         k = rows.size
         g = spec.n_global
         try:
             plant = spec.plant(theta[:g])
             blocks = spec.blocks(theta[:g])
         except ValueError:
+            spans.append(None)
             continue
         plants += [plant] * k
         chains += [blocks] * k
-        u.append(data.u if data.is_all(rows) else data.u[rows])  # read only: no copy of all the records
+        commands.append(rows)
         rest_level, rest_bias, moving = _nuisance(theta[g:], k)
         y0.append(rest_level)
         bias.append(rest_bias)
         start.append(moving)
         index.append(data.index[rows])
-        owner += [s] * k
+        spans.append(slice(first, first + k))
+        first += k
     out: list = [None] * len(sets)
-    if owner:
+    if first:
         try:
             with np.errstate(all="ignore"):
                 width = max(m.shape[1] for m in start)
                 initial = None if width == 0 else np.concatenate(
                     [np.pad(m, ((0, 0), (0, width - m.shape[1]))) for m in start])
-                res = simulate_open_loop(plants, u[0] if len(u) == 1 else np.concatenate(u), data.dt, chains,
-                                         y0=np.concatenate(y0), bias=np.concatenate(bias),
-                                         experiment_index=np.concatenate(index), initial=initial)
+                res = simulate_open_loop(plants, data.u, data.dt, chains, y0=np.concatenate(y0),
+                                         bias=np.concatenate(bias), experiment_index=np.concatenate(index),
+                                         initial=initial, command_rows=np.concatenate(commands))
         except (np.linalg.LinAlgError, ValueError):  # a plant that cannot be sampled (overflowing coefficients)
             if len(sets) > 1:
                 return [_simulate_batch(data, [one])[0] for one in sets]
         else:
-            owner = np.array(owner)
-            if (owner == owner[0]).all():  # one set: its outputs as they are, not copied
-                out[owner[0]] = (res.y, res.y_true)
-            else:
-                for s in set(owner.tolist()):
-                    out[s] = (res.y[owner == s], res.y_true[owner == s])
+            for s, span in enumerate(spans):
+                if span is not None:
+                    out[s] = (res.y[span], res.y_true[span])
     return [(np.full((rows.size, data.u.shape[1]), np.nan),) * 2 if pair is None else pair
             for pair, (_, _, rows) in zip(out, sets)]
-

@@ -45,10 +45,11 @@ Filters are simulated exactly on the sample grid: the prefilter ``1/A`` in
 controllable canonical form, whose states are ``p^{n-1}/A, ..., 1/A``, is
 discretised with a zero-order hold and the fractional input delay by
 :meth:`gbo_envs.ContinuousPlant.discretize`, turned into one ``z``-transfer
-function per state and run with ``scipy.signal.lfilter`` over all records at
-once. For decimated records (``hold="foh"``) the signals are first interpolated
-linearly onto a grid ``oversample`` times finer (value at the middle of each fine
-interval) and filtered there, which approximates a first-order hold.
+function per state and run as ``scipy.signal.lfilter`` runs it, compiled, over all
+states and records at once (:func:`gbo_envs.physics.kernels.lfilter_rows`). For
+decimated records (``hold="foh"``) the signals are first interpolated linearly onto
+a grid ``oversample`` times finer (value at the middle of each fine interval) and
+filtered there, which approximates a first-order hold.
 
 Closed loop: ``u`` depends on the noise through the feedback. The instrument
 ``zeta_f`` is built from ``u`` and the noise-free model output ``x_hat``, never
@@ -67,7 +68,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from gbo_envs import ContinuousPlant
 
@@ -194,14 +194,18 @@ class _Prefilter:
         self.order, self.shift = n, plant.delay_steps
 
     def states(self, x: np.ndarray) -> np.ndarray:
-        """Filter ``x`` of shape (batch, n_fine); return states of shape (n, batch, n_fine)."""
-        d = self.shift
-        out = np.empty((self.order, *x.shape))
-        out[..., : min(d, x.shape[-1])] = 0.0  # the input has not arrived yet
-        if d < x.shape[-1]:
-            for state, num in zip(out, self.nums):
-                state[..., d:] = lfilter(num, self.den, x[..., : x.shape[-1] - d], axis=-1)
-        return out
+        """Filter ``x`` of shape (batch, n_fine); return states of shape (n, batch, n_fine).
+
+        Every state of every row in one compiled pass (:func:`gbo_envs.physics.kernels.lfilter_rows`, the
+        numbers of ``scipy.signal.lfilter``), zero until the input arrives (the shift).
+        """
+        from gbo_envs.physics import kernels  # numba is imported by the first SRIVC fit, not with this module
+
+        flat = x.reshape(-1, x.shape[-1])
+        signals = flat.shape[0]
+        out = kernels.lfilter_rows(np.repeat(self.nums, signals, axis=0), self.den, flat,
+                                   source=np.tile(np.arange(signals), self.order), shift=self.shift)
+        return out.reshape(self.order, *x.shape)
 
 
 def _state_numerators(phi: np.ndarray, gamma: np.ndarray, den_z: np.ndarray) -> np.ndarray:

@@ -130,3 +130,91 @@ def test_a_block_the_kernel_does_not_know_replays_in_numpy(monkeypatch):
     res = simulate_open_loop(plants, u, 0.002, chains, y0=y0, bias=bias)
     assert calls == []
     assert np.all(np.isfinite(res.y)) and np.max(np.abs(res.v[0])) > 5.0  # the leak passed the limit
+
+
+#: rows whose blocks are static maps (the direct path): each memoryless block, merged ones with per-row parameters,
+#: chains, a sensor offset after a quantizer, and the plant alone
+MEMORYLESS_SPECS = ([{"saturation": {"limit": lim}} for lim in (5.0, 12.0, 30.0)]
+                    + [{"dead_zone": {"width": w}} for w in (1.0, 4.0)]
+                    + [{"offset": {"value": v}} for v in (-2.0, 3.0)]
+                    + [{"quantization": {"step": q, "mode": m}} for q, m in ((0.37, "round"), (0.5, "floor"))]
+                    + [{"offset": {"value": 0.4, "on": "sensor"}, "quantization": {"step": 0.25}},
+                       {"dead_zone": {"width": 2.0}, "saturation": {"limit": 20.0}, "offset": {"value": 1.0}},
+                       {}, {}])
+
+
+def _direct_both_paths(monkeypatch, plants, chains, u, y0, bias, initial=None):
+    calls = []
+    compiled = kernels.open_loop_direct_kernel
+
+    def counted(*args):
+        calls.append(1)
+        compiled(*args)
+
+    monkeypatch.setattr(kernels, "open_loop_direct_kernel", counted)
+    fast = simulate_open_loop(plants, u, 0.002, chains, y0=y0, bias=bias, initial=initial)
+    with monkeypatch.context() as m:
+        m.setattr(kernels, "KERNEL_CODES", {})
+        slow = simulate_open_loop(plants, u, 0.002, [build_effects(_spec(c)) for c in chains], y0=y0, bias=bias,
+                                  initial=initial)
+    return fast, slow, len(calls)
+
+
+def test_memoryless_rows_replay_the_same_compiled(monkeypatch):
+    """The direct path's kernel (static maps, the plant as ``lfilter`` runs its transfer function) gives the numpy
+    path's numbers bit for bit: plants of 2 and 4 poles, speed and position, whole and fractional delays."""
+    plants = [(SPEED, SPEED_FRACTIONAL, POSITION, FOUR_POLES)[i % 4] for i in range(len(MEMORYLESS_SPECS))]
+    rows = _rows(plants, MEMORYLESS_SPECS)
+    fast, slow, calls = _direct_both_paths(monkeypatch, *rows)
+    assert calls == 1
+    _assert_same(fast, slow)
+    assert np.all(np.isfinite(fast.y)) and np.ptp(fast.y) > 10.0
+    bias = rows[-1]
+    assert np.any(fast.y != fast.y_true) and np.max(np.abs(fast.v[0] - bias[0])) == pytest.approx(5.0)  # they act
+
+
+@FAST
+@given(limits=st.lists(st.floats(0.5, 40.0), min_size=1, max_size=4), step=st.floats(0.01, 2.0),
+       slopes=st.lists(st.floats(-50.0, 50.0), min_size=3, max_size=3), seed=st.integers(0, 100))
+def test_memoryless_rows_that_start_moving_replay_the_same_compiled(limits, step, slopes, seed):
+    """Rows that start moving add their free response before the sensor, in the kernel as in numpy."""
+    specs = [{"saturation": {"limit": lim}, "quantization": {"step": step}} for lim in limits] + [{}]
+    plants = [FOUR_POLES if i % 2 else SPEED for i in range(len(specs))]
+    rows = _rows(plants, specs, seed=seed, n=300)
+    initial = np.tile(np.array(slopes), (len(specs), 1))
+    initial[0] = 0.0  # one row at rest among the moving ones
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        fast, slow, calls = _direct_both_paths(monkeypatch, *rows, initial=initial)
+    assert calls == 1
+    _assert_same(fast, slow)
+
+
+def test_compiled_lfilter_is_scipys_bit_for_bit():
+    """:func:`gbo_envs.physics.kernels.lfilter_rows` against ``scipy.signal.lfilter``: orders 1-6, numerators
+    shorter and longer than the denominator, a leading coefficient other than 1, inf and NaN inputs, a shift."""
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        order = int(rng.integers(1, 7))
+        a = np.real(np.poly(rng.uniform(-0.999, 0.999, order))) * (rng.uniform(0.1, 10.0) if rng.random() < 0.3 else 1)
+        b = rng.normal(size=int(rng.integers(1, order + 4))) * 10.0 ** int(rng.integers(-6, 3))
+        x = rng.normal(size=(int(rng.integers(1, 11)), int(rng.integers(1, 120)))) * 100.0
+        if rng.random() < 0.1:
+            x[0, 3 % x.shape[1]] = np.inf
+        if rng.random() < 0.1:
+            x[-1, 0] = np.nan
+        shift = int(rng.integers(0, 4))
+        want = np.zeros_like(x)
+        if shift < x.shape[1]:
+            want[:, shift:] = lfilter(b, a, x[:, : x.shape[1] - shift], axis=-1)
+        got = kernels.lfilter_rows(b, a, x, shift=shift)
+        np.testing.assert_array_equal(got, want)
+        assert np.array_equal(np.signbit(got), np.signbit(want))
+
+
+def test_compiled_lfilter_refuses_a_denominator_it_cannot_run():
+    with pytest.raises(ValueError, match="a: need a denominator of at least 2 coefficients"):
+        kernels.lfilter_rows([1.0], [1.0], np.ones((1, 5)))
+    with pytest.raises(ValueError, match="first nonzero"):
+        kernels.lfilter_rows([1.0], [0.0, 1.0], np.ones((1, 5)))
