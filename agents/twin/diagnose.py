@@ -21,8 +21,7 @@ from agents.thread_limits import single_thread
 from agents.twin.candidates import candidate_plan
 from agents.twin.compare import compare
 from agents.twin.data import GreyData
-from agents.twin.fits import fit_candidates
-from agents.twin.greybox_twin import GreyBoxTwin
+from agents.twin.fits import fit_candidates, fit_structure
 from agents.twin.ladder_text import rung_text
 from agents.twin.model import GreyFit, ModelSpec
 from agents.twin.noise_floor import NoiseFloor, noise_floor_estimate
@@ -224,8 +223,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
     with worker_processes(n_jobs, shared=(data,)):
         # records -> linear fit (and the effects the model already has)
         if current is None:
-            current = GreyBoxTwin(effects=() if effects is None else effects, **_orders(spec), max_iter=max_iter
-                                  ).fit(data).greybox_
+            current = fit_structure(data, effects, spec, max_iter=max_iter)
         # -> candidates
         plan = candidate_plan(data, current, candidates, skip_unexcited, orders)
         bar = progress_bar(len(plan.candidates) + 2, f"diagnose {current.spec.label}", progress, unit="step",
@@ -255,13 +253,6 @@ def as_step(rung: dict, before: dict, added: str, intervals: dict, units, output
             "added_params": intervals}
     rung["text"] = rung_text(rung, units, output)
     return rung
-
-
-def _orders(spec: ModelSpec | None) -> dict:
-    """The linear part's keywords of :class:`~agents.twin.GreyBoxTwin` for ``spec`` (default 2 poles, no zero)."""
-    spec = ModelSpec() if spec is None else spec
-    return {"n_poles": spec.n_poles, "n_zeros": spec.n_zeros, "n_integrators": spec.n_integrators,
-            "output": spec.output}
 
 
 def _initial_summary(data: GreyData | None) -> dict:

@@ -14,17 +14,67 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from agents.thread_limits import single_thread
-from agents.twin.candidates import CandidatePlan, candidate_problems, refit_problem
+from agents.twin.candidates import CandidatePlan, candidate_problems, effect_bounds, forward_bias, refit_problem
 from agents.twin.data import GreyData
 from agents.twin.guesses import quantization_scan
 from agents.twin.least_squares import Problem, fit_problems, make_problem
-from agents.twin.linear_fit import linear_fit
+from agents.twin.linear_fit import linear_fit, profile
 from agents.twin.model import GreyFit, ModelSpec, effect_items, effect_offset, fitted_parameters
 from agents.twin.noise_floor import quantization_step
 from agents.twin.simulation import simulate_sets
 from agents.twin.workers import map_independent
 
-__all__ = ["CandidateFits", "fit_candidates", "fit_model", "refine_grid_parameters"]
+__all__ = ["GIVEN_VALUES_MAX_ITER", "CandidateFits", "fit_candidates", "fit_model", "fit_structure",
+           "refine_grid_parameters"]
+
+#: Trial points at most of the least-squares refit from complete given effect values (:func:`fit_structure`).
+GIVEN_VALUES_MAX_ITER = 20
+
+
+@single_thread()
+def fit_structure(data: GreyData, effects=None, spec: ModelSpec | None = None, max_iter: int = 25) -> GreyFit:
+    """The model of a given structure fitted to ``data``: the linear part (:func:`linear_fit`) with ``effects`` added.
+
+    Parameters
+    ----------
+    data : GreyData
+    effects : names, comma-separated str or ``{name: {parameter: value}}``, optional
+        Catalogue effects. When every fitted parameter of every effect is given, the linear part is
+        profiled at those values and everything refitted from there (at most
+        ``min(max_iter, GIVEN_VALUES_MAX_ITER)`` trial points); otherwise the effects are added one at a
+        time from their data-based starts (:func:`fit_model`).
+    spec : ModelSpec, optional
+        Orders and output kind of the linear part (its effects are ignored); default 2 poles, no zero.
+    max_iter : int, default 25
+        Trial points of the least-squares fits.
+    """
+    spec = ModelSpec() if spec is None else ModelSpec(spec.n_poles, spec.n_zeros, spec.n_integrators, spec.output)
+    items = effect_items(effects)
+    base = linear_fit(data, spec)
+    if items and all(all(p in given for p, _ in fitted_parameters(name, given)) for name, given in items):
+        return _fit_from_given_values(data, spec, items, base, max_iter)
+    return fit_model(data, effects, base=base, max_iter=max_iter)
+
+
+def _fit_from_given_values(data: GreyData, spec: ModelSpec, items, base: GreyFit, max_iter: int) -> GreyFit:
+    """All effect values given: the linear part profiled at them, then everything refitted from there."""
+    for name, given in items:
+        options = {k: v for k, v in given.items() if k not in dict(fitted_parameters(name, given))}
+        spec = spec.with_effect(name, options)
+    values = [float(given[p]) for name, given in items for p, _ in fitted_parameters(name, given)]
+    theta = np.concatenate([base.theta, values])
+    cost, theta_p, y0, bias = profile(data, spec, theta)  # linear part consistent with the effects
+    if np.isfinite(cost):
+        theta = theta_p
+    else:
+        y0, bias = base.y0, forward_bias(data, base, spec, theta)
+    n_eff = theta.size - spec.n_linear - 1
+    start = GreyFit(spec, theta, spec.plant(theta), spec.blocks(theta), y0, bias, base.y_sim, base.rmse)
+    lower, upper, scale = effect_bounds(data, start, np.zeros(n_eff), np.zeros(n_eff), np.zeros(n_eff))
+    problem = make_problem(data, spec, theta, y0, bias, np.arange(data.n_records), lower, upper, scale)
+    fit_problems(data, [problem], max_iter=min(int(max_iter), GIVEN_VALUES_MAX_ITER))
+    return refine_grid_parameters(data, GreyFit.from_problem(data, problem))
+
 
 @single_thread()
 def fit_model(data: GreyData, effects: Sequence | Mapping | None = None, spec: ModelSpec | None = None,

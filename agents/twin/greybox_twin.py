@@ -10,22 +10,17 @@ from sklearn.utils._param_validation import Interval, StrOptions
 from sklearn.utils.validation import check_is_fitted
 
 from agents.thread_limits import single_thread
-from agents.twin.candidates import effect_bounds, forward_bias
 from agents.twin.data import GreyData
 from agents.twin.fidelity import rmse
-from agents.twin.fits import fit_model, refine_grid_parameters
+from agents.twin.fits import fit_structure
 from agents.twin.guesses import rest_command
-from agents.twin.identify import LINEAR_CONSTRAINTS, check_orders
+from agents.twin.identify import check_orders, linear_constraints
 from agents.twin.least_squares import fit_problems, make_problem
-from agents.twin.linear_fit import linear_fit, profile
-from agents.twin.model import GreyFit, ModelSpec, effect_items, fitted_parameters, output_error
+from agents.twin.model import GreyFit, ModelSpec, output_error
 from agents.twin.simulation import simulate_sets
 from gbo_envs.physics.effects import build_effect
 
 __all__ = ["GreyBoxTwin"]
-
-#: Trial points at most of the least-squares refit from complete given effect values.
-GIVEN_VALUES_MAX_ITER = 20
 
 
 class GreyBoxTwin(BaseEstimator):
@@ -37,7 +32,7 @@ class GreyBoxTwin(BaseEstimator):
     ``time_delay`` effect), the catalogue's effect blocks, and per record a rest level
     and a plant-input bias. ``fit`` starts from the SRIVC fit of the linear part
     (:func:`agents.twin.linear_fit.linear_fit`), adds the effects one at a time from
-    data-based starts and refits all parameters (:func:`agents.twin.fitting.fit_model`).
+    data-based starts and refits all parameters (:func:`agents.twin.fits.fit_structure`).
 
     Parameters
     ----------
@@ -106,11 +101,11 @@ class GreyBoxTwin(BaseEstimator):
 
     _parameter_constraints: dict = {
         "effects": [list, tuple, dict, str],
-        "n_poles": LINEAR_CONSTRAINTS["n_poles"],
-        "n_zeros": LINEAR_CONSTRAINTS["n_zeros"],
-        "n_integrators": LINEAR_CONSTRAINTS["n_integrators"],
+        "n_poles": linear_constraints()["n_poles"],
+        "n_zeros": linear_constraints()["n_zeros"],
+        "n_integrators": linear_constraints()["n_integrators"],
         "output": [StrOptions({"speed", "position"})],
-        "n_samples": LINEAR_CONSTRAINTS["n_samples"],
+        "n_samples": linear_constraints()["n_samples"],
         "max_iter": [Interval(Integral, 0, None, closed="left")],
     }
 
@@ -149,14 +144,7 @@ class GreyBoxTwin(BaseEstimator):
         orders = check_orders(self.n_poles, self.n_zeros, self.n_integrators)
         data = self._data(records)
         spec = ModelSpec(orders.n, orders.m, orders.k, self.output)
-        items = effect_items(self.effects)
-        base = linear_fit(data, spec)
-        complete = all(all(p in given for p, _ in fitted_parameters(name, given)) for name, given in items)
-        if complete and items:
-            fit = self._fit_from_given_values(data, spec, items, base)
-        else:
-            fit = fit_model(data, self.effects, base=base, max_iter=self.max_iter)
-        self._store(data, fit)
+        self._store(data, fit_structure(data, self.effects, spec, max_iter=self.max_iter))
         return self
 
     @classmethod
@@ -210,25 +198,6 @@ class GreyBoxTwin(BaseEstimator):
                 raise ValueError("n_samples: must be None when the records are given as GreyData (already stacked)")
             return records
         return GreyData.decimated(records, self.n_samples)
-
-    def _fit_from_given_values(self, data: GreyData, spec: ModelSpec, items, base: GreyFit) -> GreyFit:
-        """All effect values given: the linear part profiled at them, then everything refitted from there."""
-        for name, given in items:
-            options = {k: v for k, v in given.items() if k not in dict(fitted_parameters(name, given))}
-            spec = spec.with_effect(name, options)
-        values = [float(given[p]) for name, given in items for p, _ in fitted_parameters(name, given)]
-        theta = np.concatenate([base.theta, values])
-        cost, theta_p, y0, bias = profile(data, spec, theta)  # linear part consistent with the effects
-        if np.isfinite(cost):
-            theta = theta_p
-        else:
-            y0, bias = base.y0, forward_bias(data, base, spec, theta)
-        n_eff = theta.size - spec.n_linear - 1
-        start = GreyFit(spec, theta, spec.plant(theta), spec.blocks(theta), y0, bias, base.y_sim, base.rmse)
-        lower, upper, scale = effect_bounds(data, start, np.zeros(n_eff), np.zeros(n_eff), np.zeros(n_eff))
-        problem = make_problem(data, spec, theta, y0, bias, np.arange(data.n_records), lower, upper, scale)
-        fit_problems(data, [problem], max_iter=min(int(self.max_iter), GIVEN_VALUES_MAX_ITER))
-        return refine_grid_parameters(data, GreyFit.from_problem(data, problem))
 
     def _store(self, data: GreyData, fit: GreyFit) -> None:
         spec = fit.spec

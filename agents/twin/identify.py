@@ -9,42 +9,75 @@ normalised by the step height (:func:`agents.twin.fidelity.rmse`).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from numbers import Integral, Real
 
 import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
-from sklearn.utils._param_validation import Interval, StrOptions, validate_params
 
 from agents.twin import srivc
 from agents.twin.fidelity import rmse
 from agents.twin.records import as_records, decimate_records, make_batches
 from gbo_envs import ContinuousPlant
 
-__all__ = ["LINEAR_CONSTRAINTS", "LinearIdentification", "check_orders", "identify_linear", "prepare_signals",
-           "simulation_error"]
+__all__ = ["LinearIdentification", "check_orders", "identify", "identify_linear", "linear_constraints",
+           "prepare_signals", "simulation_error"]
 
 SCAN_ITER = 8  # SRIVC iterations per delay while scanning the delay grid
 
-#: Allowed values of the settings of :func:`identify_linear` (scikit-learn parameter constraints),
-#: shared by :class:`agents.twin.LinearTwin`.
-LINEAR_CONSTRAINTS: dict[str, list] = {
-    "n_poles": [Interval(Integral, 1, None, closed="left")],
-    "n_zeros": [Interval(Integral, 0, None, closed="left")],
-    "n_integrators": [Interval(Integral, 0, None, closed="left")],
-    "delay": [None, Interval(Real, 0, None, closed="left")],
-    "max_delay": [None, Interval(Real, 0, None, closed="left")],
-    "delay_step": [None, Interval(Real, 0, None, closed="neither")],
-    "refine_delay": ["boolean"],
-    "offset": ["boolean"],
-    "n_samples": [None, Interval(Integral, 2, None, closed="left")],
-    "hold": [StrOptions({"auto", "zoh", "foh"})],
-    "oversample": [Interval(Integral, 1, None, closed="left")],
-    "max_iter": [Interval(Integral, 1, None, closed="left")],
-    "tol": [Interval(Real, 0, None, closed="neither")],
-    "svf_bandwidth": [None, Interval(Real, 0, None, closed="neither")],
-    "polish": ["boolean"],
-}
+
+@functools.cache
+def linear_constraints() -> dict[str, list]:
+    """Allowed values of the settings of :func:`identify_linear` (scikit-learn parameter constraints), shared
+    by :class:`agents.twin.LinearTwin` and :class:`agents.twin.GreyBoxTwin`.
+
+    Built on first use, so that the workbench's pipeline, which calls no estimator, does not import
+    scikit-learn (0.4 s of every ``gbo twin`` command on the project machine).
+    """
+    from sklearn.utils._param_validation import Interval, StrOptions
+
+    return {
+        "n_poles": [Interval(Integral, 1, None, closed="left")],
+        "n_zeros": [Interval(Integral, 0, None, closed="left")],
+        "n_integrators": [Interval(Integral, 0, None, closed="left")],
+        "delay": [None, Interval(Real, 0, None, closed="left")],
+        "max_delay": [None, Interval(Real, 0, None, closed="left")],
+        "delay_step": [None, Interval(Real, 0, None, closed="neither")],
+        "refine_delay": ["boolean"],
+        "offset": ["boolean"],
+        "n_samples": [None, Interval(Integral, 2, None, closed="left")],
+        "hold": [StrOptions({"auto", "zoh", "foh"})],
+        "oversample": [Interval(Integral, 1, None, closed="left")],
+        "max_iter": [Interval(Integral, 1, None, closed="left")],
+        "tol": [Interval(Real, 0, None, closed="neither")],
+        "svf_bandwidth": [None, Interval(Real, 0, None, closed="neither")],
+        "polish": ["boolean"],
+    }
+
+
+def _validated(fn, name: str):
+    """``fn`` as ``name`` behind scikit-learn's ``validate_params`` with :func:`linear_constraints`, the validator
+    built at the first call (scikit-learn imported then, not with this module)."""
+
+    def named(*args, **kwargs):
+        return fn(*args, **kwargs)
+
+    functools.update_wrapper(named, fn)
+    named.__name__ = named.__qualname__ = name  # the name scikit-learn's messages give
+    checked = []
+
+    @functools.wraps(named)
+    def wrapper(*args, **kwargs):
+        if not checked:
+            from sklearn.utils._param_validation import validate_params
+
+            checked.append(validate_params({"records": "no_validation", "start": [None, tuple],
+                                            "rest_levels": [None, "array-like"], **linear_constraints()},
+                                           prefer_skip_nested_validation=True)(named))
+        return checked[0](*args, **kwargs)
+
+    return wrapper
 
 
 @dataclass(frozen=True, eq=False)
@@ -219,15 +252,12 @@ def simulation_error(orders: srivc.Orders, theta: np.ndarray, delay: float, sign
     return float(total[0]), float(total[1]), np.concatenate(levels)
 
 
-@validate_params({"records": "no_validation", "start": [None, tuple], "rest_levels": [None, "array-like"],
-                  **LINEAR_CONSTRAINTS},
-                 prefer_skip_nested_validation=True)
-def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrators: int = 0,
-                    delay: float | None = None, max_delay: float | None = None, delay_step: float | None = None,
-                    refine_delay: bool = True, offset: bool = True, n_samples: int | None = None,
-                    hold: str = "auto", oversample: int = 10, max_iter: int = 50, tol: float = 1e-8,
-                    svf_bandwidth: float | None = None, polish: bool = False,
-                    start: tuple | None = None, rest_levels=None) -> LinearIdentification:
+def identify(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrators: int = 0,
+             delay: float | None = None, max_delay: float | None = None, delay_step: float | None = None,
+             refine_delay: bool = True, offset: bool = True, n_samples: int | None = None,
+             hold: str = "auto", oversample: int = 10, max_iter: int = 50, tol: float = 1e-8,
+             svf_bandwidth: float | None = None, polish: bool = False,
+             start: tuple | None = None, rest_levels=None) -> LinearIdentification:
     r"""Continuous-time transfer function with input delay, identified by SRIVC from closed-loop records.
 
     Model (:mod:`agents.twin.srivc`): ``y = y0 + B(s)/A(s) e^{-s tau} (u - u0)``
@@ -236,6 +266,10 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
     (S1)-(S4), started from a least-squares state-variable-filter fit; ``tau``
     minimises the simulation-error RMSE over a grid of delays, refined by a
     bounded scalar search between the neighbours of the best grid point.
+
+    :func:`identify_linear` is this function with its settings validated (scikit-learn's
+    ``validate_params``: an out-of-range setting raises, naming it); :func:`identify` itself
+    takes checked settings, as the workbench's pipeline passes them.
 
     Parameters
     ----------
@@ -387,6 +421,12 @@ def identify_linear(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrator
         rest_levels=rest, n_iter=int(result.n_iter), converged=bool(result.converged),
         delay_grid=np.array(list(cache))[order], delay_rmse=np.array([cache[tau][0] for tau in cache])[order],
         n_records=len(data), n_samples=max(rec.n_steps for rec in data), dt=float(dt))
+
+
+#: :func:`identify` behind scikit-learn's parameter validation (``validate_params`` with
+#: :func:`linear_constraints`): the function for users. The workbench's pipeline calls :func:`identify`
+#: itself with settings it has checked, and so imports no scikit-learn.
+identify_linear = _validated(identify, "identify_linear")
 
 
 def _polish(orders, theta, tau, signals, score, delay_bounds, offset):

@@ -13,7 +13,7 @@ from agents.jsonable import jsonable
 from agents.run_display import progress_bar
 from agents.twin.data import GreyData
 from agents.twin.diagnose import Diagnosis, as_step, diagnose
-from agents.twin.greybox_twin import GreyBoxTwin
+from agents.twin.fits import fit_structure
 from agents.twin.ladder_text import rung_text
 from agents.twin.model import ModelSpec
 
@@ -54,8 +54,7 @@ def error_ladder(data: GreyData, effects=None, spec: ModelSpec | None = None, ma
         The diagnosis made at each rung.
     """
     spec = ModelSpec() if spec is None else spec
-    current = GreyBoxTwin(effects=() if effects is None else effects, n_poles=spec.n_poles, n_zeros=spec.n_zeros,
-                          n_integrators=spec.n_integrators, output=spec.output).fit(data).greybox_
+    current = fit_structure(data, effects, spec)
     rungs, diagnoses = [], []
     added = None
     bar = progress_bar(max_steps + 1, "error ladder", progress, unit="rung")

@@ -16,7 +16,7 @@ import numpy as np
 
 from agents.thread_limits import single_thread
 from agents.twin.data import GreyData
-from agents.twin.identify import LinearIdentification, identify_linear
+from agents.twin.identify import LinearIdentification, identify
 from agents.twin.least_squares import Problem, fit_problems, make_problem
 from agents.twin.model import GreyFit, ModelSpec, effect_offset
 from agents.twin.records import decimate_records
@@ -45,7 +45,7 @@ def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = Tru
     records = [{"t": data.t[k, :m], "r": data.r[k, :m], "u": data.u[k, :m], "y": data.y[k, :m]}
                for k, m in enumerate(lengths)]  # views of the rows: no copy of the data
     try:
-        fit = identify_linear(records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
+        fit = identify(records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
                               max_delay=data.dt, refine_delay=False, rest_levels=data.initial.rest_levels)
     except RuntimeError:  # SRIVC diverged at every delay
         problem = step_start(data, spec)
@@ -125,11 +125,17 @@ def _records_through(data: GreyData, blocks: Sequence, output: str) -> list[Expe
     for block in actuators:
         block.reset(data.n_records, None, data.dt)
     if any(b.name in STATEFUL_ACTUATORS for b in actuators):
-        for k in range(data.u.shape[1]):
-            v = u[:, k]
-            for block in actuators:
-                v = block.actuate(v, speed[:, k])
-            u[:, k] = v
+        from gbo_envs.physics import kernels  # numba is imported by the first simulation, not with this module
+
+        stepped = kernels.step_actuators(actuators, u, speed, data.dt)  # compiled: the same numbers
+        if stepped is not None:
+            u = stepped
+        else:  # a block the kernels do not know
+            for k in range(data.u.shape[1]):
+                v = u[:, k]
+                for block in actuators:
+                    v = block.actuate(v, speed[:, k])
+                u[:, k] = v
     else:  # maps of (u, speed): every sample at once, the same values
         for block in actuators:
             u = block.actuate(u, speed)
@@ -204,7 +210,7 @@ def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float
         rest = _rest_through(data, blocks, spec.output)  # pinned records: their rest command through the blocks
         if int(data.mask.sum(axis=1).max()) > PROFILE_SAMPLES:  # the mean input over each hold: the same impulse
             records = decimate_records(records, PROFILE_SAMPLES, mean_input=True)
-        fit: LinearIdentification = identify_linear(
+        fit: LinearIdentification = identify(
             records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators, delay=delay,
             max_delay=max_delay, max_iter=max_iter, tol=tol, rest_levels=rest, hold="zoh", delay_step=delay_step,
             start=_srivc_start(spec, warm, delay))

@@ -9,7 +9,7 @@ from sklearn.utils.validation import check_is_fitted
 
 from agents.thread_limits import single_thread
 from agents.twin import srivc
-from agents.twin.identify import LINEAR_CONSTRAINTS, check_orders, identify_linear, prepare_signals, simulation_error
+from agents.twin.identify import check_orders, identify_linear, linear_constraints, prepare_signals, simulation_error
 
 __all__ = ["LinearTwin"]
 
@@ -75,7 +75,7 @@ oversample, max_iter, tol, svf_bandwidth, polish
     True
     """
 
-    _parameter_constraints: dict = {**LINEAR_CONSTRAINTS, "output": [StrOptions({"speed", "position"})],
+    _parameter_constraints: dict = {**linear_constraints(), "output": [StrOptions({"speed", "position"})],
                                     "warm_start": ["boolean"]}
 
     def __init__(self, *, n_poles: int = 2, n_zeros: int = 0, n_integrators: int = 0, delay: float | None = None,
@@ -122,7 +122,7 @@ oversample, max_iter, tol, svf_bandwidth, polish
         """
         self._validate_params()
         orders = check_orders(self.n_poles, self.n_zeros, self.n_integrators)
-        settings = {name: getattr(self, name) for name in LINEAR_CONSTRAINTS}
+        settings = {name: getattr(self, name) for name in linear_constraints()}
         with single_thread():  # tiny matrices: BLAS threads only contend
             fit = identify_linear(records, **settings, start=self._warm_start_point(orders))
         self.num_ = fit.num

@@ -438,8 +438,8 @@ def _direct(continuous, discrete, chains, u, commands, rows, dt, y0, bias, out, 
     kernels.open_loop_direct_kernel(num_rows, den_rows, num_len, den_len, _kernel_input(u), rest.commands,
                                     rest.source, rest.lags,
                                     rest.u_rest, rest.bias, rest.v_rest, rest.y_true0, free_row, free,
-                                    sensors.code, sensors.params, sensors.state, actuators.code, actuators.params,
-                                    actuators.state, out["y"], out["y_true"], out["v"])
+                                    sensors.code, sensors.params, actuators.code, actuators.params, out["y"],
+                                    out["y_true"], out["v"])
     out["u_rest"][rest.source] = rest.u_rest
     out["v_rest"][rest.source] = rest.v_rest
 

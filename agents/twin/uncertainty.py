@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
+from scipy.special import stdtrit
 
 from agents.thread_limits import single_thread
 from agents.twin.data import GreyData
@@ -57,7 +57,7 @@ def parameter_intervals(data: GreyData, fit: GreyFit, level: float = 0.95) -> di
     var = s2 * np.diag(inv) / norms**2
     # a direction the data do not see (a dropped singular value) leaves its parameters undetermined
     blind = np.abs(vt[~keep]).max(axis=0) > 1e-3 if (~keep).any() else np.zeros(free.size, bool)
-    quantile = float(stats.t.ppf(0.5 + float(level) / 2.0, dof))
+    quantile = float(stdtrit(dof, 0.5 + float(level) / 2.0))  # Student's t quantile (scipy.stats.t.ppf's own)
     names = fit.spec.global_names()
     out = {}
     for col, j in enumerate(free):

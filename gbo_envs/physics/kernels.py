@@ -51,7 +51,8 @@ from gbo_envs.physics.friction import CoulombFriction, Stiction, ViscousFriction
 from gbo_envs.physics.sensor import Quantization
 
 __all__ = ["KERNEL_CODES", "LANES", "N_PARAMS", "PackedBlocks", "closed_loop_kernel", "draw_sensor_noise", "known",
-           "lfilter_kernel", "lfilter_rows", "open_loop_direct_kernel", "open_loop_kernel", "pack_blocks", "warm_up"]
+           "actuators_kernel", "lfilter_kernel", "lfilter_rows", "open_loop_direct_kernel", "open_loop_kernel",
+           "pack_blocks", "step_actuators", "warm_up"]
 
 # block codes (0: no block, a padding position of a row with fewer blocks than others)
 _NONE = 0
@@ -296,6 +297,31 @@ def _sinc(x):
 
 
 @_inline
+def _saturated(u, limit):
+    """``Saturation.actuate``: ``clip(u, -limit, limit)``."""
+    return _minimum(_maximum(u, -limit), limit)
+
+
+@_inline
+def _dead_zoned(u, width):
+    """``DeadZone.actuate``: ``u - clip(u, -width/2, width/2)``."""
+    half = width / 2.0
+    return u - _clip(u, -half, half)
+
+
+@_inline
+def _static_actuate(code, par, r, j, u):
+    """Plant input of a static actuator map (saturation, dead zone, offset: no speed, no state), else ``u``."""
+    if code == _SATURATION:
+        return _saturated(u, par[r, j, 0])
+    if code == _DEAD_ZONE:
+        return _dead_zoned(u, par[r, j, 0])
+    if code == _OFFSET_ACTUATOR:
+        return u + par[r, j, 0]
+    return u
+
+
+@_inline
 def _actuate(code, par, state, r, j, u, speed):
     """Plant input of actuator block ``j`` of row ``r`` for the command ``u`` at mechanical ``speed``.
 
@@ -303,11 +329,9 @@ def _actuate(code, par, state, r, j, u, speed):
     :mod:`gbo_envs.physics.friction`), in input units; ``state`` is updated.
     """
     if code == _SATURATION:
-        limit = par[r, j, 0]
-        return _minimum(_maximum(u, -limit), limit)
+        return _saturated(u, par[r, j, 0])
     if code == _DEAD_ZONE:
-        half = par[r, j, 0] / 2.0
-        return u - _clip(u, -half, half)
+        return _dead_zoned(u, par[r, j, 0])
     if code == _COULOMB:
         # f = level(sign of speed) * sign(speed) while moving; at rest friction balances the drive up to its level
         # (Karnopp); with smoothing the sign is the ramp clip(speed / smoothing, -1, 1)
@@ -346,6 +370,26 @@ def _actuate(code, par, state, r, j, u, speed):
 
 
 @_inline
+def _quantized(y, step, floor):
+    """``Quantization.measure``: ``step floor(y / step)`` (``floor``) or ``step rint(y / step)``; ``y`` at step 0."""
+    if step == 0.0:
+        return y
+    if floor != 0.0:
+        return step * np.floor(y / step)
+    return step * np.rint(y / step)
+
+
+@_inline
+def _static_measure(code, par, r, j, y):
+    """Measurement of a static sensor map (offset, quantization: no noise, no state), else ``y``."""
+    if code == _OFFSET_SENSOR:
+        return y + par[r, j, 0]
+    if code == _QUANTIZATION:
+        return _quantized(y, par[r, j, 0], par[r, j, 1])
+    return y
+
+
+@_inline
 def _measure(code, par, state, r, j, y, noise, k, column):
     """Measurement of sensor block ``j`` of row ``r`` at sample ``k`` of the output ``y`` (output units).
 
@@ -356,12 +400,7 @@ def _measure(code, par, state, r, j, y, noise, k, column):
     if code == _OFFSET_SENSOR:
         return y + par[r, j, 0]
     if code == _QUANTIZATION:
-        step = par[r, j, 0]
-        if step == 0.0:
-            return y
-        if par[r, j, 1] != 0.0:
-            return step * np.floor(y / step)
-        return step * np.rint(y / step)
+        return _quantized(y, par[r, j, 0], par[r, j, 1])
     if code == _POSITION_ENCODER:  # q round((y + nu) / q), nu ~ N(0, jitter^2)
         resolution = par[r, j, 0]
         scaled = y / resolution
@@ -443,12 +482,6 @@ def _df2t(z, bb, aa, length, xs, ys):
         _df2t_lanes(z, bb, aa, 4, xs, ys)
     elif length == 5:
         _df2t_lanes(z, bb, aa, 5, xs, ys)
-    elif length == 6:
-        _df2t_lanes(z, bb, aa, 6, xs, ys)
-    elif length == 7:
-        _df2t_lanes(z, bb, aa, 7, xs, ys)
-    elif length == 8:
-        _df2t_lanes(z, bb, aa, 8, xs, ys)
     else:
         _df2t_lanes(z, bb, aa, length, xs, ys)
 
@@ -544,12 +577,14 @@ def lfilter_rows(b: np.ndarray, a: np.ndarray, x: np.ndarray, source: np.ndarray
     ndarray of shape (rows, n)
     """
     x = np.ascontiguousarray(x, dtype=float)
+    if not x.flags.writeable:  # one compiled signature: numba types a read-only array apart (and compiles again)
+        x = x.copy()
     if x.ndim != 2:
         raise ValueError(f"x: expected a 2-D array of signals, got shape {x.shape}")
     source = np.arange(x.shape[0], dtype=np.int64) if source is None else np.ascontiguousarray(source, dtype=np.int64)
     rows = source.size
-    b, a = (np.ascontiguousarray(np.broadcast_to(np.atleast_2d(np.asarray(c, dtype=float)),
-                                                 (rows, np.shape(c)[-1]))) for c in (b, a))
+    b, a = (np.array(np.broadcast_to(np.atleast_2d(np.asarray(c, dtype=float)), (rows, np.shape(c)[-1])), order="C")
+            for c in (b, a))  # fresh writeable C arrays: one compiled signature
     if a.shape[1] < 2 or not np.all(a[:, 0] != 0.0):  # lfilter convolves when a has one coefficient
         raise ValueError(f"a: need a denominator of at least 2 coefficients, the first nonzero; got shape {a.shape}")
     if shift < 0:
@@ -688,82 +723,58 @@ def open_loop_kernel(orders, transition, c, speed, u, commands, source, lags, u_
     y_out, y_true_out, v_out : ndarray of shape (batch, n_steps)
         Filled in the rows ``source`` with the measurement, the plant output and the plant input.
     """
-    width = transition.shape[1]
-    x = np.empty(width)
-    x_next = np.empty(width)
-    for r in range(source.shape[0]):
-        # the common orders as constants: the compiler unrolls their loops over the state (30 % faster a sample)
-        order = orders[r]
-        if order == 2:
-            _replay_row(2, r, transition, c, speed, u, commands, source, lags, u_rest, bias, x0, v_rest, sensors_code,
-                        sensors_params, sensors_state, actuators_code, actuators_params, actuators_state, y_out,
-                        y_true_out, v_out, x, x_next)
-        elif order == 3:
-            _replay_row(3, r, transition, c, speed, u, commands, source, lags, u_rest, bias, x0, v_rest, sensors_code,
-                        sensors_params, sensors_state, actuators_code, actuators_params, actuators_state, y_out,
-                        y_true_out, v_out, x, x_next)
-        elif order == 4:
-            _replay_row(4, r, transition, c, speed, u, commands, source, lags, u_rest, bias, x0, v_rest, sensors_code,
-                        sensors_params, sensors_state, actuators_code, actuators_params, actuators_state, y_out,
-                        y_true_out, v_out, x, x_next)
-        else:
-            _replay_row(order, r, transition, c, speed, u, commands, source, lags, u_rest, bias, x0, v_rest,
-                        sensors_code, sensors_params, sensors_state, actuators_code, actuators_params, actuators_state,
-                        y_out, y_true_out, v_out, x, x_next)
-
-
-@_inline
-def _replay_row(order, r, transition, c, speed, u, commands, source, lags, u_rest, bias, x0, v_rest, sensors_code,
-                sensors_params, sensors_state, actuators_code, actuators_params, actuators_state, y_out, y_true_out,
-                v_out, x, x_next):
-    """Row ``r`` of :func:`open_loop_kernel`, its plant of ``order`` states (scratch state ``x``, ``x_next``)."""
+    rows = source.shape[0]
     n_steps = u.shape[1]
     width = transition.shape[1]
     n_sensors = sensors_code.shape[1]
     n_actuators = actuators_code.shape[1]
+    x = np.empty(width)
+    x_next = np.empty(width)
     empty = np.zeros((1, 1))
-    row = source[r]
-    lag = lags[r]
-    command = commands[r]
-    for i in range(order):
-        x[i] = x0[r, i]
-    v_prev = v_rest[r]
-    b = bias[r]
-    for k in range(n_steps):
-        y_true = c[r, 0] * x[0]
-        for i in range(1, order):
-            y_true += c[r, i] * x[i]
-        y_true_out[row, k] = y_true
-        y = y_true
-        for j in range(n_sensors):
-            y = _measure(sensors_code[r, j], sensors_params, sensors_state, r, j, y, empty, k, -1)
-        y_out[row, k] = y
-        v = u[command, k - lag] if k >= lag else u_rest[r]
-        if n_actuators:
-            s = speed[r, 0] * x[0]
+    for r in range(rows):
+        order = orders[r]
+        row = source[r]
+        lag = lags[r]
+        command = commands[r]
+        for i in range(order):
+            x[i] = x0[r, i]
+        v_prev = v_rest[r]
+        b = bias[r]
+        for k in range(n_steps):
+            y_true = c[r, 0] * x[0]
             for i in range(1, order):
-                s += speed[r, i] * x[i]
-            for j in range(n_actuators):
-                v = _actuate(actuators_code[r, j], actuators_params, actuators_state, r, j, v, s)
-        v = v + b
-        v_out[row, k] = v
-        for i in range(order):
-            acc = transition[r, i, 0] * x[0]
-            for m in range(1, order):
-                acc += transition[r, i, m] * x[m]
-            acc += transition[r, i, width] * v
-            acc += transition[r, i, width + 1] * v_prev
-            x_next[i] = acc
-        for i in range(order):
-            x[i] = x_next[i]
-        v_prev = v
+                y_true += c[r, i] * x[i]
+            y_true_out[row, k] = y_true
+            y = y_true
+            for j in range(n_sensors):
+                y = _measure(sensors_code[r, j], sensors_params, sensors_state, r, j, y, empty, k, -1)
+            y_out[row, k] = y
+            v = u[command, k - lag] if k >= lag else u_rest[r]
+            if n_actuators:
+                s = speed[r, 0] * x[0]
+                for i in range(1, order):
+                    s += speed[r, i] * x[i]
+                for j in range(n_actuators):
+                    v = _actuate(actuators_code[r, j], actuators_params, actuators_state, r, j, v, s)
+            v = v + b
+            v_out[row, k] = v
+            for i in range(order):
+                acc = transition[r, i, 0] * x[0]
+                for m in range(1, order):
+                    acc += transition[r, i, m] * x[m]
+                acc += transition[r, i, width] * v
+                acc += transition[r, i, width + 1] * v_prev
+                x_next[i] = acc
+            for i in range(order):
+                x[i] = x_next[i]
+            v_prev = v
 
 
 @_jit
 def open_loop_direct_kernel(num, den, num_len, den_len, u, commands, source, lags, u_rest, bias, v_rest, y_true0,
                             free_row,
-                            free, sensors_code, sensors_params, sensors_state, actuators_code, actuators_params,
-                            actuators_state, y_out, y_true_out, v_out):
+                            free, sensors_code, sensors_params, actuators_code, actuators_params, y_out, y_true_out,
+                            v_out):
     """Replay recorded commands through memoryless blocks and sampled transfer functions, row by row.
 
     The rows' actuator blocks are static maps of the command (no speed, no state), so the plant needs
@@ -788,8 +799,8 @@ def open_loop_direct_kernel(num, den, num_len, den_len, u, commands, source, lag
     free_row : ndarray of int64, shape (rows,)
         Row of ``free`` holding the row's free response, or -1.
     free : ndarray of shape (moving, n_steps)
-    sensors_*, actuators_* : ndarray
-        The fields of the two :class:`PackedBlocks`.
+    sensors_code, sensors_params, actuators_code, actuators_params : ndarray
+        The codes and parameters of the two :class:`PackedBlocks` (static maps: no state).
     y_out, y_true_out, v_out : ndarray of shape (batch, n_steps)
         Filled in the rows ``source`` with the measurement, the plant output and the plant input.
     """
@@ -804,7 +815,6 @@ def open_loop_direct_kernel(num, den, num_len, den_len, u, commands, source, lag
     xs = np.zeros(LANES)
     ys = np.zeros(LANES)
     lane_row = np.zeros(LANES, dtype=np.int64)
-    empty = np.zeros((1, 1))
     first = 0
     while first < rows:
         count = _lane_block(num_len, den_len, first, rows)
@@ -817,7 +827,7 @@ def open_loop_direct_kernel(num, den, num_len, den_len, u, commands, source, lag
             for k in range(n_steps):
                 v = u[command, k - lag] if k >= lag else u_rest[r]
                 for j in range(n_actuators):
-                    v = _actuate(actuators_code[r, j], actuators_params, actuators_state, r, j, v, 0.0)
+                    v = _static_actuate(actuators_code[r, j], actuators_params, r, j, v)
                 v_out[row, k] = v + bias[r]
         for k in range(n_steps):  # the plant on the deviation from rest, then the free response of a moving start
             for q in range(LANES):
@@ -835,9 +845,58 @@ def open_loop_direct_kernel(num, den, num_len, den_len, u, commands, source, lag
             for k in range(n_steps):
                 y = y_true_out[row, k]
                 for j in range(n_sensors):
-                    y = _measure(sensors_code[r, j], sensors_params, sensors_state, r, j, y, empty, k, -1)
+                    y = _static_measure(sensors_code[r, j], sensors_params, r, j, y)
                 y_out[row, k] = y
         first += count
+
+
+@_jit
+def actuators_kernel(u, speed, code, params, state, out):
+    """``out[r, k]``: the command ``u[r, k]`` through the actuator blocks of row ``r`` at ``speed[r, k]``, sample by
+    sample (the blocks' states carried, and updated in ``state``).
+
+    Parameters
+    ----------
+    u, speed : ndarray of shape (rows, n_steps)
+        Commands (input units) and mechanical speeds.
+    code, params, state : ndarray
+        The fields of the rows' :class:`PackedBlocks` (actuator side).
+    out : ndarray of shape (rows, n_steps)
+        Filled with the plant inputs.
+    """
+    rows, n_steps = u.shape
+    for r in range(rows):
+        for k in range(n_steps):
+            v = u[r, k]
+            for j in range(code.shape[1]):
+                v = _actuate(code[r, j], params, state, r, j, v, speed[r, k])
+            out[r, k] = v
+
+
+def step_actuators(blocks, u: np.ndarray, speed: np.ndarray, dt: float) -> np.ndarray | None:
+    """The commands ``u`` through the actuator ``blocks`` (in order; started, e.g. by ``reset``) at the mechanical
+    ``speed``, sample by sample: what ``for k: v = u[:, k]; v = block.actuate(v, speed[:, k])`` gives, compiled.
+
+    Parameters
+    ----------
+    blocks : sequence of EffectBlock
+        Actuator blocks for all rows.
+    u, speed : array_like of shape (rows, n_steps)
+    dt : float
+        Sample time in s.
+
+    Returns
+    -------
+    ndarray of shape (rows, n_steps), or None when a block is unknown to the kernels (:func:`known`).
+    """
+    u = np.array(u, dtype=float, order="C")  # fresh C arrays: one compiled signature
+    speed = np.array(np.broadcast_to(speed, u.shape), dtype=float, order="C")
+    packed = pack_blocks([(j, block, slice(None)) for j, block in enumerate(blocks)], u.shape[0], dt)
+    if packed is None:
+        return None
+    out = np.empty_like(u)
+    actuators_kernel(u, speed, packed.code, packed.params, packed.state, out)
+    return out
 
 
 def warm_up(which: tuple[str, ...] = ("closed_loop", "open_loop")) -> float:
@@ -863,7 +922,8 @@ def warm_up(which: tuple[str, ...] = ("closed_loop", "open_loop")) -> float:
         two = np.ones((1, 2))
         lengths = np.full(1, 2, dtype=np.int64)
         open_loop_direct_kernel(two, two, lengths, lengths, np.ones((1, 2)), index, index, index, one, one, one, one,
-                                np.full(1, -1, dtype=np.int64), np.zeros((0, 2)), *empty_blocks, *empty_blocks,
-                                np.empty((1, 2)), np.empty((1, 2)), np.empty((1, 2)))
+                                np.full(1, -1, dtype=np.int64), np.zeros((0, 2)), *empty_blocks[:2],
+                                *empty_blocks[:2], np.empty((1, 2)), np.empty((1, 2)), np.empty((1, 2)))
         lfilter_kernel(two, two, lengths, lengths, np.ones((1, 2)), index, 0, np.empty((1, 2)))
+        actuators_kernel(two, two, *empty_blocks, np.empty((1, 2)))
     return time.perf_counter() - start

@@ -9,13 +9,13 @@ integration error enters the closed-loop simulation.
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import expm
-from scipy.signal import BadCoefficients, ss2tf, tf2ss
 
 __all__ = ["ContinuousPlant", "DiscretePlant"]
 
@@ -103,6 +103,8 @@ class ContinuousPlant:
             # tf2ss trims the (near-)zero leading coefficient, as wanted, and says so with BadCoefficients; a
             # model of zero gain is one (a twin fitted to records whose drive saturated throughout: no input
             # reached the plant), and the warning reached guided BO's user
+            from scipy.signal import BadCoefficients, tf2ss  # rare: scipy.signal takes 0.3 s to import
+
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", BadCoefficients)
                 a, b, c, _ = tf2ss(self.num, self.den)
@@ -151,13 +153,26 @@ class ContinuousPlant:
 
 
 def _zoh_blocks(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """Return ``(e^{A h}, int_0^h e^{As} ds B)`` from one augmented matrix exponential."""
-    n = a.shape[0]
+    """Return ``(e^{A h}, int_0^h e^{As} ds B)`` from one augmented matrix exponential.
+
+    Remembered by value (:func:`_zoh_blocks_of`): the exponential depends on the denominator and the delay
+    only, and a fit asks for it again with every numerator it tries (a Jacobian's numerator columns, each
+    experiment of a drifting gain), the same numbers each time.
+    """
+    return _zoh_blocks_of(a.tobytes(), b.tobytes(), a.shape[0], float(h))
+
+
+@functools.lru_cache(maxsize=4096)
+def _zoh_blocks_of(a: bytes, b: bytes, n: int, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_zoh_blocks` of ``A`` and ``B`` given by their bytes (``n`` states); the arrays are read-only."""
     aug = np.zeros((n + 1, n + 1))
-    aug[:n, :n] = a * h
-    aug[:n, n] = b * h
+    aug[:n, :n] = np.frombuffer(a).reshape(n, n) * h
+    aug[:n, n] = np.frombuffer(b) * h
     e = expm(aug)
-    return e[:n, :n], e[:n, n]
+    phi, integral = e[:n, :n], e[:n, n]
+    phi.setflags(write=False)
+    integral.setflags(write=False)
+    return phi, integral
 
 
 @dataclass(frozen=True, eq=False)
@@ -214,6 +229,8 @@ class DiscretePlant:
         den : ndarray of shape (order + 1,)
             Denominator coefficients of ``z^0, z^-1, ...``.
         """
+        from scipy.signal import BadCoefficients, ss2tf  # imported here: scipy.signal takes 0.3 s to import
+
         with warnings.catch_warnings():  # a zero leading numerator coefficient is expected (strictly proper)
             warnings.simplefilter("ignore", BadCoefficients)
             n0, den = ss2tf(self.phi, self.gamma0[:, None], self.c[None, :], np.zeros((1, 1)))

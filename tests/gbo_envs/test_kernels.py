@@ -130,3 +130,37 @@ def test_a_block_the_kernel_does_not_know_keeps_the_numpy_loop(monkeypatch):
     monkeypatch.setattr(kernels, "KERNEL_CODES", {})
     clipped = plain.simulate(GAINS)
     assert np.max(np.abs(own.y - clipped.y)) > 0.1  # the user's actuate ran
+
+
+#: every actuator block of the catalogue (offset on the actuator side)
+ACTUATORS = ["saturation", "dead_zone", "coulomb_friction", "viscous_friction", "stiction", "backlash", "cogging",
+             "offset"]
+
+
+@FAST
+@given(chain=st.lists(st.sampled_from(ACTUATORS), min_size=1, max_size=3), data=st.data(), seed=st.integers(0, 50))
+def test_actuators_step_through_records_as_the_numpy_loop(chain, data, seed):
+    """:func:`kernels.step_actuators` (the profiles' commands through stateful actuators) equals the loop of
+    ``block.actuate`` sample by sample, states carried, for chains of every actuator block."""
+    specs = [(name, {**data.draw(PARAMS[name]), **({"on": "actuator"} if name == "offset" else {})})
+             for name in chain]
+    rng = np.random.default_rng(seed)
+    u = np.cumsum(rng.normal(0.0, 3.0, (4, 400)), axis=1)  # reversals of the command
+    speed = np.cumsum(rng.normal(0.0, 1.0, (4, 400)), axis=1)  # and of the speed
+    blocks = [build_effect(name, params) for name, params in specs]
+    for block in blocks:
+        block.reset(4, None, 0.002)
+    got = kernels.step_actuators(blocks, u, speed, 0.002)
+    want = u.copy()
+    for block in blocks:
+        block.reset(4, None, 0.002)
+    for k in range(u.shape[1]):
+        v = want[:, k]
+        for block in blocks:
+            v = block.actuate(v, speed[:, k])
+        want[:, k] = v
+    np.testing.assert_array_equal(got, want)
+
+
+def test_actuators_the_kernels_do_not_know_are_not_stepped_compiled():
+    assert kernels.step_actuators([leaky_saturation(5.0, 0.1)], np.ones((1, 3)), np.zeros((1, 3)), 0.002) is None
