@@ -65,6 +65,7 @@ variant of Gilson et al. (2008), which simulates the instrument from ``r``.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -179,7 +180,7 @@ class _Prefilter:
     def __init__(self, den: np.ndarray, h: float, delay: float) -> None:
         with np.errstate(over="ignore", invalid="ignore"):  # an overflow is caught below, and said there
             plant = ContinuousPlant(num=(1.0,), den=tuple(den), delay=delay).discretize(h)
-            den_z = np.real(np.poly(np.exp(np.roots(den) * h)))  # eigenvalues of Phi = e^{A h}
+            den_z = _sampled_denominator(np.asarray(den, dtype=float).tobytes(), float(h))
             num0 = _state_numerators(plant.phi, plant.gamma0, den_z)
             num1 = _state_numerators(plant.phi, plant.gamma1, den_z)
         n = plant.order
@@ -206,6 +207,29 @@ class _Prefilter:
         out = kernels.lfilter_rows(np.repeat(self.nums, signals, axis=0), self.den, flat,
                                    source=np.tile(np.arange(signals), self.order), shift=self.shift)
         return out.reshape(self.order, *x.shape)
+
+
+def _prefilter(den: np.ndarray, h: float, delay: float) -> _Prefilter:
+    """``_Prefilter(den, h, delay)``, remembered: an iteration builds the same filters for ``y`` and ``u`` (at a
+    delay of zero), and its last iterate's again to simulate it (read-only, so shared)."""
+    return _prefilter_of(np.asarray(den, dtype=float).tobytes(), float(h), float(delay))
+
+
+@functools.lru_cache(maxsize=64)
+def _prefilter_of(den: bytes, h: float, delay: float) -> _Prefilter:
+    made = _Prefilter(np.frombuffer(den), h, delay)
+    made.nums.setflags(write=False)
+    made.den.setflags(write=False)
+    return made
+
+
+@functools.lru_cache(maxsize=64)
+def _sampled_denominator(den: bytes, h: float) -> np.ndarray:
+    """The denominator in ``z^-1`` of ``1 / A(p)`` sampled every ``h`` s: the polynomial of the eigenvalues
+    ``e^{p_i h}`` of ``Phi = e^{A h}`` (``A``'s coefficients given by their bytes), the same for any delay."""
+    out = np.real(np.poly(np.exp(np.roots(np.frombuffer(den)) * h)))
+    out.setflags(write=False)
+    return out
 
 
 def _state_numerators(phi: np.ndarray, gamma: np.ndarray, den_z: np.ndarray) -> np.ndarray:
@@ -267,8 +291,8 @@ def _equations(orders: Orders, batches: list[Signals], den: np.ndarray, delay: f
     p = orders.n_params
     gram, rhs = np.zeros((p, p)), np.zeros(p)
     for sig in batches:
-        fy = _Prefilter(den, sig.h, 0.0)
-        fu = _Prefilter(den, sig.h, delay)
+        fy = _prefilter(den, sig.h, 0.0)
+        fu = _prefilter(den, sig.h, delay)
         ys = sig.at_samples(fy.states(sig.y_fine))  # (S1) y_f^{(n-1)} .. y_f^{(0)}
         us_fine = fu.states(sig.u_fine)
         us = sig.at_samples(us_fine)  # (S1) u_f^{(n-1)} .. u_f^{(0)}
@@ -376,7 +400,7 @@ def _simulatable(result: SrivcResult, orders: Orders, batches: list[Signals], de
     """``result``, or divergence (``theta0``) if its last iterate cannot be discretised (see :func:`srivc`)."""
     try:
         for h in {sig.h for sig in batches}:
-            _Prefilter(orders.den(result.theta), h, delay)
+            _prefilter(orders.den(result.theta), h, delay)
     except FloatingPointError:
         return SrivcResult(theta0, result.n_iter, False)
     return result
@@ -397,7 +421,7 @@ def simulate(orders: Orders, theta: np.ndarray, delay: float, sig: Signals, offs
         Rest levels used.
     """
     den = orders.den(theta)
-    fu = _Prefilter(den, sig.h, delay)
+    fu = _prefilter(den, sig.h, delay)
     x = sig.at_samples(_output(orders, theta, fu.states(sig.u_fine)))
     if not offset or not sig.free.any():
         return sig.y_ref[:, None] + x, sig.y_ref.copy(), sig.u_ref.copy()

@@ -134,11 +134,11 @@ class Drift(EffectBlock):
         return 1.0 + rates if int(experiment_index) >= self.start else np.ones_like(rates)
 
     def modify_plant(self, plant, experiment_index):
-        factors = self.factor(experiment_index)
-        if np.all(factors == 1.0):
+        factors = self.factor(experiment_index).tolist()  # Python floats: the same products, without numpy's overhead
+        if all(f == 1.0 for f in factors):
             return plant
-        if np.any(factors <= 0.0):
-            raise ValueError(f"drift: parameters {self._names} reach the factors {factors.tolist()} (<= 0) at "
+        if any(f <= 0.0 for f in factors):
+            raise ValueError(f"drift: parameters {self._names} reach the factors {factors} (<= 0) at "
                              f"experiment {experiment_index}; choose 'rate' so that they stay positive")
         num, den, delay = list(plant.num), list(plant.den), plant.delay
         for name, f in zip(self._names, factors):
