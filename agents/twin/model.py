@@ -135,8 +135,9 @@ class ModelSpec:
     def plant(self, theta: np.ndarray) -> ContinuousPlant:
         """Linear plant of the global parameters ``theta``."""
         nb = self.n_zeros + 1
-        num = tuple(theta[:nb])
-        den = (1.0, *theta[nb : self.n_linear], *([0.0] * self.n_integrators))
+        linear = theta[: self.n_linear].tolist()  # Python floats: the plant takes them as they are
+        num = tuple(linear[:nb])
+        den = (1.0, *linear[nb:], *([0.0] * self.n_integrators))
         return ContinuousPlant(num=num, den=den, delay=max(float(theta[self.n_linear]), 0.0), output=self.output)
 
     def effect_params(self, theta: np.ndarray) -> list[tuple[str, dict]]:
