@@ -733,7 +733,7 @@ def open_loop_kernel(orders, transition, c, speed, u, commands, source, lags, u_
     empty = np.zeros((1, 1))
     for r in range(rows):
         order = orders[r]
-        if order == 2:  # the common order with its state in registers: 25 % faster a sample
+        if order == 2 and _static_sensors(sensors_code, r):  # the common case, its state in registers: 25 % faster
             _replay_second_order(r, transition, c, speed, u, commands, source, lags, u_rest, bias, x0, v_rest,
                                  sensors_code, sensors_params, sensors_state, actuators_code, actuators_params,
                                  actuators_state, y_out, y_true_out, v_out)
@@ -776,15 +776,24 @@ def open_loop_kernel(orders, transition, c, speed, u, commands, source, lags, u_
 
 
 @_inline
+def _static_sensors(code, r):
+    """Whether row ``r``'s sensor blocks are all static maps (offset, quantization: :func:`_static_measure`)."""
+    for j in range(code.shape[1]):
+        if code[r, j] != _NONE and code[r, j] != _OFFSET_SENSOR and code[r, j] != _QUANTIZATION:
+            return False
+    return True
+
+
+@_inline
 def _replay_second_order(r, transition, c, speed, u, commands, source, lags, u_rest, bias, x0, v_rest, sensors_code,
                          sensors_params, sensors_state, actuators_code, actuators_params, actuators_state, y_out,
                          y_true_out, v_out):
-    """Row ``r`` of :func:`open_loop_kernel` for a plant of two states, held in scalars: the same operations."""
+    """Row ``r`` of :func:`open_loop_kernel` for a plant of two states, held in scalars, and static sensor maps:
+    the same operations."""
     n_steps = u.shape[1]
     width = transition.shape[1]
     n_sensors = sensors_code.shape[1]
     n_actuators = actuators_code.shape[1]
-    empty = np.zeros((1, 1))
     row = source[r]
     lag = lags[r]
     command = commands[r]
@@ -802,7 +811,7 @@ def _replay_second_order(r, transition, c, speed, u, commands, source, lags, u_r
         y_true_out[row, k] = y_true
         y = y_true
         for j in range(n_sensors):
-            y = _measure(sensors_code[r, j], sensors_params, sensors_state, r, j, y, empty, k, -1)
+            y = _static_measure(sensors_code[r, j], sensors_params, r, j, y)
         y_out[row, k] = y
         v = u[command, k - lag] if k >= lag else u_rest[r]
         if n_actuators:
