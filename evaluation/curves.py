@@ -118,15 +118,16 @@ def plant_optima(env_id: str, env_kwargs: dict, budget: int, resolution: int = 1
     A plant that does not change has one ``J*`` (:func:`gbo_envs.ground_truth`); a time-varying one
     (``plant_params_at``) is evaluated on the ``resolution`` x ``resolution`` grid once per distinct
     plant of the episode. Results are cached in the JSON file ``cache`` (keyed by env, kwargs,
-    budget, resolution and a hash of the plant's source modules, :mod:`evaluation.fingerprint`).
+    budget, resolution and the plant's behaviour fingerprint, :mod:`evaluation.behaviour`: a change
+    of its code that keeps what it does keeps the entry).
 
     Returns
     -------
     ndarray of shape (budget,)
     """
-    from evaluation.fingerprint import plant_modules, source_hash
+    from evaluation.behaviour import plant_behaviour
 
-    key = _optima_key(env_id, env_kwargs, budget, resolution, source_hash(plant_modules(env_id)))
+    key = _optima_key(env_id, env_kwargs, budget, resolution, plant_behaviour(env_id, env_kwargs))
     known = _read_json(cache)
     if key in known:
         return np.asarray(known[key], dtype=float)
@@ -140,7 +141,7 @@ def plant_optimum_cell(env_id: str, env_kwargs: dict, resolution: int = 100,
     """The grid cell of the plant's ground-truth optimum (:func:`gbo_envs.ground_truth`) and the gains' names.
 
     Cached in the JSON file ``cache`` beside :func:`plant_optima`'s entries, under a key of env, kwargs,
-    resolution and the plant's source hash: a rig's live grid takes a minute of CPU.
+    resolution and the plant's behaviour fingerprint: a rig's live grid takes a minute of CPU.
 
     Returns
     -------
@@ -148,10 +149,10 @@ def plant_optimum_cell(env_id: str, env_kwargs: dict, resolution: int = 100,
         Index of the minimum on the ``resolution`` x ``resolution`` grid, one per gain.
     gain_names : tuple of str
     """
-    from evaluation.fingerprint import plant_modules, source_hash
+    from evaluation.behaviour import plant_behaviour
 
     # budget 0 in the key: the cell is the first plant's, whatever the run length
-    key = "cell:" + _optima_key(env_id, env_kwargs, 0, resolution, source_hash(plant_modules(env_id)))
+    key = "cell:" + _optima_key(env_id, env_kwargs, 0, resolution, plant_behaviour(env_id, env_kwargs))
     known = _read_json(cache).get(key)
     if known is None:
         import gbo_envs
@@ -174,8 +175,9 @@ def _write_entry(cache: Path | str | None, key: str, value) -> None:
         json.dump(known, handle, indent=1, sort_keys=True)
 
 
-def _optima_key(env_id: str, env_kwargs: dict, budget: int, resolution: int, plant_hash: str) -> str:
-    payload = json.dumps([env_id, jsonable(env_kwargs), int(budget), int(resolution), plant_hash], sort_keys=True)
+def _optima_key(env_id: str, env_kwargs: dict, budget: int, resolution: int, plant: str) -> str:
+    """The cache key of a plant's optima: env, kwargs, budget, resolution and ``plant`` (its behaviour)."""
+    payload = json.dumps([env_id, jsonable(env_kwargs), int(budget), int(resolution), plant], sort_keys=True)
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 

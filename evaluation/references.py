@@ -14,13 +14,16 @@ Their runs on the standard suite ship in ``evaluation/references/``:
   (:func:`evaluation.curves.plant_optima`) with the plant hash they belong to, so the
   suite does not recompute ground truths while the plants are unchanged.
 
-**Staleness rule**: a reference run is stale when any part of its fingerprint differs
-from the current one: the env id or kwargs, the tuner's name or kwargs, the tuner's or
-the plant's source hash (:mod:`evaluation.fingerprint`: a changed plant, truth table or
-tuner), or ``J*`` (relative difference above :data:`OPTIMUM_RTOL`, i.e. beyond
-floating-point noise). The suite reports stale references and uses them with that mark;
-``gbo bench suite --rebuild-references [--tuner NAME]`` reruns the stale and missing
-ones (:func:`rebuild`).
+**Staleness rule**: a reference run is stale when the env id or kwargs, the tuner's name or
+kwargs, or ``J*`` (relative difference above :data:`OPTIMUM_RTOL`, i.e. beyond floating-point
+noise) differ from the current ones, or when the tuner's or the plant's code changed what it
+does. The source hashes (:mod:`evaluation.fingerprint`) say whether the code changed at all;
+where one differs, the behaviour fingerprint (:mod:`evaluation.behaviour`: the plant's responses
+at fixed gains and seeds, the tuner's first proposals) decides, so that a refactor or a speed-up
+that keeps every number leaves the references current. A run without a behaviour fingerprint is
+stale when its source changed. The suite reports stale references and uses them with that mark;
+``gbo bench suite --rebuild-references [--tuner NAME]`` stamps the current ones with the new
+source hashes (:func:`restamp`) and reruns the stale and missing ones (:func:`rebuild`).
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ from evaluation.study import Study, slugify
 from gbo_envs.atomic_write import atomic_write
 
 __all__ = ["OPTIMUM_RTOL", "REFERENCES_DIR", "FINGERPRINT_COLUMNS", "Fingerprint", "ReferenceSet",
-           "current_fingerprints", "describe", "load_references", "plant_hash", "plant_table", "rebuild",
+           "current_fingerprints", "describe", "load_references", "plant_hash", "plant_table", "rebuild", "restamp",
            "reference_file", "stale_reasons", "suite_optima", "write_references"]
 
 #: The shipped references (package data).
@@ -48,7 +51,7 @@ PLANTS_FILE = "plants.json"
 #: Relative tolerance on ``J*`` below which two optima are the same (floating-point noise of the grid search).
 OPTIMUM_RTOL = 1e-9
 #: Curves columns of a reference run beyond :data:`evaluation.curves.CURVE_COLUMNS`.
-FINGERPRINT_COLUMNS = ["tuner_hash", "plant_hash"]
+FINGERPRINT_COLUMNS = ["tuner_hash", "plant_hash", "tuner_behaviour", "plant_behaviour"]
 
 
 @dataclass(frozen=True)
@@ -87,19 +90,42 @@ def _canonical(value) -> str:
 
 def stale_reasons(run, current: Fingerprint) -> list[str]:
     """Why a reference run (a curves row with fingerprint columns) no longer matches ``current``; empty if
-    it is current."""
+    it is current.
+
+    Where a source hash differs, the run's behaviour fingerprint is compared with the code's now
+    (:mod:`evaluation.behaviour`, computed once per process): equal, the run is current.
+    """
+    from evaluation import behaviour
+
     reasons = []
+    since = str(run.get("commit") or "?")[:10]
     if run["env_id"] != current.env_id or _canonical(run["env_kwargs"]) != current.env_kwargs:
         reasons.append("the plant's env or kwargs changed")
     if run["tuner_name"] != current.tuner_name or _canonical(run["params"]) != current.params:
         reasons.append("the tuner's name or kwargs changed")
-    if run.get("tuner_hash") != current.tuner_hash:
-        reasons.append(f"the tuner's source changed since {str(run.get('commit') or '?')[:10]}")
+    elif run.get("tuner_hash") != current.tuner_hash:
+        stamped = _stamp(run.get("tuner_behaviour"))
+        if stamped is None:
+            reasons.append(f"the tuner's source changed since {since}")
+        elif stamped != behaviour.tuner_behaviour(current.tuner_name, current.params):
+            reasons.append(f"the tuner's behaviour changed since {since}")
+    plant_changed = False
     if run.get("plant_hash") != current.plant_hash:
-        reasons.append(f"the plant's source or truth table changed since {str(run.get('commit') or '?')[:10]}")
-    elif not np.isclose(float(run["optimum"]), current.optimum, rtol=OPTIMUM_RTOL, atol=0.0):
+        stamped = _stamp(run.get("plant_behaviour"))
+        if stamped is None:
+            reasons.append(f"the plant's source or truth table changed since {since}")
+            plant_changed = True
+        elif stamped != behaviour.plant_behaviour(current.env_id, current.env_kwargs):
+            reasons.append(f"the plant's behaviour or truth table changed since {since}")
+            plant_changed = True
+    if not plant_changed and not np.isclose(float(run["optimum"]), current.optimum, rtol=OPTIMUM_RTOL, atol=0.0):
         reasons.append(f"J* changed ({float(run['optimum']):.6g} -> {current.optimum:.6g})")
     return reasons
+
+
+def _stamp(value) -> str | None:
+    """A behaviour fingerprint as stored (``None`` where a run has none: a missing column or value)."""
+    return value if isinstance(value, str) and value else None
 
 
 # -- plants -------------------------------------------------------------------------------------------
@@ -140,7 +166,7 @@ def suite_optima(study: Study, budgets: dict[str, int], folder: Path | str = REF
         if (known and known["env_id"] == plant.env_id
                 and _canonical(known["env_kwargs"]) == _canonical(plant.env_kwargs)
                 and known["resolution"] == study.resolution and len(known["optima"]) >= budget
-                and known["plant_hash"] == plant_hash(plant.env_id)):
+                and _same_plant(known, plant)):
             optima[plant.label] = np.asarray(known["optima"][:budget], dtype=float)
         else:
             optima[plant.label] = plant_optima(plant.env_id, plant.env_kwargs, budget, study.resolution, cache)
@@ -148,12 +174,26 @@ def suite_optima(study: Study, budgets: dict[str, int], folder: Path | str = REF
     return optima
 
 
+def _same_plant(known: dict, plant) -> bool:
+    """Whether a plant-table entry belongs to the plant as it is now: the same source hash, or else the same
+    behaviour (:func:`evaluation.behaviour.plant_behaviour`)."""
+    from evaluation import behaviour
+
+    if known["plant_hash"] == plant_hash(plant.env_id):
+        return True
+    stamped = _stamp(known.get("plant_behaviour"))
+    return stamped is not None and stamped == behaviour.plant_behaviour(plant.env_id, plant.env_kwargs)
+
+
 def _write_plant_table(study: Study, budgets: dict[str, int], optima: dict[str, np.ndarray], folder: Path) -> None:
+    from evaluation import behaviour
+
     table = plant_table(folder)
     for plant in study.plants:
         table[plant.label] = {"env_id": plant.env_id, "env_kwargs": jsonable(plant.env_kwargs),
                               "budget": budgets[plant.label], "resolution": study.resolution,
                               "plant_hash": plant_hash(plant.env_id),
+                              "plant_behaviour": behaviour.plant_behaviour(plant.env_id, plant.env_kwargs),
                               "optima": [float(v) for v in optima[plant.label]]}
     folder.mkdir(parents=True, exist_ok=True)
     with atomic_write(folder / PLANTS_FILE) as handle:
@@ -260,7 +300,8 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
             folder: Path | str = REFERENCES_DIR, force: bool = False, backend: str = "local",
             address: str | None = None, workers: int | None = None, progress: bool | None = False,
             log=None) -> dict:
-    """Rerun the stale and missing references of ``study`` and write them into ``folder``.
+    """Restamp the current references of ``study`` (:func:`restamp`), then rerun the stale and missing ones and
+    write them into ``folder``.
 
     Each reference tuner's plants that are stale or missing (all of them with ``force``) run through
     :func:`evaluation.study_runner.run_study` in ``out/<tuner>/<version>`` (``version`` hashes the
@@ -289,7 +330,7 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
         ``tuner label -> list of the plant labels rebuilt`` (empty lists for tuners that were current),
         and ``"interrupted"`` / ``"failed"`` (batch files of failed runs) when that happened.
     """
-    from evaluation import fingerprint
+    from evaluation import behaviour, fingerprint
     from evaluation.curves import load_curves
     from evaluation.study_runner import plan_batches, run_study
 
@@ -301,6 +342,7 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
     tasks = plan_batches(study)
     budgets = {task.plant: task.budget for task in tasks}
     optima = suite_optima(study, budgets, folder, out / "optima.json", progress=progress)
+    restamp(study, tuners, folder, optima)
     current = current_fingerprints(study, optima)
     refs = load_references(study, optima, folder)
     done: dict = {}
@@ -334,7 +376,10 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
             raise RuntimeError(f"the sources of {entry.label} on {changed} changed while its references were "
                                "built; rebuild again")
         new = new.assign(commit=stamp, tuner_hash=[before[p].tuner_hash for p in new["plant"]],
-                         plant_hash=[before[p].plant_hash for p in new["plant"]], source="engine")
+                         plant_hash=[before[p].plant_hash for p in new["plant"]],
+                         tuner_behaviour=behaviour.tuner_behaviour(entry.name, before[plants[0]].params),
+                         plant_behaviour=[behaviour.plant_behaviour(before[p].env_id, before[p].env_kwargs)
+                                          for p in new["plant"]], source="engine")
         old = read_curves(reference_file(entry.label, folder))
         keep = old[~old["plant"].isin(plants)] if len(old) else old
         merged = pd.concat([frame for frame in (keep, new) if len(frame)], ignore_index=True)
@@ -343,6 +388,82 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
                                     kind="stable")
         write_references(merged, reference_file(entry.label, folder))
     _write_plant_table(study, budgets, optima, folder)
+    return done
+
+
+def restamp(study: Study, tuners: list[str] | None = None, folder: Path | str = REFERENCES_DIR,
+            optima: dict[str, np.ndarray] | None = None) -> dict[str, list[str]]:
+    """Stamp the current reference runs with the code's source hashes and behaviour fingerprints, in place.
+
+    A run is current when nothing of its fingerprint changed but the sources, and its behaviour did
+    not (:func:`stale_reasons`): after a refactor that keeps every number, its rows take the new
+    ``tuner_hash`` and ``plant_hash`` (its ``commit`` stays the one its curves came from), so that
+    later loads need no behaviour check. Rows without behaviour fingerprints whose sources are
+    unchanged get them. Stale runs are left for :func:`rebuild` to rerun.
+
+    Parameters
+    ----------
+    study : Study
+        The suite with its reference tuners.
+    tuners : list of str, optional
+        Reference labels to restamp (default: all).
+    folder : Path
+        The references folder.
+    optima : dict, optional
+        ``J*_k`` per plant (default: :func:`suite_optima`).
+
+    Returns
+    -------
+    dict
+        ``tuner label -> the plant labels restamped``.
+    """
+    from evaluation import behaviour
+    from evaluation.study_runner import plan_batches
+
+    folder = Path(folder)
+    if optima is None:
+        optima = suite_optima(study, {task.plant: task.budget for task in plan_batches(study)}, folder)
+    current = current_fingerprints(study, optima)
+    refs = load_references(study, optima, folder)
+    done: dict = {}
+    for entry in study.tuners:
+        if tuners and entry.label not in tuners:
+            continue
+        path = reference_file(entry.label, folder)
+        curves = read_curves(path)
+        done[entry.label] = []
+        if not len(curves):
+            continue
+        curves = curves.reindex(columns=CURVE_COLUMNS + FINGERPRINT_COLUMNS)
+        for column in FINGERPRINT_COLUMNS:  # text (a column the file lacked comes as floats: NaN)
+            curves[column] = curves[column].astype(object)
+        for plant in study.plants:
+            rows = (curves["plant"] == plant.label).to_numpy()
+            if not study.runs_on(entry, plant) or not rows.any() or (entry.label, plant.label) in refs.stale:
+                continue
+            now = current[(entry.label, plant.label)]
+            stamp = {"tuner_hash": now.tuner_hash, "plant_hash": now.plant_hash,
+                     "tuner_behaviour": behaviour.tuner_behaviour(now.tuner_name, now.params),
+                     "plant_behaviour": behaviour.plant_behaviour(now.env_id, now.env_kwargs)}
+            if any((curves.loc[rows, column] != value).any() for column, value in stamp.items()):
+                for column, value in stamp.items():
+                    curves.loc[rows, column] = value
+                done[entry.label].append(plant.label)
+        if done[entry.label]:
+            write_references(curves, path)
+    table = plant_table(folder)
+    fresh = False
+    for plant in study.plants:  # the plant table's optima hold while the plant does what it did
+        known = table.get(plant.label)
+        if known and _same_plant(known, plant):
+            stamp = {"plant_hash": plant_hash(plant.env_id),
+                     "plant_behaviour": behaviour.plant_behaviour(plant.env_id, plant.env_kwargs)}
+            fresh = fresh or any(known.get(key) != value for key, value in stamp.items())
+            known.update(stamp)
+    if fresh:
+        with atomic_write(folder / PLANTS_FILE) as handle:
+            json.dump(table, handle, indent=1)
+            handle.write("\n")
     return done
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
 import textwrap
 
@@ -12,7 +13,7 @@ import pytest
 
 import agents
 import evaluation.study_runner as study_runner
-from evaluation import fingerprint
+from evaluation import behaviour, fingerprint
 from evaluation.cli import main
 from evaluation.curves import CURVES_FILE, load_curves, read_curves
 from evaluation.leaderboard import Leaderboard, PlantTarget, write_leaderboard
@@ -163,15 +164,35 @@ def test_references_go_stale_when_a_fingerprint_input_changes_and_rebuild_fixes_
     assert list(changed.stale) == [("bo", "DC")]  # its output noise changes J* too
     assert changed.stale[("bo", "DC")][-1] == "the plant's env or kwargs changed"
     assert changed.stale[("bo", "DC")][0].startswith("J* changed (0.2695")
-    # the tuner's source
+    # the tuner's source changed, what it does did not (a refactor): current, and a rebuild restamps, reruns nothing
     (tmp_path / "stale_test_tuner.py").write_text(TUNER_MODULE + "\n# an edit\n")
     fingerprint.reread_sources()  # a new command would read them anew
+    assert not load_references(suite, optima, refs).stale
+    old_hash = pd.read_parquet(reference_file("bo", refs))["tuner_hash"].unique().tolist()
+    assert rebuild(suite, out=tmp_path / "work", folder=refs, workers=1) == {"bo": []}
+    new_hash = pd.read_parquet(reference_file("bo", refs))["tuner_hash"].unique().tolist()
+    assert len(old_hash) == len(new_hash) == 1 and old_hash != new_hash  # stamped with the source as it is now
+    # ... and what it does: stale
+    other = 'def ask(self):\n        super().ask()\n        return super().ask()'  # every other draw
+    changed = TUNER_MODULE.replace('"""Random search under another name."""', other)
+    (tmp_path / "stale_test_tuner.py").write_text(changed)
+    importlib.reload(stale_test_tuner)
+    fingerprint.reread_sources()
+    behaviour.forget()
     stale = load_references(suite, optima, refs)
     assert set(stale.stale) == {("bo", "DC"), ("bo", "DCStep")}
+    assert all(reasons[0].startswith("the tuner's behaviour changed since") for reasons in stale.stale.values())
+    # a run without a behaviour fingerprint (made before them): stale when its source changed
+    frame = pd.read_parquet(reference_file("bo", refs))
+    frame.drop(columns=["tuner_behaviour", "plant_behaviour"]).to_parquet(reference_file("bo", refs))
+    stale = load_references(suite, optima, refs)
     assert all(reasons[0].startswith("the tuner's source changed since") for reasons in stale.stale.values())
+    frame.to_parquet(reference_file("bo", refs))
     # J* of one plant (a truth table that changed)
     (tmp_path / "stale_test_tuner.py").write_text(TUNER_MODULE)
+    importlib.reload(stale_test_tuner)
     fingerprint.reread_sources()
+    behaviour.forget()
     frame = pd.read_parquet(reference_file("bo", refs))
     frame.loc[frame["plant"] == "DC", "optimum"] *= 1.01
     frame.to_parquet(reference_file("bo", refs))
