@@ -346,9 +346,7 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
     current = current_fingerprints(study, optima)
     refs = load_references(study, optima, folder)
     done: dict = {}
-    for entry in study.tuners:
-        if tuners and entry.label not in tuners:
-            continue
+    for entry in _selected(study, tuners):
         plants = [p.label for p in study.plants if study.runs_on(entry, p)
                   and (force or refs.status(entry.label, p.label) != "current")]
         done[entry.label] = plants
@@ -391,6 +389,11 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
     return done
 
 
+def _selected(study: Study, tuners: list[str] | None):
+    """The reference entries of ``study`` labelled ``tuners`` (all without)."""
+    return [entry for entry in study.tuners if not tuners or entry.label in tuners]
+
+
 def restamp(study: Study, tuners: list[str] | None = None, folder: Path | str = REFERENCES_DIR,
             optima: dict[str, np.ndarray] | None = None) -> dict[str, list[str]]:
     """Stamp the current reference runs with the code's source hashes and behaviour fingerprints, in place.
@@ -426,9 +429,7 @@ def restamp(study: Study, tuners: list[str] | None = None, folder: Path | str = 
     current = current_fingerprints(study, optima)
     refs = load_references(study, optima, folder)
     done: dict = {}
-    for entry in study.tuners:
-        if tuners and entry.label not in tuners:
-            continue
+    for entry in _selected(study, tuners):
         path = reference_file(entry.label, folder)
         curves = read_curves(path)
         done[entry.label] = []

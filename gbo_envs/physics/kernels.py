@@ -487,6 +487,14 @@ def _df2t(z, bb, aa, length, xs, ys):
 
 
 @_inline
+def _lane_scratch(width):
+    """The lanes' coefficients ``bb``, ``aa`` and state ``z`` (shape (width, LANES)), their inputs and outputs
+    ``xs``, ``ys`` and the row of each lane."""
+    return (np.zeros((width, LANES)), np.zeros((width, LANES)), np.zeros((width, LANES)), np.zeros(LANES),
+            np.zeros(LANES), np.zeros(LANES, dtype=np.int64))
+
+
+@_inline
 def _lane_block(nb, na, first, rows):
     """Rows from ``first`` that share one lane block: at most :data:`LANES`, all of the same filter length."""
     length = max(nb[first], na[first])
@@ -529,13 +537,7 @@ def lfilter_kernel(b, a, nb, na, x, source, shift, out):
         Filled.
     """
     rows, n = out.shape
-    width = max(b.shape[1], a.shape[1])
-    bb = np.zeros((width, LANES))
-    aa = np.zeros((width, LANES))
-    z = np.zeros((width, LANES))
-    xs = np.zeros(LANES)
-    ys = np.zeros(LANES)
-    lane_row = np.zeros(LANES, dtype=np.int64)
+    bb, aa, z, xs, ys, lane_row = _lane_scratch(max(b.shape[1], a.shape[1]))
     lead = min(shift, n)
     first = 0
     while first < rows:
@@ -869,15 +871,9 @@ def open_loop_direct_kernel(num, den, num_len, den_len, u, commands, source, lag
     """
     rows = source.shape[0]
     n_steps = u.shape[1]
-    width = max(num.shape[1], den.shape[1])
     n_sensors = sensors_code.shape[1]
     n_actuators = actuators_code.shape[1]
-    bb = np.zeros((width, LANES))
-    aa = np.zeros((width, LANES))
-    z = np.zeros((width, LANES))
-    xs = np.zeros(LANES)
-    ys = np.zeros(LANES)
-    lane_row = np.zeros(LANES, dtype=np.int64)
+    bb, aa, z, xs, ys, lane_row = _lane_scratch(max(num.shape[1], den.shape[1]))
     first = 0
     while first < rows:
         count = _lane_block(num_len, den_len, first, rows)
