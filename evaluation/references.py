@@ -443,19 +443,24 @@ def restamp(study: Study, tuners: list[str] | None = None, folder: Path | str = 
             if not study.runs_on(entry, plant) or not rows.any() or (entry.label, plant.label) in refs.stale:
                 continue
             now = current[(entry.label, plant.label)]
+            stored = curves.loc[rows, FINGERPRINT_COLUMNS]
+            stamped = stored[["tuner_behaviour", "plant_behaviour"]].map(_stamp).notna().all(axis=1)
+            if ((stored["tuner_hash"] == now.tuner_hash) & (stored["plant_hash"] == now.plant_hash) & stamped).all():
+                continue  # stamped with this code already: no probe to run
             stamp = {"tuner_hash": now.tuner_hash, "plant_hash": now.plant_hash,
                      "tuner_behaviour": behaviour.tuner_behaviour(now.tuner_name, now.params),
                      "plant_behaviour": behaviour.plant_behaviour(now.env_id, now.env_kwargs)}
-            if any((curves.loc[rows, column] != value).any() for column, value in stamp.items()):
-                for column, value in stamp.items():
-                    curves.loc[rows, column] = value
-                done[entry.label].append(plant.label)
+            for column, value in stamp.items():
+                curves.loc[rows, column] = value
+            done[entry.label].append(plant.label)
         if done[entry.label]:
             write_references(curves, path)
     table = plant_table(folder)
     fresh = False
     for plant in study.plants:  # the plant table's optima hold while the plant does what it did
         known = table.get(plant.label)
+        if known and known["plant_hash"] == plant_hash(plant.env_id) and _stamp(known.get("plant_behaviour")):
+            continue  # stamped with this code already
         if known and _same_plant(known, plant):
             stamp = {"plant_hash": plant_hash(plant.env_id),
                      "plant_behaviour": behaviour.plant_behaviour(plant.env_id, plant.env_kwargs)}

@@ -419,9 +419,11 @@ def _direct(continuous, discrete, chains, u, commands, rows, dt, y0, bias, out, 
     """
     from gbo_envs.physics import kernels  # numba is imported by the first simulation, not with this module
 
-    column = not all(kernels.known(b) for chain in chains for b in chain if b.side != "plant")
-    rest = _prepare_rest(continuous, discrete, chains, commands, rows, y0, bias, dt, column=column, initial=initial)
-    if column:
+    compiled = all(kernels.known(b) for chain in chains for b in chain if b.side != "plant")
+    # the numpy maps take their parameters as column vectors, the kernel one value per row
+    rest = _prepare_rest(continuous, discrete, chains, commands, rows, y0, bias, dt, column=not compiled,
+                         initial=initial)
+    if not compiled:
         _direct_numpy(rest, u, out)
         return
     batch, n = len(rest.discrete), u.shape[1]
@@ -440,8 +442,7 @@ def _direct(continuous, discrete, chains, u, commands, rows, dt, y0, bias, out, 
                                     rest.u_rest, rest.bias, rest.v_rest, rest.y_true0, free_row, free,
                                     sensors.code, sensors.params, actuators.code, actuators.params, out["y"],
                                     out["y_true"], out["v"])
-    out["u_rest"][rest.source] = rest.u_rest
-    out["v_rest"][rest.source] = rest.v_rest
+    _scatter(out, rest)  # the rest inputs; the kernel wrote the signals
 
 
 def _direct_numpy(rest: _Rest, u: np.ndarray, out: dict) -> None:
@@ -756,8 +757,7 @@ def _stepping(continuous, discrete, chains, u, commands, rows, dt, y0, bias, out
                              rest.v_rest,
                              sensors.code, sensors.params, sensors.state, actuators.code, actuators.params,
                              actuators.state, out["y"], out["y_true"], out["v"])
-    out["u_rest"][rest.source] = rest.u_rest
-    out["v_rest"][rest.source] = rest.v_rest
+    _scatter(out, rest)  # the rest inputs; the kernel wrote the signals
 
 
 def _step_numpy(groups, rest: _Rest, u, transition, c_rows, speed_rows):
