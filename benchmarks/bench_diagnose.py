@@ -86,6 +86,8 @@ HIDDEN = {
     "drift": ({"rate": -0.06, "parameter": "gain"}, None),
     "offset": ({"value": 5.0}, None),
     "cogging": ({"amplitude": 10.0, "period": 2.0 * np.pi}, None),
+    # a flexible coupling at 15 rad/s, damping 0.1 (the test suite's and the beyond-catalogue study's rig)
+    "compliance": ({"frequency": 15.0, "damping": 0.1}, None),
 }
 
 #: case -> (env id, make kwargs, reference step or None)

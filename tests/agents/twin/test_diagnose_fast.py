@@ -242,3 +242,14 @@ def test_where_forking_is_unsafe_the_pieces_go_to_loky_workers_with_the_same_res
     for a, b in zip(elsewhere, here):
         np.testing.assert_array_equal(a.theta, b.theta)
         assert a.cost == b.cost and a.n_iter == b.n_iter
+
+
+def test_the_speed_benchmark_hides_every_effect_of_the_catalogue(monkeypatch):
+    """``benchmarks/bench_diagnose.py`` times a case per catalogue effect (issue 37): an effect added to the
+    catalogue without a case fails here."""
+    from gbo_envs.physics import EFFECT_NAMES
+    from tests.support import benchmark_module
+
+    bench = benchmark_module(monkeypatch, "bench_diagnose")
+    assert set(bench.HIDDEN) == set(EFFECT_NAMES)
+    assert {f"dcmotor_{name}" for name in EFFECT_NAMES} <= set(bench.CASES)
