@@ -1,7 +1,7 @@
 """A third-party tuner in under 30 lines: random steps around the best gains measured so far.
 
 Run it: ``python examples/custom_tuner.py``. Rank it on the benchmark suite against the shipped
-references (README, "Benchmark your tuner")::
+references (docs/benchmark.md, "Benchmark your tuner")::
 
     gbo bench suite --import examples.custom_tuner --tuner local-random --suite quick
 """

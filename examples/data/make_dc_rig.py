@@ -1,4 +1,4 @@
-"""Write ``dc_rig.csv``: the bundled example data of the twin workbench (README, ``gbo twin``).
+"""Write ``dc_rig.csv``: the bundled example data of the twin workbench (docs/workbench.md, ``gbo twin``).
 
 Four closed-loop step experiments (245 -> 306 rad/s) of ``gbo_envs/DCMotorRig-v0``
 at gains drawn uniformly from its feasible set (seed 1), kept at every 5th
