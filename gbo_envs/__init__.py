@@ -12,7 +12,7 @@ from __future__ import annotations
 from gymnasium.envs.registration import register
 
 from gbo_envs.closed_loop import ClosedLoop, StepResponse
-from gbo_envs.controllers import PDT1Controller, PIController
+from gbo_envs.controllers import CascadeController, PDT1Controller, PIController, PIDController
 from gbo_envs.envs.base import ControllerTuningEnv
 from gbo_envs.envs.external import ExperimentFailed, ExternalPlantEnv
 from gbo_envs.experiment import Experiment, RecordError, validate_signals
@@ -21,6 +21,7 @@ from gbo_envs.metrics import METRIC_NAMES, step_metrics, weighted_cost
 from gbo_envs.physics.lti import ContinuousPlant
 
 __all__ = [
+    "CascadeController",
     "ClosedLoop",
     "ContinuousPlant",
     "ControllerTuningEnv",
@@ -31,6 +32,7 @@ __all__ = [
     "METRIC_NAMES",
     "PDT1Controller",
     "PIController",
+    "PIDController",
     "RecordError",
     "StepResponse",
     "ground_truth",
@@ -54,6 +56,7 @@ _register("DCMotor-v0", "gbo_envs.envs.dc_motor:DCMotorEnv", max_episode_steps=3
 _register("DCMotorDrift-v0", "gbo_envs.envs.time_varying:DCMotorDriftEnv", max_episode_steps=35)
 _register("DCMotorStep-v0", "gbo_envs.envs.time_varying:DCMotorStepEnv", max_episode_steps=35)
 _register("DCMotorRig-v0", "gbo_envs.envs.rigs:DCMotorRigEnv", max_episode_steps=35)
+_register("DCMotorPID-v0", "gbo_envs.envs.dc_motor_pid:DCMotorPIDEnv", max_episode_steps=35)
 _register("LinearMotor-v0", "gbo_envs.envs.linear_motor:LinearMotorEnv", max_episode_steps=25)
 _register("LinearMotorDrift-v0", "gbo_envs.envs.time_varying:LinearMotorDriftEnv", max_episode_steps=25)
 _register("LinearMotorStep-v0", "gbo_envs.envs.time_varying:LinearMotorStepEnv", max_episode_steps=25)

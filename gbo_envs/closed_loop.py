@@ -171,9 +171,14 @@ class ClosedLoop:
             ``output_noise_std > 0``.
         method : {"auto", "linear", "stepping"}, default "auto"
             ``"linear"``: the exact closed-loop transfer functions (only without
-            actuator and sensor effects); ``"stepping"``: sample by sample
-            through the effect blocks; ``"auto"``: linear when there are no
-            actuator or sensor effects, else stepping.
+            actuator and sensor effects and without a controller output limit);
+            ``"stepping"``: sample by sample through the effect blocks;
+            ``"auto"``: linear for a first-order controller (PI, PDT1) in a loop
+            without actuator or sensor effects, else stepping. A controller of
+            higher order (:attr:`~gbo_envs.controllers.base.Controller.has_state_space`)
+            is stepped: its closed loop has several poles clustered near
+            ``z = 1``, where the transfer-function filter loses about ``1e-7`` of
+            the step height to rounding, and the state space keeps ``1e-12``, as fast.
         draws : array_like of int, shape (batch,), optional
             Draw index of each row: rows with the same index see the same
             measurement noise (common random numbers, see
@@ -192,10 +197,11 @@ class ClosedLoop:
         gains = np.atleast_2d(np.asarray(gains, dtype=float))
         if method not in SIMULATION_METHODS:
             raise ValueError(f"method: must be one of {SIMULATION_METHODS}, got {method!r}")
-        nonlinear = bool(self.actuator_effects or self.sensor_effects)
+        nonlinear = self.nonlinear
         if method == "linear" and nonlinear:
-            raise ValueError("method: 'linear' needs a loop without actuator or sensor effects, "
-                             f"this one has {self.actuator_effects + self.sensor_effects}")
+            raise ValueError("method: 'linear' needs a loop without actuator or sensor effects and a controller "
+                             f"without an output limit, this one has {self.actuator_effects + self.sensor_effects} "
+                             f"and output_limit={self.controller.output_limit}")
         if self.stochastic and rng is None:
             raise ValueError("rng: a numpy Generator is required for a loop with random behaviour "
                              "(measurement noise, a random cogging start angle)")
@@ -203,7 +209,7 @@ class ClosedLoop:
         if self.output_noise_std > 0.0:
             noise = self.output_noise_std * RowNoise(rng, gains.shape[0], draws).rows(self.n_steps)
         with np.errstate(over="ignore", invalid="ignore"):
-            if method == "stepping" or (method == "auto" and nonlinear):
+            if method == "stepping" or (method == "auto" and (nonlinear or self.controller.has_state_space)):
                 u_out, y_out, u_start = self._simulate_stepping(gains, noise, rng, draws, inputs)
             else:
                 u_out, y_out, u_start = self._simulate_linear(gains, noise, inputs)
@@ -213,35 +219,43 @@ class ClosedLoop:
     def _simulate_linear(self, gains, noise, inputs=True):
         """Exact response of the linear loop from its closed-loop transfer functions in ``z^-1``.
 
-        With ``P = Np/Dp`` (plant incl. delay) and ``C = Nc/Dc`` (controller), in
-        deviations from the equilibrium at ``r1``: ``dy = T (dr - n)`` and
-        ``du = S_u (dr - n)`` with ``T = Np Nc / (Dp Dc + Np Nc)`` and
-        ``S_u = Nc Dp / (Dp Dc + Np Nc)``; the measurement is ``y + n``.
+        With ``P = Np/Dp`` (plant incl. delay) and the controller ``U = (Ne E + Nr dR) / Dc``
+        (:meth:`~gbo_envs.controllers.base.Controller.z_transfer`; ``Nr = 0`` for a law of the error
+        only), in deviations from the equilibrium at ``r1``, with the measurement ``y + n``:
+        ``dy = (Np Nref dr - Np Ne n) / Den`` and ``du = (Dp Nref dr - Dp Ne n) / Den`` with
+        ``Nref = Ne + Nr`` and ``Den = Dp Dc + Np Ne``.
         """
         batch, n = gains.shape[0], self.n_steps
-        b0, b1, a1 = self.controller.coefficients(gains, self.dt)
+        num_c, num_ref, den_c = self.controller.z_transfer(gains, self.dt)
         num_p, den_p, u0, width = self._linear_parts
-        # first-order controller: Nc = b0 + b1 z^-1, Dc = 1 + a1 z^-1
-        num_t = np.zeros((batch, width))
-        num_u = np.zeros((batch, width))
+        width += num_c.shape[1] - 2  # the plant's width + 1 fits a first-order law
+        num_t, num_u = _times_plant(num_c, num_p, den_p, width)
         den = np.zeros((batch, width))
-        for lag, (coef_n, coef_d) in enumerate(((b0, 1.0), (b1, a1))):
-            coef_n = np.reshape(coef_n, (-1, 1))
-            coef_d = np.reshape(coef_d, (-1, 1)) if np.ndim(coef_d) else coef_d
-            num_t[:, lag : lag + num_p.size] += coef_n * num_p
-            num_u[:, lag : lag + den_p.size] += coef_n * den_p
-            den[:, lag : lag + den_p.size] += coef_d * den_p
+        for lag in range(den_c.shape[1]):
+            den[:, lag : lag + den_p.size] += den_c[:, lag : lag + 1] * den_p
         den += num_t
+        two_dof = num_ref is not None
+        if two_dof:
+            ref_t, ref_u = _times_plant(num_c + num_ref, num_p, den_p, width)
         from scipy.signal import lfilter  # imported here: scipy.signal takes 0.3 s to import, the twin needs none
 
         step = np.full(n, self.step_height)
         dy = np.empty((batch, n))
         du = np.empty((batch, n if inputs else 0))
         for i in range(batch):
-            drive = step if noise is None else step - noise[i]
-            dy[i] = lfilter(num_t[i], den[i], drive)
+            if not two_dof:
+                drive = step if noise is None else step - noise[i]
+                dy[i] = lfilter(num_t[i], den[i], drive)
+                if inputs:
+                    du[i] = lfilter(num_u[i], den[i], drive)
+                continue
+            dy[i] = lfilter(ref_t[i], den[i], step)
             if inputs:
-                du[i] = lfilter(num_u[i], den[i], drive)
+                du[i] = lfilter(ref_u[i], den[i], step)
+            if noise is not None:
+                dy[i] -= lfilter(num_t[i], den[i], noise[i])
+                if inputs:
+                    du[i] -= lfilter(num_u[i], den[i], noise[i])
         y = self.r1 + dy if noise is None else self.r1 + dy + noise
         return u0 + du, y, np.full(batch, u0)
 
@@ -264,8 +278,12 @@ class ClosedLoop:
         batch = gains.shape[0]
         plant = self._discrete
         n, dt, lag = self.n_steps, self.dt, plant.delay_steps
-        b0, b1, a1 = (np.ascontiguousarray(np.broadcast_to(np.asarray(coef, dtype=float), (batch,)))
-                      for coef in self.controller.coefficients(gains, dt))
+        law = self.controller.state_space(gains, dt)
+        if law is None:  # the first-order recursion
+            b0, b1, a1 = (np.ascontiguousarray(np.broadcast_to(np.asarray(coef, dtype=float), (batch,)))
+                          for coef in self.controller.coefficients(gains, dt))
+        else:
+            b0 = b1 = a1 = np.zeros(batch)
         actuators, sensors = self.actuator_effects, self.sensor_effects
 
         # start at rest: the measurement reads r1 (sensor blocks inverted), the plant rests there
@@ -297,18 +315,20 @@ class ClosedLoop:
             kernels.closed_loop_kernel(
                 contiguous(plant.phi), contiguous(plant.gamma0), contiguous(plant.gamma1), contiguous(plant.c),
                 contiguous(speed_row, dtype=float), fractional, speed_is_output, int(lag), float(self.r2), b0, b1, a1,
+                *_kernel_law(law, batch), float(self.step_height),
                 *start, packed_sensors.code, packed_sensors.params, packed_sensors.state, packed_sensors.noise,
                 packed_actuators.code, packed_actuators.params, packed_actuators.state, sensor_noise,
                 np.zeros((0, 0)) if noise is None else contiguous(noise, dtype=float), u_out, y_out)
         else:
-            u_out, y_out = self._step_numpy(b0, b1, a1, start, speed_row, speed_is_output, fractional, noise)
+            u_out, y_out = self._step_numpy(b0, b1, a1, start, speed_row, speed_is_output, fractional, noise, law)
         if not inputs:  # the command's rows only say whether it stayed finite (see _finish)
             return np.where(np.isfinite(u_out.sum(axis=1)), 0.0, np.nan)[:, None], y_out, u_start
         return u_out, y_out, u_start
 
-    def _step_numpy(self, b0, b1, a1, start, speed_row, speed_is_output, fractional, noise):
+    def _step_numpy(self, b0, b1, a1, start, speed_row, speed_is_output, fractional, noise, law=None):
         """The stepping of :meth:`_simulate_stepping` in numpy, vectorised over the batch (blocks the kernel does
-        not know). Every sum is accumulated from left to right, as the compiled kernel does.
+        not know). Every sum is accumulated from left to right, as the compiled kernel does; ``law`` is the
+        controller's :class:`~gbo_envs.controllers.base.DiscreteStateSpace` (``None``: the first-order recursion).
 
         Returns ``(u, y)`` of shape (batch, n_steps).
         """
@@ -335,6 +355,8 @@ class ClosedLoop:
         c_col, speed_col = plant.c[:, None], np.asarray(speed_row, dtype=float)[:, None]
         weighted = np.empty((order, batch))
         e_prev = np.zeros(batch)
+        if law is not None:
+            controller = _NumpyLaw(law, u_start, float(self.step_height))
         for k in range(n):
             y_true = np.add.reduce(np.multiply(c_col, state, out=weighted), axis=0)
             y_meas = y_true
@@ -344,7 +366,7 @@ class ClosedLoop:
                 y_meas = y_meas + noise_rows[k]
             y_rec[k] = y_meas
             e = r2 - y_meas
-            u = b0 * e + b1 * e_prev - a1 * u_prev
+            u = b0 * e + b1 * e_prev - a1 * u_prev if law is None else controller.step(e)
             u_rec[k] = u
             u_prev, e_prev = u, e
             if lag:
@@ -375,6 +397,12 @@ class ClosedLoop:
             u_bound = limit * max(1.0, float(np.max(np.abs(u_start))))
             u_out[unstable] = np.clip(np.nan_to_num(u_out[unstable], nan=0.0), -u_bound, u_bound)
         return StepResponse(t=t, r=r, u=u_out, y=y_out, unstable=unstable)
+
+    @property
+    def nonlinear(self) -> bool:
+        """Whether the loop has actuator or sensor effects or a controller that clips its output (it is then
+        stepped sample by sample)."""
+        return bool(self.actuator_effects or self.sensor_effects or self.controller.output_limit is not None)
 
     # -- effect plumbing -------------------------------------------------------------------------
     @property
@@ -409,6 +437,61 @@ class ClosedLoop:
     def metrics(self, response: StepResponse) -> np.ndarray:
         """Metrics of shape (batch, 4) of a response of this loop."""
         return response.metrics(self.r1, self.r2)
+
+
+def _kernel_law(law, batch: int) -> tuple:
+    """The controller state space as :func:`~gbo_envs.physics.kernels.closed_loop_kernel` reads it (empty arrays
+    for the first-order recursion)."""
+    if law is None:
+        return (np.zeros((batch, 0, 0)), np.zeros((batch, 0, 2)), np.zeros((batch, 0)), np.zeros((batch, 2)),
+                np.zeros((batch, 0)), np.zeros(0), np.inf)
+    contiguous = np.ascontiguousarray
+    return (contiguous(law.a, dtype=float), contiguous(law.b, dtype=float), contiguous(law.c, dtype=float),
+            contiguous(law.d, dtype=float), contiguous(law.injection, dtype=float),
+            np.asarray(law.clamp, dtype=float), float(law.limit))
+
+
+class _NumpyLaw:
+    """The controller state space of :func:`~gbo_envs.physics.kernels.closed_loop_kernel`, one sample at a time
+    for the whole batch, with the kernel's operations in its order."""
+
+    def __init__(self, law, u_start: np.ndarray, step: float) -> None:
+        self.law, self.u_start, self.step_height = law, u_start, step
+        self.x = np.zeros((law.order, u_start.size))
+
+    def step(self, e: np.ndarray) -> np.ndarray:
+        law, x, dr = self.law, self.x, self.step_height
+        n = law.order
+        v = self.u_start + law.d[:, 0] * e
+        v = v + law.d[:, 1] * dr
+        for i in range(n):
+            v = v + law.c[:, i] * x[i]
+        u = np.minimum(np.maximum(v, -law.limit), law.limit)
+        excess = u - v
+        x_next = np.empty_like(x)
+        for i in range(n):
+            acc = law.b[:, i, 0] * e
+            acc = acc + law.b[:, i, 1] * dr
+            for m in range(n):
+                acc = acc + law.a[:, i, m] * x[m]
+            acc = acc + law.injection[:, i] * excess
+            if law.clamp[i]:  # conditional integration: hold while the update drives the command further out
+                acc = np.where((excess != 0.0) & (law.c[:, i] * (acc - x[i]) * excess < 0.0), x[i], acc)
+            x_next[i] = acc
+        self.x = x_next
+        return u
+
+
+def _times_plant(num_c: np.ndarray, num_p: np.ndarray, den_p: np.ndarray, width: int):
+    """``(Nc Np, Nc Dp)`` of shape (batch, width): the controller numerators times the plant's polynomials."""
+    batch = num_c.shape[0]
+    num_t = np.zeros((batch, width))
+    num_u = np.zeros((batch, width))
+    for lag in range(num_c.shape[1]):
+        coef = num_c[:, lag : lag + 1]
+        num_t[:, lag : lag + num_p.size] += coef * num_p
+        num_u[:, lag : lag + den_p.size] += coef * den_p
+    return num_t, num_u
 
 
 def _transposed(a: np.ndarray, block: int = 64) -> np.ndarray:

@@ -5,8 +5,9 @@ with the same floating-point operations, in the same order, as the vectorised nu
 loops they replace, so that their outputs are bit for bit those of the numpy loops:
 
 * :func:`closed_loop_kernel`: the loop of :meth:`gbo_envs.closed_loop.ClosedLoop.simulate`
-  (sensor blocks and noise, the first-order controller ``u[k] = b0 e[k] + b1 e[k-1] - a1 u[k-1]``,
-  the input delay, actuator blocks, the plant);
+  (sensor blocks and noise, the first-order controller ``u[k] = b0 e[k] + b1 e[k-1] - a1 u[k-1]``
+  or a controller state space of any order with an output limit and anti-windup, the input delay,
+  actuator blocks, the plant);
 * :func:`open_loop_kernel`: the replay of recorded commands of
   :func:`agents.twin.open_loop.simulate_open_loop` (actuator blocks, a plant-input bias, the
   plant, sensor blocks), each row with its own plant (of any order) and blocks.
@@ -599,8 +600,36 @@ def lfilter_rows(b: np.ndarray, a: np.ndarray, x: np.ndarray, source: np.ndarray
 
 # -- the loops -------------------------------------------------------------------------------------------------------
 
+@_inline
+def _state_space_law(a, b, c, d, injection, clamp, limit, r, e, step, u_rest, xc, xc_next):
+    """One sample of row ``r``'s controller state space (its state ``xc`` advanced in place): the command ``u``.
+
+    The operations of :class:`gbo_envs.closed_loop._NumpyLaw`, in its order.
+    """
+    n = xc.shape[0]
+    v = u_rest + d[r, 0] * e
+    v = v + d[r, 1] * step
+    for i in range(n):
+        v = v + c[r, i] * xc[i]
+    u = _minimum(_maximum(v, -limit), limit)
+    excess = u - v
+    for i in range(n):
+        acc = b[r, i, 0] * e
+        acc = acc + b[r, i, 1] * step
+        for m in range(n):
+            acc = acc + a[r, i, m] * xc[m]
+        acc = acc + injection[r, i] * excess
+        if clamp[i] != 0.0 and excess != 0.0 and c[r, i] * (acc - xc[i]) * excess < 0.0:
+            acc = xc[i]
+        xc_next[i] = acc
+    for i in range(n):
+        xc[i] = xc_next[i]
+    return u
+
+
 @_jit
 def closed_loop_kernel(phi, gamma0, gamma1, c, speed_row, fractional, speed_is_output, lag, r2, b0, b1, a1,
+                       ctrl_a, ctrl_b, ctrl_c, ctrl_d, ctrl_injection, ctrl_clamp, ctrl_limit, step,
                        x0, v_prev0, u_start, sensors_code, sensors_params, sensors_state, sensors_noise,
                        actuators_code, actuators_params, actuators_state, sensor_noise, output_noise,
                        u_out, y_out):
@@ -609,10 +638,14 @@ def closed_loop_kernel(phi, gamma0, gamma1, c, speed_row, fractional, speed_is_o
     At sample ``k``: the sensor blocks (then the white noise ``output_noise[r, k]``, if
     given) turn ``c x[k]`` into the measurement ``y[k]``; the controller computes
     ``u[k] = b0 e[k] + b1 e[k-1] - a1 u[k-1]`` with ``e = r2 - y`` (before the record
-    ``e = 0``, ``u = u_start``); the actuator blocks turn the delayed command ``u[k - lag]``
-    into the plant input ``v[k]`` at the mechanical speed (``y_true``, or ``speed_row x[k]``
-    for a position output); and ``x[k+1] = Phi x[k] + Gamma0 v[k] + Gamma1 v[k-1]`` (the
-    ``Gamma1`` term only when ``fractional``).
+    ``e = 0``, ``u = u_start``), or, when it has states (``ctrl_a`` of shape (batch, n_c, n_c),
+    ``n_c > 0``), runs its state space of
+    :class:`~gbo_envs.controllers.base.DiscreteStateSpace` on ``w = [e, step]`` from zero state
+    (``v = u_start + D w + C x_c``, ``u = clip(v, -limit, limit)``,
+    ``x_c[k+1] = A x_c + B w + L (u - v)``, clamped states held); the actuator blocks turn the
+    delayed command ``u[k - lag]`` into the plant input ``v[k]`` at the mechanical speed
+    (``y_true``, or ``speed_row x[k]`` for a position output); and
+    ``x[k+1] = Phi x[k] + Gamma0 v[k] + Gamma1 v[k-1]`` (the ``Gamma1`` term only when ``fractional``).
 
     Parameters
     ----------
@@ -624,7 +657,16 @@ def closed_loop_kernel(phi, gamma0, gamma1, c, speed_row, fractional, speed_is_o
     r2 : float
         Reference after the step, in output units.
     b0, b1, a1 : ndarray of shape (batch,)
-        Controller coefficients of each row.
+        Controller coefficients of each row (first-order recursion).
+    ctrl_a, ctrl_b, ctrl_c, ctrl_d, ctrl_injection : ndarray
+        The controller state space of each row, shapes (batch, n_c, n_c), (batch, n_c, 2), (batch, n_c),
+        (batch, 2), (batch, n_c); ``n_c = 0``: the first-order recursion.
+    ctrl_clamp : ndarray of shape (n_c,)
+        Nonzero for the states held by conditional integration.
+    ctrl_limit : float
+        Output limit of the controller in input units (``inf``: none).
+    step : float
+        Reference step ``r2 - r1`` in output units.
     x0 : ndarray of shape (batch, n)
         Plant state at rest.
     v_prev0, u_start : ndarray of shape (batch,)
@@ -645,9 +687,14 @@ def closed_loop_kernel(phi, gamma0, gamma1, c, speed_row, fractional, speed_is_o
     noisy = output_noise.shape[0] > 0
     x = np.empty(order)
     x_next = np.empty(order)
+    n_ctrl = ctrl_a.shape[1]
+    xc = np.zeros(n_ctrl)
+    xc_next = np.zeros(n_ctrl)
     for r in range(batch):
         for i in range(order):
             x[i] = x0[r, i]
+        for i in range(n_ctrl):
+            xc[i] = 0.0
         v_prev = v_prev0[r]
         u_prev = u_start[r]
         e_prev = 0.0
@@ -663,7 +710,11 @@ def closed_loop_kernel(phi, gamma0, gamma1, c, speed_row, fractional, speed_is_o
                 y = y + output_noise[r, k]
             y_out[r, k] = y
             e = r2 - y
-            u = b0[r] * e + b1[r] * e_prev - a1[r] * u_prev
+            if n_ctrl == 0:
+                u = b0[r] * e + b1[r] * e_prev - a1[r] * u_prev
+            else:
+                u = _state_space_law(ctrl_a, ctrl_b, ctrl_c, ctrl_d, ctrl_injection, ctrl_clamp, ctrl_limit, r, e,
+                                     step, u_start[r], xc, xc_next)
             u_out[r, k] = u
             u_prev = u
             e_prev = e
@@ -970,7 +1021,9 @@ def warm_up(which: tuple[str, ...] = ("closed_loop", "open_loop")) -> float:
     empty_blocks = (np.zeros((1, 1), dtype=np.int64), np.zeros((1, 1, N_PARAMS)), np.zeros((1, 1, 1)))
     one = np.ones(1)
     if "closed_loop" in which:
-        closed_loop_kernel(np.eye(1), one, one, one, one, True, True, 0, 1.0, one, one, one, np.zeros((1, 1)), one,
+        closed_loop_kernel(np.eye(1), one, one, one, one, True, True, 0, 1.0, one, one, one, np.zeros((1, 1, 1)),
+                           np.zeros((1, 1, 2)), one[None, :], np.zeros((1, 2)), np.zeros((1, 1)), np.zeros(1), np.inf,
+                           1.0, np.zeros((1, 1)), one,
                            one, *empty_blocks, np.full((1, 1), -1, dtype=np.int64), *empty_blocks, np.zeros((2, 0)),
                            np.zeros((0, 0)), np.empty((1, 2)), np.empty((1, 2)))
     if "open_loop" in which:
