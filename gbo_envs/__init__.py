@@ -61,3 +61,6 @@ _register("LinearMotor-v0", "gbo_envs.envs.linear_motor:LinearMotorEnv", max_epi
 _register("LinearMotorDrift-v0", "gbo_envs.envs.time_varying:LinearMotorDriftEnv", max_episode_steps=25)
 _register("LinearMotorStep-v0", "gbo_envs.envs.time_varying:LinearMotorStepEnv", max_episode_steps=25)
 _register("LinearMotorRig-v0", "gbo_envs.envs.rigs:LinearMotorRigEnv", max_episode_steps=25)
+_register("LinearMotorCascade-v0", "gbo_envs.envs.linear_motor_cascade:LinearMotorCascadeEnv", max_episode_steps=50)
+_register("LinearMotorCascadeRig-v0", "gbo_envs.envs.linear_motor_cascade_rig:LinearMotorCascadeRigEnv",
+          max_episode_steps=50)

@@ -24,6 +24,12 @@ delay, as simulated).
   the worst phase margin is 32.8 deg at ``(0.43, 1.83, 0.10)``, the worst gain
   margin 38.3 dB at ``(1.71, 1.83, 0.40)`` (``tests/gbo_envs/test_pid_env.py``
   checks all eight).
+
+Cost surface: a coarse search (4096 Sobol points, then Nelder-Mead from the best
+eight) finds ``J* = 0.1585`` at ``(1.71, 1.779, 0.365)``, on the face
+``Kp = Kp_max`` (the margin bound; in this linear model a faster loop keeps
+paying); the best corner, ``(1.71, 1.83, 0.40)``, has ``J = 0.175`` (10 % more),
+the nominal PID 0.344.
 """
 
 from __future__ import annotations
