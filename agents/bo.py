@@ -2,7 +2,8 @@
 
 GP surrogate (:class:`agents.surrogate.GPSurrogate`) + Expected Improvement
 (:mod:`agents.acquisition`) maximised by exhaustive search over a dense grid of
-the feasible set, after a Latin hypercube initial set of ``N0`` experiments.
+the feasible set (two gains) or by Sobol candidates and multistart L-BFGS-B
+(three gains and more), after a Latin hypercube initial set of ``N0`` experiments.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import qmc
 
-from agents.acquisition import ExpectedImprovement, maximize_on_grid
+from agents.acquisition import ExpectedImprovement, maximize_multistart, maximize_on_grid
 from agents.base import Tuner
 from agents.metric_surrogate import CompositeSurrogate, MetricSurrogate
 from agents.parameters import Interval, Options, validate_params
@@ -24,10 +25,18 @@ from agents.surrogate import GPSurrogate
 from agents.thread_limits import single_thread
 from gbo_envs.gain_grid import grid_axes, grid_points
 
-__all__ = ["BayesianOptimization", "LOG_METRICS", "MODELS", "SETTLING_MODELS", "SETTLING_TIMES"]
+__all__ = ["BayesianOptimization", "GRID_MAX_GAINS", "LOG_METRICS", "MODELS", "OPTIMIZERS", "SETTLING_MODELS",
+           "SETTLING_TIMES"]
 
 #: What the GP models: the cost ``J`` (one GP) or every performance metric (one GP each).
 MODELS = ("cost", "metrics")
+
+#: How EI is maximised: ``"grid"`` (the dense grid), ``"multistart"`` (Sobol candidates, then L-BFGS-B from
+#: the best of them) or ``"auto"`` (the grid up to :data:`GRID_MAX_GAINS` gains, multistart above).
+OPTIMIZERS = ("auto", "grid", "multistart")
+
+#: With ``optimizer="auto"``: the most gains whose EI is maximised on the grid.
+GRID_MAX_GAINS = 2
 
 #: How ``model="metrics"`` models the settling time: by a GP of its own, or from the error envelope.
 SETTLING_MODELS = ("gp", "envelope")
@@ -61,8 +70,11 @@ class BayesianOptimization(Tuner):
        2 random restarts on the first and every 5th fit, warm starts from the previous
        fit, length scales in ``[0.05, 0.5]`` of the unit box, prior hyperparameters
        below 5 points; inputs scaled to the unit box) on the training set ``D`` of eq. (D); query the
-       maximiser of Expected Improvement (eq. (LCB), no exploration margin) over a
-       ``grid_points``-per-gain grid of the feasible set (eq. (EI)). The incumbent
+       maximiser of Expected Improvement (eq. (LCB), no exploration margin, eq. (EI)):
+       by default (``optimizer="auto"``) over a ``grid_points``-per-gain grid of the
+       feasible set for one or two gains, and for three gains and more by
+       :func:`~agents.acquisition.maximize_multistart` on the unit box (``n_candidates``
+       scrambled Sobol points, then L-BFGS-B from the best ``n_starts``). The incumbent
        ``J+`` of EI is the lowest measured cost in ``D`` (the paper's "best-observed
        performance").
 
@@ -71,9 +83,18 @@ class BayesianOptimization(Tuner):
     n_initial : int, default 1
         Size ``N0`` of the Latin hypercube initial set (the paper uses 1).
     grid_points : int, default 100
-        Grid points per gain for maximising EI (100 x 100 for two gains, the
+        Grid points per gain for maximising EI on the grid (100 x 100 for two gains, the
         paper's dense grid). Above 65536 candidates a scrambled Sobol set of
         65536 points is used instead.
+    optimizer : {"auto", "grid", "multistart"}, default "auto"
+        How EI is maximised. ``"auto"``: ``"grid"`` for up to :data:`GRID_MAX_GAINS` gains,
+        ``"multistart"`` above. ``"grid"``: the grid of ``grid_points`` per gain.
+        ``"multistart"``: Sobol candidates and L-BFGS-B in any dimension (seeded per fit,
+        so :meth:`propose` stays free of side effects).
+    n_candidates : int, default 2048
+        With the multistart optimizer: Sobol candidates per maximisation, ``>= 1``.
+    n_starts : int, default 8
+        With the multistart optimizer: L-BFGS-B starts (the best candidates), ``>= 1``.
     noise_std : float, optional
         Known cost noise ``sigma_eps``, cost units (e.g. from :func:`agents.cost_noise.estimate_noise`);
         ``None`` learns it by marginal likelihood.
@@ -137,18 +158,26 @@ class BayesianOptimization(Tuner):
         "noise_std": [None, Interval(float, 0.0, None, closed="neither")],
         "model": [Options(MODELS)],
         "settling_model": [Options(SETTLING_MODELS)],
+        "optimizer": [Options(OPTIMIZERS)],
+        "n_candidates": [Interval(int, 1, None)],
+        "n_starts": [Interval(int, 1, None)],
     }
 
     def __init__(self, *, n_initial: int = 1, grid_points: int = 100, noise_std: float | None = None,
-                 model: str = "metrics", settling_model: str = "gp") -> None:
+                 model: str = "metrics", settling_model: str = "gp", optimizer: str = "auto",
+                 n_candidates: int = 2048, n_starts: int = 8) -> None:
         self._params = validate_params(self._parameter_constraints, {
             "n_initial": n_initial, "grid_points": grid_points, "noise_std": noise_std, "model": model,
-            "settling_model": settling_model})
+            "settling_model": settling_model, "optimizer": optimizer, "n_candidates": n_candidates,
+            "n_starts": n_starts})
         self.n_initial = self._params["n_initial"]
         self.grid_points = self._params["grid_points"]
         self.noise_std = self._params["noise_std"]
         self.model = self._params["model"]
         self.settling_model = self._params["settling_model"]
+        self.optimizer = self._params["optimizer"]
+        self.n_candidates = self._params["n_candidates"]
+        self.n_starts = self._params["n_starts"]
         self.incumbent_rule = "observed"
         self.polish = False
 
@@ -157,7 +186,11 @@ class BayesianOptimization(Tuner):
         dim = self.space.dim
         # Latin hypercube initial set Theta_init of size N0 (paper, subsec. BO), unit box.
         self._initial = qmc.LatinHypercube(d=dim, rng=self.rng).random(self.n_initial)
-        self._unit_grid = _unit_candidates(dim, self.grid_points, self.rng)
+        self._optimizer_in_use = self.optimizer if self.optimizer != "auto" else \
+            ("grid" if dim <= GRID_MAX_GAINS else "multistart")
+        # the grid (or its Sobol stand-in) only where EI is maximised on it
+        self._unit_grid = _unit_candidates(dim, self.grid_points, self.rng) \
+            if self._optimizer_in_use == "grid" else None
         self._fit_seed = int(self.rng.integers(2**31))
         self.surrogate = GPSurrogate(noise_std=self.noise_std)
         self.metric_surrogate: MetricSurrogate | None = None
@@ -294,6 +327,11 @@ class BayesianOptimization(Tuner):
         self._version += 1
 
     @property
+    def optimizer_in_use(self) -> str:
+        """``"grid"`` or ``"multistart"``: how EI is maximised (``optimizer`` resolved at :meth:`setup`)."""
+        return self._optimizer_in_use
+
+    @property
     def model_in_use(self) -> str:
         """``"metrics"`` or ``"cost"``: the model of the last :meth:`fit_surrogate`."""
         return self._model_in_use
@@ -357,7 +395,12 @@ class BayesianOptimization(Tuner):
         best = self.incumbent()
         acquisition = ExpectedImprovement(model, best)
         unit_box = np.column_stack([np.zeros(self.space.dim), np.ones(self.space.dim)])
-        x, ei = maximize_on_grid(acquisition, self._unit_grid, polish=self.polish, bounds=unit_box)
+        if self._optimizer_in_use == "grid":
+            x, ei = maximize_on_grid(acquisition, self._unit_grid, polish=self.polish, bounds=unit_box)
+        else:  # seeded by the fit's data version: the same data give the same proposal
+            rng = np.random.default_rng([self._fit_seed, self._version, 1])
+            x, ei = maximize_multistart(acquisition, unit_box, rng, n_candidates=self.n_candidates,
+                                        n_starts=self.n_starts)
         std = float(model.predict(x[None, :])[1][0])
         return self.space.from_unit(x), float(ei), std
 

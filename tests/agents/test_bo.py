@@ -177,7 +177,7 @@ def test_bo_takes_keywords_only_and_none_of_the_removed_knobs():
 def test_validated_params_are_converted_and_stored():
     bo = agents.BayesianOptimization(n_initial=np.int64(3), noise_std=1)
     assert bo.get_params() == {"n_initial": 3, "grid_points": 100, "noise_std": 1.0, "model": "metrics",
-                               "settling_model": "gp"}
+                               "settling_model": "gp", "optimizer": "auto", "n_candidates": 2048, "n_starts": 8}
     assert type(bo.n_initial) is int and type(bo.noise_std) is float
 
 
