@@ -110,6 +110,10 @@ def test_pid_names_units_and_continuous_law():
     assert four.gain_names == ("Kp", "Ki", "Kd", "Tf") and four.units_for("A", "m")[3] == "s"
     _, same = freqs(*four.transfer_function([0.8, 1.5, 0.3, 0.02]), w)
     np.testing.assert_allclose(same, got, rtol=1e-12)
+    # the filter time as a gain simulates as the fixed one
+    fixed = dc_pid_loop().simulate(PID_GAINS)
+    as_gain = dc_pid_loop(filter_time=None).simulate(np.column_stack([PID_GAINS, np.full(3, 0.02)]))
+    assert np.array_equal(fixed.y, as_gain.y)
 
 
 def test_tustin_is_scipys_bilinear_transform_row_by_row():
@@ -235,8 +239,9 @@ def test_cascade_linear_and_stepping_paths_agree():
     np.testing.assert_allclose(stepping.y[:, -1], 0.04, atol=2e-5)
 
 
-def test_a_limited_cascade_clips_its_command_and_is_stepped_the_same_compiled_and_in_numpy(monkeypatch):
-    loop = slider_loop(effects=(Quantization(step=5e-6),), output_limit=7.0)
+@pytest.mark.parametrize("aw", ["clamping", "back-calculation", "none"])
+def test_a_limited_cascade_clips_its_command_and_is_stepped_the_same_compiled_and_in_numpy(aw, monkeypatch):
+    loop = slider_loop(effects=(Quantization(step=5e-6),), output_limit=7.0, anti_windup=aw, tracking_time=0.005)
     with pytest.raises(ValueError, match="output_limit"):
         loop.simulate(CASCADE_GAINS, method="linear")
     compiled = loop.simulate(CASCADE_GAINS)
