@@ -18,7 +18,7 @@ from gbo_envs.gain_grid import grid_axes, grid_points
 from gbo_envs.ground_truth_tables import load_search_table, load_table
 from gbo_envs.optimum_search import certified_minimum, default_points
 
-__all__ = ["GRID_MAX_GAINS", "GroundTruth", "METHODS", "ground_truth"]
+__all__ = ["GRID_MAX_GAINS", "GroundTruth", "METHODS", "ground_truth", "search_settings"]
 
 #: ``method`` of :func:`ground_truth`: ``"auto"`` (the grid up to :data:`GRID_MAX_GAINS` gains, the search
 #: above), ``"grid"`` or ``"search"``.
@@ -218,9 +218,8 @@ def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: in
     plant_env = env.unwrapped
     dim = plant_env.action_space.shape[0]
     if method == "search" or (method == "auto" and dim > GRID_MAX_GAINS):
-        search = {"n_points": int(default_points(dim) if n_points is None else n_points), "n_starts": int(n_starts),
-                  "tolerance": float(tolerance), "seeds": [int(seed) for seed in seeds]}
-        return _search(env, search, int(chunk), progress, use_table)
+        return _search(env, search_settings(dim, n_points, n_starts, tolerance, seeds), int(chunk), progress,
+                       use_table)
     table = load_table(env, int(resolution)) if use_table else None
     if table is not None:
         axes, costs = table
@@ -238,6 +237,21 @@ def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: in
     return GroundTruth(gains=np.array([axis[i] for axis, i in zip(axes, best)]), cost=float(costs[best]),
                        gain_names=plant_env.gain_names, axes=tuple(axes), costs=costs,
                        gain_units=plant_env.gain_units)
+
+
+def search_settings(dim: int, n_points: int | None = None, n_starts: int = 8, tolerance: float = 1e-3,
+                    seeds: tuple[int, int] = (0, 1)) -> dict:
+    """The settings of a ground-truth search of ``dim`` gains, as its table's fingerprint holds them.
+
+    Parameters as :func:`ground_truth`'s (``n_points=None``: :func:`~gbo_envs.optimum_search.default_points`).
+
+    Returns
+    -------
+    dict
+        ``{"n_points", "n_starts", "tolerance", "seeds"}``.
+    """
+    return {"n_points": int(default_points(dim) if n_points is None else n_points), "n_starts": int(n_starts),
+            "tolerance": float(tolerance), "seeds": [int(seed) for seed in seeds]}
 
 
 def _search(env, search: dict, chunk: int, progress: bool, use_table: bool) -> GroundTruth:

@@ -68,3 +68,18 @@ def test_bad_botorch_options_raise_value_errors_naming_the_parameter():
         agents.make("botorch", acquisition="ei")
     with pytest.raises(ValueError, match=r"n_initial: must be an int in \[1, inf\)"):
         agents.make("skopt", n_initial=0)
+
+
+@pytest.mark.filterwarnings("ignore")
+@pytest.mark.parametrize(("name", "kwargs"), [("botorch", {}), ("optuna-gp", {"n_initial": 1}), ("bo", {})])
+def test_peers_and_bo_tune_the_3_gain_pid_through_the_same_api(name, kwargs):
+    env = gym.make("gbo_envs/DCMotorPID-v0")
+    names = list(env.unwrapped.gain_names)
+    frame = _make(name, **kwargs).run(env, budget=6, seed=0).to_pandas()
+    gains = frame[names].to_numpy()
+    assert len(names) == 3 and gains.shape == (6, 3) and np.all(np.isfinite(frame["cost"]))
+    assert np.all(gains >= env.unwrapped.action_space.low) and np.all(gains <= env.unwrapped.action_space.high)
+    assert len({tuple(g) for g in gains}) == 6
+    # the first gains are BO's Latin hypercube design, in 3 gains as in 2
+    first = agents.make("bo").run(gym.make("gbo_envs/DCMotorPID-v0"), budget=1, seed=0).to_pandas()[names]
+    np.testing.assert_array_equal(gains[0], first.to_numpy()[0])

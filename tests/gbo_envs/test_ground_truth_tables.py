@@ -17,12 +17,51 @@ from gbo_envs.ground_truth_tables import TABLE_DIR, fingerprint, load_table, sav
 SHIPPED = sorted(f"gbo_envs/{path.stem}" for path in TABLE_DIR.glob("*.npz"))
 
 
+def _is_search(env_id: str) -> bool:
+    with np.load(table_path(env_id), allow_pickle=False) as data:
+        return "check_gains" in data
+
+
+#: Shipped grids (two gains) and certified searches (three gains and more).
+GRIDS = [env_id for env_id in SHIPPED if not _is_search(env_id)]
+SEARCHES = [env_id for env_id in SHIPPED if _is_search(env_id)]
+
+
 def test_the_dc_rig_table_is_shipped():
-    assert "gbo_envs/DCMotorRig-v0" in SHIPPED
+    assert "gbo_envs/DCMotorRig-v0" in GRIDS
     assert all(env_id in gbo_envs.ENV_IDS for env_id in SHIPPED)
 
 
-@pytest.mark.parametrize("env_id", SHIPPED)
+def test_the_envs_with_more_gains_ship_their_search():
+    assert "gbo_envs/DCMotorPID-v0" in SEARCHES
+    assert all(gym.make(env_id).unwrapped.action_space.shape[0] >= 3 for env_id in SEARCHES)
+
+
+@pytest.mark.parametrize("env_id", SEARCHES)
+def test_a_shipped_search_equals_the_live_expectation_and_is_certified(env_id, monkeypatch):
+    """A change of the physics, the cost or the defaults that makes a search table stale fails here."""
+    from gbo_envs.ground_truth import search_settings
+
+    env = gym.make(env_id)
+    stored = ground_truth_tables.load_search_table(env, search_settings(env.unwrapped.action_space.shape[0]))
+    assert stored is not None, "the shipped search does not fit the env's default kwargs: rerun " \
+                               "benchmarks/ground_truth_tables.py"
+    live = env.unwrapped.evaluate(np.vstack([stored["gains"], stored["check_gains"]]), experiment_index=0)[1]
+    np.testing.assert_allclose(live, [stored["cost"], stored["check_cost"]], rtol=1e-12, atol=0.0)
+    assert stored["disagreement"] <= stored["tolerance"] == 1e-3
+    # the default request reads it: no search runs
+    monkeypatch.setattr(sys.modules["gbo_envs.ground_truth"], "certified_minimum",
+                        lambda *a, **k: pytest.fail("searched live"))
+    truth = ground_truth(env_id)
+    assert truth.method == "search" and truth.certified and truth.cost == stored["cost"]
+    box = env.unwrapped.action_space
+    assert np.all((box.low <= truth.gains) & (truth.gains <= box.high))
+    noise_free = gym.make(env_id, noise=False)
+    noise_free.reset(seed=0)
+    assert noise_free.step(truth.gains)[4]["cost"] == pytest.approx(truth.cost, rel=1e-12)
+
+
+@pytest.mark.parametrize("env_id", GRIDS)
 def test_table_cells_equal_the_live_expectation(env_id):
     """A change of the physics, the cost or the defaults that makes a table stale fails here."""
     table = load_table(gym.make(env_id), 100)
