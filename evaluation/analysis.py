@@ -27,6 +27,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+import gbo_envs
+from evaluation.study_runner import RESULTS_DIR, plan_batches
+
 __all__ = [
     "PAPER_BANDS",
     "load_results",
@@ -68,8 +71,6 @@ def load_results(out: Path | str, study=None) -> pd.DataFrame:
     pandas.DataFrame
         Sorted by tuner (spec order when ``study`` is given), batch and row. Empty if nothing finished.
     """
-    from evaluation.study_runner import RESULTS_DIR, plan_batches
-
     folder = Path(out) / RESULTS_DIR
     files = sorted(folder.glob("*.parquet")) if folder.is_dir() else []
     if study is not None:
@@ -98,8 +99,6 @@ def study_ground_truth(study, out: Path | str | None = None):
     -------
     gbo_envs.GroundTruth
     """
-    import gbo_envs
-
     key = json.dumps([study.env_id, study.env_kwargs, study.resolution], sort_keys=True)
     cache = Path(out) / "ground_truth.npz" if out is not None else None
     if cache is not None and cache.is_file():
@@ -122,8 +121,6 @@ def study_ground_truth(study, out: Path | str | None = None):
 def resolve_thresholds(study, truth) -> dict[str, float]:
     """Threshold label -> optimality ratio (controller thresholds evaluated noise-free on the env)."""
     import gymnasium as gym
-
-    import gbo_envs  # noqa: F401
 
     env = None
     ratios = {}

@@ -30,6 +30,12 @@ import json
 
 import numpy as np
 
+import gbo_envs  # noqa: F401  (registers the envs)
+from agents.thread_limits import single_thread
+from evaluation import fingerprint
+from evaluation.study_runner import BatchTask, run_batch
+from gbo_envs.envs.time_varying import TimeVaryingMixin
+
 __all__ = ["PLANT_EXPERIMENTS", "PLANT_SEEDS", "SIGNIFICANT", "TUNER_BUDGET", "TUNER_ENV", "forget",
            "plant_behaviour", "tuner_behaviour"]
 
@@ -69,11 +75,6 @@ def plant_behaviour(env_id: str, env_kwargs: str | dict | None = None) -> str:
 @functools.cache
 def _plant_behaviour(env_id: str, kwargs: str) -> str:
     import gymnasium as gym
-
-    import gbo_envs  # noqa: F401  (registers the envs)
-    from agents.thread_limits import single_thread
-    from evaluation import fingerprint
-    from gbo_envs.envs.time_varying import TimeVaryingMixin
 
     digest = hashlib.sha256(f"{env_id}\0{kwargs}\0".encode())
     with single_thread(user_api=None):
@@ -115,9 +116,6 @@ def tuner_behaviour(name: str, params: str | dict | None = None) -> str:
 @functools.cache
 def _tuner_behaviour(name: str, params: str) -> str:
     import gymnasium as gym
-
-    import gbo_envs  # noqa: F401  (registers the envs)
-    from evaluation.study_runner import BatchTask, run_batch
 
     task = BatchTask(study="behaviour", label=name, tuner=name, params=json.loads(params), batch=0, seed=0,
                      env_id=TUNER_ENV, env_kwargs={}, budget=TUNER_BUDGET)

@@ -11,6 +11,8 @@ Examples::
     gbo bench suite --tuner random --suite quick           # one tuner on the suite, leaderboard with the references
     gbo bench suite --import my_tuner --tuner my-tuner --tuner-kwargs '{"step": 0.05}'
     gbo bench suite --rebuild-references --tuner guided-bo # rerun the stale references of guided-bo
+
+The commands' arguments are declared in :mod:`evaluation.bench_parser`; this module runs them.
 """
 
 from __future__ import annotations
@@ -20,61 +22,15 @@ import importlib.util
 import sys
 from pathlib import Path
 
-from evaluation.cli_args import EXIT_BAD_INPUT, json_object, positive_int
+import agents
+from evaluation.cli_args import EXIT_BAD_INPUT
+from evaluation.references import describe, rebuild
+from evaluation.report import write_report
+from evaluation.study import load_study, shipped_studies
+from evaluation.study_runner import default_out_dir, forget, run_study
+from evaluation.suite import load_suite, run_suite
 
-__all__ = ["add_parser", "bench"]
-
-
-def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``bench`` sub-command to the ``gbo`` parser."""
-    parser = subparsers.add_parser(
-        "bench", help="run a Monte Carlo study (TOML spec) and write its report, or a tuner on the benchmark suite",
-        description="Run a study's batches in parallel, saving each finished batch at once (rerun to resume), "
-                    "then write report.md and PNG figures. `gbo bench suite --tuner NAME` runs one tuner on the "
-                    "benchmark suite (every registered env, the effect plants and the time-varying envs, 30 seeds) "
-                    "and writes leaderboard.md/.csv/.html with the shipped reference results, which are not rerun.",
-        epilog="Examples:\n  gbo bench --list\n  gbo bench smoke --out /tmp/smoke\n"
-               "  gbo bench performance --batches 10 --workers 2\n"
-               "  gbo bench suite --tuner random --suite quick\n"
-               "  gbo bench suite --import my_tuner --tuner my-tuner --suite quick\n"
-               "  gbo bench suite --rebuild-references --tuner guided-bo",
-        formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("study", nargs="?", help="a shipped study name (see --list), a path to a .toml/.yaml spec, "
-                                                 "or `suite` (one tuner on the benchmark suite)")
-    parser.add_argument("--list", action="store_true", help="list the shipped studies and exit")
-    parser.add_argument("--batches", type=positive_int, help="run only the first N batches of every tuner")
-    parser.add_argument("--backend", choices=("local", "dask"), default="local",
-                        help="local: joblib processes (default); dask: dask.distributed")
-    parser.add_argument("--address", help="dask scheduler address (default with --backend dask: a LocalCluster)")
-    parser.add_argument("--workers", type=positive_int,
-                        help="worker processes (default: all cores; 1 = in this process)")
-    parser.add_argument("--out", help="output folder (default: out/studies/<study>)")
-    parser.add_argument("--no-report", action="store_true", help="only run the batches")
-    parser.add_argument("--report-only", action="store_true", help="only write the report from saved batches")
-    parser.add_argument("--rerun", action="append", default=[], metavar="LABEL",
-                        help="delete the saved runs of this tuner entry first, so that they run again with the current "
-                             "code (repeatable)")
-    parser.add_argument("--quiet", action="store_true",
-                        help="no progress bar (without it, a bar on stderr when stderr is a terminal)")
-    suite = parser.add_argument_group("gbo bench suite")
-    suite.add_argument("--tuner", action="append", default=[], metavar="NAME",
-                       help="the tuner's registry name (yours: see --import); with --rebuild-references: a reference "
-                            "to rebuild (repeatable; default: every stale or missing one)")
-    suite.add_argument("--tuner-kwargs", type=json_object, default={}, metavar="JSON",
-                       help="the tuner's constructor keyword arguments as a JSON object")
-    suite.add_argument("--label", help="the tuner's name in the leaderboard (default: --tuner)")
-    suite.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",
-                       help="import MODULE first (in every worker too), found as `python -m` finds it (the current "
-                            "folder first): it registers your tuner; repeatable")
-    suite.add_argument("--suite", choices=("standard", "quick"), default="standard",
-                       help="standard: 12 plants x 30 seeds (default); quick: 3 plants x 3 seeds")
-    suite.add_argument("--seeds", type=positive_int, help="seeds per plant (default: the suite's, 30 or 3)")
-    suite.add_argument("--rebuild-references", action="store_true",
-                       help="rerun the stale and missing reference results (see --tuner) and write them into the "
-                            "package's references folder")
-    suite.add_argument("--force", action="store_true", help="with --rebuild-references: rebuild current ones too")
-    parser.set_defaults(handler=bench)
-    return parser
+__all__ = ["bench", "suite"]
 
 
 #: Options of `gbo bench suite` only, and of a study only: their flags and the values that mean "not given".
@@ -87,9 +43,6 @@ _STUDY_ONLY = {"batches": ("--batches", None), "list": ("--list", False), "no_re
 
 def bench(args: argparse.Namespace) -> int:
     """Handler of ``gbo bench``; returns the exit status (130 after Ctrl-C, 1 if a batch failed)."""
-    from evaluation.study import load_study, shipped_studies
-    from evaluation.study_runner import default_out_dir, run_study
-
     if args.study == "suite":
         return suite(args)
     given = [flag for key, (flag, unset) in _SUITE_ONLY.items() if getattr(args, key) != unset]
@@ -123,8 +76,6 @@ def bench(args: argparse.Namespace) -> int:
         study = study.with_batches(args.batches)
     out = Path(args.out) if args.out else default_out_dir(study)
     if args.rerun:
-        from evaluation.study_runner import forget
-
         print(f"{study.name}: deleted {forget(study, out, args.rerun)} saved runs of {', '.join(args.rerun)}")
     status = 0
     if not args.report_only:
@@ -134,8 +85,6 @@ def bench(args: argparse.Namespace) -> int:
         if status == 130:
             return status
     if not args.no_report:
-        from evaluation.report import write_report
-
         path = write_report(study, out)
         print(f"report: {path}")
     return status
@@ -143,9 +92,6 @@ def bench(args: argparse.Namespace) -> int:
 
 def suite(args: argparse.Namespace) -> int:
     """Handler of ``gbo bench suite``: run a tuner on the suite and write the leaderboard, or rebuild references."""
-    import agents
-    from evaluation.suite import load_suite, run_suite
-
     given = [flag for key, (flag, unset) in _STUDY_ONLY.items() if getattr(args, key) != unset]
     if given:
         print(f"gbo bench suite: {', '.join(given)} only with a study (gbo bench STUDY)", file=sys.stderr)
@@ -155,8 +101,6 @@ def suite(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     progress = False if args.quiet else None
     if args.rebuild_references:
-        from evaluation.references import rebuild
-
         extra = [flag for flag, value in (("--tuner-kwargs", args.tuner_kwargs), ("--label", args.label),
                                           ("--import", args.imports), ("--seeds", args.seeds),
                                           ("--report-only", args.report_only)) if value]
@@ -224,6 +168,4 @@ def _finished(run, head: str, what: str, where: str, command: str) -> int:
 
 
 def _stale_lines(refs) -> list[str]:
-    from evaluation.references import describe
-
     return describe(refs)

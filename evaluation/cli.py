@@ -18,11 +18,13 @@ import multiprocessing
 import os
 import sys
 import threading
-from pathlib import Path
 
+import gbo_envs  # noqa: F401  (registers the envs)
+from evaluation.allocator import retain_freed_memory
 from evaluation.cli_args import (
     EXIT_BAD_INPUT,
     EnvId,
+    Handler,
     OneLineParser,
     check_env_id,
     env_id,
@@ -35,15 +37,7 @@ from evaluation.cli_args import (
 __all__ = ["main"]
 
 #: Modules that contribute sub-commands through ``add_parser(subparsers)``.
-SUBCOMMAND_MODULES: tuple[str, ...] = ("evaluation.bench_cli", "evaluation.tune_cli", "evaluation.twin_cli")
-
-
-def _demo(args: argparse.Namespace) -> int:
-    from evaluation.demo import run_demo
-
-    run_demo(Path(args.out), env_id=args.env, seed=args.seed, budget=args.budget, tuners=not args.no_tuners,
-             progress=False if args.quiet else None, seeds=args.seeds)
-    return 0
+SUBCOMMAND_MODULES: tuple[str, ...] = ("evaluation.bench_parser", "evaluation.tune_parser", "evaluation.twin_parser")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -70,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
                            "confidence band (default: 3)")
     demo.add_argument("--no-tuners", action="store_true", help="only the ground truth and its figures")
     demo.add_argument("--quiet", action="store_true", help="no progress bars (default: on stderr when a terminal)")
-    demo.set_defaults(handler=_demo)
+    demo.set_defaults(handler=Handler("evaluation.demo:demo_command"))
     for module in SUBCOMMAND_MODULES:
         try:
             importlib.import_module(module).add_parser(sub)
@@ -81,9 +75,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gbo`` script; returns the exit status (2: bad input, one line on stderr)."""
-    import gbo_envs  # noqa: F401  (registers the envs)
-    from evaluation.allocator import retain_freed_memory
-
     retain_freed_memory()  # the twin fits' large temporaries are reused, not faulted in again
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv  # anywhere on the line, not only before the sub-command

@@ -11,6 +11,9 @@ prints before it exits with :data:`EXIT_BAD_INPUT`.
 
 ``--import MODULE`` (:func:`import_modules`) imports a module the way
 ``python -m`` finds it: the current folder comes first on ``sys.path``.
+
+A sub-command names its handler (:class:`Handler`, ``"module:function"``) rather than importing it, so
+that the parser of every command, built at each start, loads none of the commands' code.
 """
 
 from __future__ import annotations
@@ -19,12 +22,17 @@ import argparse
 import importlib
 import json
 import os
+import pkgutil
 import sqlite3
 import sys
+from dataclasses import dataclass
+
+import gbo_envs  # noqa: F401  (registers the envs)
 
 __all__ = [
     "EXIT_BAD_INPUT",
     "EnvId",
+    "Handler",
     "OneLineParser",
     "check_env_id",
     "env_id",
@@ -52,6 +60,27 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+@dataclass(frozen=True)
+class Handler:
+    """A sub-command's handler named ``"module:function"``, imported when the command runs.
+
+    ``gbo`` builds the parser of every sub-command at each start (:func:`evaluation.cli.build_parser`); a
+    handler named, not imported, keeps each command from loading the code of the others (``gbo twin
+    diagnose`` loads no study engine, scipy.stats or tuner; ``gbo bench`` no twin workbench).
+
+    Parameters
+    ----------
+    target : str
+        ``"package.module:function"``; the function takes the parsed ``argparse.Namespace`` and returns
+        the exit status.
+    """
+
+    target: str
+
+    def __call__(self, args: argparse.Namespace) -> int:
+        return pkgutil.resolve_name(self.target)(args)
 
 
 def positive_int(text: str) -> int:
@@ -134,8 +163,6 @@ def check_env_id(value: str, imported=()) -> str:
         An unregistered id, or ``MODULE:ID`` without ``--import MODULE``.
     """
     import gymnasium as gym
-
-    import gbo_envs  # noqa: F401  (registers the envs)
 
     module, colon, name = value.rpartition(":")
     if colon and module not in imported:

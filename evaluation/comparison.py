@@ -40,7 +40,10 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from evaluation.curves import change_at, experiments_to_target
+import gbo_envs  # noqa: F401  (registers the envs)
+from evaluation.curves import change_at, experiments_to_target, load_curves, plant_optimum_cell
+from evaluation.references import suite_optima
+from evaluation.study_runner import plan_batches
 from gbo_envs.atomic_write import atomic_write
 
 __all__ = ["COLUMNS", "comparison_lines", "effects_column", "interval", "threshold_ratios", "write_comparison"]
@@ -191,8 +194,6 @@ def threshold_ratios(study, optima: dict[str, np.ndarray]) -> dict[str, list[tup
     """Plant label -> ``[(label, ratio, threshold)]``: a ``ratio`` threshold as given, a controller or tuner
     threshold evaluated on the noise-free plant over its ``J*``."""
     import gymnasium as gym
-
-    import gbo_envs  # noqa: F401  (registers the envs)
 
     out = {}
     for plant in study.plants:
@@ -424,8 +425,6 @@ def _optimum_shifts(study, out: Path | None) -> dict:
     """Plant -> ``{"optimum_shift": cells}``: the grid cell of its ground-truth optimum against that of the
     study's first plant with the same gains (Chebyshev distance in cells of the study's grid); the cells are
     cached in ``out/optima.json`` (:func:`evaluation.curves.plant_optimum_cell`)."""
-    from evaluation.curves import plant_optimum_cell
-
     cache = None if out is None else Path(out) / "optima.json"
     cells, names, shifts = {}, {}, {}
     for plant in study.plants:
@@ -472,10 +471,6 @@ def write_comparison(study, out: Path | str, curves: pd.DataFrame | None = None,
     Path
         The report.
     """
-    from evaluation.curves import load_curves
-    from evaluation.references import suite_optima
-    from evaluation.study_runner import plan_batches
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if optima is None:

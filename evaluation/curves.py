@@ -11,14 +11,8 @@ plant-changing env from its change on. These *curves* are what the benchmark
 suite ships as references and what the comparison tables are computed from;
 they are small enough to keep in the repository.
 
-Columns of a curves table (:data:`CURVE_COLUMNS`): ``study, plant, tuner`` (label),
-``tuner_name, params`` (JSON), ``env_id, env_kwargs`` (JSON), ``budget, batch,
-seed, key, file`` (the batch file the run is, :attr:`BatchTask.filename`),
-``curve`` and ``instant`` (lists of floats, one per experiment), ``optimum``
-(``J*`` of the first experiment's plant), ``seconds, cpu_seconds,
-plant_cpu_seconds`` (the run's wall and CPU time and the CPU time of the plant's
-steps, NaN when unknown), ``summary`` (JSON: the tuner's own figures, see
-:func:`run_summary`) and ``source`` (``"engine"`` or where it was imported from).
+The table's columns and its file (:data:`CURVE_COLUMNS`, :func:`read_curves`, :func:`write_curves`)
+are those of :mod:`evaluation.curve_table`.
 
 A study folder may hold a ``curves.parquet`` beside its batch files (runs kept as
 curves only, e.g. those of the former benchmark scripts); :func:`load_curves`
@@ -34,16 +28,17 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+import gbo_envs  # noqa: F401  (registers the envs)
 from agents.jsonable import jsonable
+from evaluation.behaviour import plant_behaviour
+from evaluation.curve_table import CURVE_COLUMNS, CURVES_FILE, read_curves, write_curves
+from evaluation.study_runner import RESULTS_DIR, plan_batches
 from gbo_envs.atomic_write import atomic_write
+from gbo_envs.gain_grid import grid_axes, grid_points
 
 __all__ = ["CURVE_COLUMNS", "CURVES_FILE", "change_at", "curves_from_results", "experiments_to_target",
            "load_curves", "plant_optima", "plant_optimum_cell", "read_curves", "run_summary", "write_curves"]
 
-CURVES_FILE = "curves.parquet"
-CURVE_COLUMNS = ["study", "plant", "tuner", "tuner_name", "params", "env_id", "env_kwargs", "budget", "batch", "seed",
-                 "key", "file", "curve", "instant", "optimum", "seconds", "cpu_seconds", "plant_cpu_seconds", "summary",
-                 "source", "commit"]
 #: Keys of a result's ``info`` kept in a run's summary.
 SUMMARY_KEYS = ("activations", "distrusts", "repeats", "reinitializations", "twin_evaluations", "fidelity")
 
@@ -105,8 +100,6 @@ def change_at(env_id: str, env_kwargs: dict) -> int | None:
     """First experiment (0-based) on the changed plant of a plant-changing env, None for any other env."""
     import gymnasium as gym
 
-    import gbo_envs  # noqa: F401  (registers the envs)
-
     schedule = getattr(gym.make(env_id, **env_kwargs).unwrapped, "schedule", None)
     return getattr(schedule, "at", None)
 
@@ -125,8 +118,6 @@ def plant_optima(env_id: str, env_kwargs: dict, budget: int, resolution: int = 1
     -------
     ndarray of shape (budget,)
     """
-    from evaluation.behaviour import plant_behaviour
-
     key = _optima_key(env_id, env_kwargs, budget, resolution, plant_behaviour(env_id, env_kwargs))
     known = _read_json(cache)
     if key in known:
@@ -149,14 +140,10 @@ def plant_optimum_cell(env_id: str, env_kwargs: dict, resolution: int = 100,
         Index of the minimum on the ``resolution`` x ``resolution`` grid, one per gain.
     gain_names : tuple of str
     """
-    from evaluation.behaviour import plant_behaviour
-
     # budget 0 in the key: the cell is the first plant's, whatever the run length
     key = "cell:" + _optima_key(env_id, env_kwargs, 0, resolution, plant_behaviour(env_id, env_kwargs))
     known = _read_json(cache).get(key)
     if known is None:
-        import gbo_envs
-
         truth = gbo_envs.ground_truth(env_id, resolution=resolution, **env_kwargs)
         cell = np.unravel_index(np.argmin(truth.costs), truth.costs.shape)
         known = {"cell": [int(i) for i in cell], "gain_names": list(truth.gain_names)}
@@ -192,9 +179,6 @@ def _read_json(path) -> dict:
 
 def _compute_optima(env_id: str, env_kwargs: dict, budget: int, resolution: int) -> np.ndarray:
     import gymnasium as gym
-
-    import gbo_envs
-    from gbo_envs.gain_grid import grid_axes, grid_points
 
     plant = gym.make(env_id, **env_kwargs).unwrapped
     if not hasattr(plant, "plant_params_at"):
@@ -271,26 +255,6 @@ def _json(text) -> dict:
     return value if isinstance(value, dict) else {}
 
 
-def write_curves(curves: pd.DataFrame, path: Path | str) -> Path:
-    """Write a curves table atomically as Parquet (zstd; the lists as lists of float64)."""
-    path = Path(path)
-    frame = curves.reindex(columns=CURVE_COLUMNS).reset_index(drop=True)
-    with atomic_write(path, "wb") as handle:
-        frame.to_parquet(handle, index=False, compression="zstd")
-    return path
-
-
-def read_curves(path: Path | str) -> pd.DataFrame:
-    """A curves table written by :func:`write_curves` (empty with the columns when the file is missing)."""
-    path = Path(path)
-    if not path.is_file():
-        return pd.DataFrame(columns=CURVE_COLUMNS)
-    frame = pd.read_parquet(path)
-    for column in ("curve", "instant"):
-        frame[column] = [None if v is None else np.asarray(v, dtype=float) for v in frame[column]]
-    return frame
-
-
 def load_curves(out: Path | str, study, optima: dict[str, np.ndarray] | None = None,
                 resolution: int | None = None) -> pd.DataFrame:
     """Every finished run of ``study`` under ``out`` as curves: its batch files and its ``curves.parquet``.
@@ -313,8 +277,6 @@ def load_curves(out: Path | str, study, optima: dict[str, np.ndarray] | None = N
     DataFrame
         :data:`CURVE_COLUMNS`, in plan order.
     """
-    from evaluation.study_runner import RESULTS_DIR, plan_batches
-
     out = Path(out)
     tasks = plan_batches(study)
     by_file = {task.filename: task for task in tasks}

@@ -8,17 +8,19 @@
 
 from __future__ import annotations
 
+import argparse
 import time
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
+import agents
 import gbo_envs
 from evaluation.figures import save
 from gbo_envs.plotting import convergence_figure, response_figure
 
-__all__ = ["run_demo"]
+__all__ = ["demo_command", "run_demo"]
 
 PAPER_OPTIMUM = {"Kp": 0.54, "Ki": 1.16, "cost": 0.79}
 PAPER_NOMINAL = {"Kp": 0.85, "Ki": 1.07}
@@ -87,9 +89,14 @@ def run_demo(out: Path, env_id: str = "gbo_envs/DCMotor-v0", seed: int = 0, budg
     return summary
 
 
-def _run_tuners(out: Path, env_id: str, truth, seeds: range, budget: int, progress: bool | None) -> dict:
-    import agents
+def demo_command(args: argparse.Namespace) -> int:
+    """Handler of ``gbo demo`` (its arguments: :func:`evaluation.cli.build_parser`); returns the exit status."""
+    run_demo(Path(args.out), env_id=args.env, seed=args.seed, budget=args.budget, tuners=not args.no_tuners,
+             progress=False if args.quiet else None, seeds=args.seeds)
+    return 0
 
+
+def _run_tuners(out: Path, env_id: str, truth, seeds: range, budget: int, progress: bool | None) -> dict:
     available = [name for name in ("bo", "guided-bo") if name in agents.registered_names()]
     if not available:
         return {}

@@ -15,7 +15,7 @@ import pandas as pd
 from evaluation.analysis import PAPER_BANDS, percentile_bands
 from gbo_envs.atomic_write import atomic_write
 from gbo_envs.lazy_pyplot import pyplot
-from gbo_envs.plotting import axis_label, legend_outside, style
+from gbo_envs.plotting import axis_label, cost_surface, legend_outside, style
 
 __all__ = [
     "save",
@@ -140,8 +140,6 @@ def cost_surface_figure(truth, frame: pd.DataFrame, batch: int = 0, tuners: list
     tuners : list of str, optional
         Labels to draw (default: all in ``frame``).
     """
-    from gbo_envs.plotting import cost_surface
-
     plt = pyplot()
     labels = tuners or list(dict.fromkeys(frame["tuner"]))
     cols = min(2, len(labels))

@@ -37,6 +37,9 @@ import subprocess
 from functools import cache, lru_cache
 from pathlib import Path
 
+import gbo_envs  # noqa: F401  (registers the envs)
+from agents import registry
+
 __all__ = ["PRESENTATION_MODULES", "PROJECT_PACKAGES", "REPO_ROOT", "SourceTree", "git_commit", "module_closure",
            "plant_modules", "reread_sources", "source_hash", "truth_table_path", "tuner_modules"]
 
@@ -265,8 +268,6 @@ def tuner_modules(name: str, tree: SourceTree | None = None) -> list[str]:
     ValueError
         An unknown tuner name (the message lists the registered ones).
     """
-    from agents import registry
-
     if name not in registry._REGISTRY:
         registry.make(name)  # raises the registry's own ValueError, listing the names
     entry = registry._REGISTRY[name]
@@ -278,8 +279,6 @@ def tuner_modules(name: str, tree: SourceTree | None = None) -> list[str]:
 @cache
 def _entry_module(env_id: str) -> str:
     import gymnasium as gym
-
-    import gbo_envs  # noqa: F401  (registers the envs)
 
     entry = gym.spec(env_id).entry_point
     return entry.partition(":")[0] if isinstance(entry, str) else inspect.getmodule(entry).__name__

@@ -32,7 +32,11 @@ import pandas as pd
 from scipy import stats
 
 from evaluation.curves import experiments_to_target
+from evaluation.figures import save
+from evaluation.markdown_page import write_html
 from gbo_envs.atomic_write import atomic_write
+from gbo_envs.lazy_pyplot import pyplot
+from gbo_envs.plotting import MEASURED, axis_label, legend_outside, style
 
 __all__ = ["Leaderboard", "PlantTarget", "mean_interval", "write_leaderboard"]
 
@@ -234,9 +238,6 @@ class Leaderboard:
         -------
         matplotlib.figure.Figure
         """
-        from gbo_envs.lazy_pyplot import pyplot
-        from gbo_envs.plotting import MEASURED, axis_label, legend_outside, style
-
         data = self.ecdf(plant)
         with style():
             if ax is None:
@@ -344,9 +345,6 @@ def write_leaderboard(board: Leaderboard, out: Path | str, title: str, intro: li
     dict
         ``"md", "csv", "html", "ecdf", "ecdf_plants", "json"`` -> paths.
     """
-    from evaluation.figures import save
-    from evaluation.report import write_html
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"ecdf": save(board.plot(highlight=highlight), out / "leaderboard_ecdf.png")}
@@ -375,9 +373,6 @@ def write_leaderboard(board: Leaderboard, out: Path | str, title: str, intro: li
 
 def _plant_grid(board: Leaderboard, highlight: str | None):
     """Small multiples: the runtime ECDF of every plant."""
-    from gbo_envs.lazy_pyplot import pyplot
-    from gbo_envs.plotting import style
-
     n = len(board.plants_)
     cols = 3 if n > 4 else n
     rows = math.ceil(n / cols)

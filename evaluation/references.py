@@ -37,8 +37,11 @@ import numpy as np
 import pandas as pd
 
 from agents.jsonable import jsonable
-from evaluation.curves import CURVE_COLUMNS, plant_optima, read_curves
+from agents.run_display import progress_bar
+from evaluation import behaviour, fingerprint
+from evaluation.curves import CURVE_COLUMNS, load_curves, plant_optima, read_curves
 from evaluation.study import Study, slugify
+from evaluation.study_runner import plan_batches, run_study
 from gbo_envs.atomic_write import atomic_write
 
 __all__ = ["OPTIMUM_RTOL", "REFERENCES_DIR", "FINGERPRINT_COLUMNS", "Fingerprint", "ReferenceSet",
@@ -95,8 +98,6 @@ def stale_reasons(run, current: Fingerprint) -> list[str]:
     Where a source hash differs, the run's behaviour fingerprint is compared with the code's now
     (:mod:`evaluation.behaviour`, computed once per process): equal, the run is current.
     """
-    from evaluation import behaviour
-
     reasons = []
     since = str(run.get("commit") or "?")[:10]
     if run["env_id"] != current.env_id or _canonical(run["env_kwargs"]) != current.env_kwargs:
@@ -131,8 +132,6 @@ def _stamp(value) -> str | None:
 # -- plants -------------------------------------------------------------------------------------------
 def plant_hash(env_id: str, tree=None) -> str:
     """Hash of the plant's source modules and its shipped truth table (:mod:`evaluation.fingerprint`)."""
-    from evaluation import fingerprint
-
     table = fingerprint.truth_table_path(env_id)
     extra = {}
     if table is not None:
@@ -154,8 +153,6 @@ def suite_optima(study: Study, budgets: dict[str, int], folder: Path | str = REF
                  cache: Path | str | None = None, progress: bool | None = False) -> dict[str, np.ndarray]:
     """``J*_k`` per plant of ``study``: from the references' plant table while the plant is unchanged, else
     computed (:func:`evaluation.curves.plant_optima`, cached in ``cache``; a bar per plant with ``progress``)."""
-    from agents.run_display import progress_bar
-
     table = plant_table(folder)
     optima = {}
     bar = progress_bar(len(study.plants), "ground truths", progress, unit="plant")
@@ -177,8 +174,6 @@ def suite_optima(study: Study, budgets: dict[str, int], folder: Path | str = REF
 def _same_plant(known: dict, plant) -> bool:
     """Whether a plant-table entry belongs to the plant as it is now: the same source hash, or else the same
     behaviour (:func:`evaluation.behaviour.plant_behaviour`)."""
-    from evaluation import behaviour
-
     if known["plant_hash"] == plant_hash(plant.env_id):
         return True
     stamped = _stamp(known.get("plant_behaviour"))
@@ -186,8 +181,6 @@ def _same_plant(known: dict, plant) -> bool:
 
 
 def _write_plant_table(study: Study, budgets: dict[str, int], optima: dict[str, np.ndarray], folder: Path) -> None:
-    from evaluation import behaviour
-
     table = plant_table(folder)
     for plant in study.plants:
         table[plant.label] = {"env_id": plant.env_id, "env_kwargs": jsonable(plant.env_kwargs),
@@ -205,8 +198,6 @@ def _write_plant_table(study: Study, budgets: dict[str, int], optima: dict[str, 
 def current_fingerprints(study: Study, optima: dict[str, np.ndarray]) -> dict[tuple[str, str], Fingerprint]:
     """``(tuner label, plant label)`` -> the fingerprint a run made now would have, for every entry and plant
     of ``study`` it runs on."""
-    from evaluation import fingerprint
-
     plant_hashes = {plant.label: plant_hash(plant.env_id) for plant in study.plants}
     out = {}
     for entry in study.tuners:
@@ -330,10 +321,6 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
         ``tuner label -> list of the plant labels rebuilt`` (empty lists for tuners that were current),
         and ``"interrupted"`` / ``"failed"`` (batch files of failed runs) when that happened.
     """
-    from evaluation import behaviour, fingerprint
-    from evaluation.curves import load_curves
-    from evaluation.study_runner import plan_batches, run_study
-
     labels = study.labels
     unknown = [t for t in (tuners or []) if t not in labels]
     if unknown:
@@ -420,9 +407,6 @@ def restamp(study: Study, tuners: list[str] | None = None, folder: Path | str = 
     dict
         ``tuner label -> the plant labels restamped``.
     """
-    from evaluation import behaviour
-    from evaluation.study_runner import plan_batches
-
     folder = Path(folder)
     if optima is None:
         optima = suite_optima(study, {task.plant: task.budget for task in plan_batches(study)}, folder)

@@ -4,15 +4,12 @@
 PNG figures next to ``OUT/report.md`` and links them relatively, so the folder
 can be committed (``docs/reports/<study>/``) and read on GitHub. Beside it,
 ``OUT/report.html`` is the same report as one self-contained page (figures
-inline, tables that scroll on a phone; :func:`write_html`).
+inline, tables that scroll on a phone; :func:`evaluation.markdown_page.write_html`).
 """
 
 from __future__ import annotations
 
-import html
 import json
-import math
-import re
 import time
 from pathlib import Path
 
@@ -20,24 +17,13 @@ import numpy as np
 import pandas as pd
 
 from evaluation import analysis, figures
+from evaluation.comparison import write_comparison
+from evaluation.markdown_page import markdown_table, write_html
 from evaluation.study import Study
+from evaluation.suite import study_leaderboard
 from gbo_envs.atomic_write import atomic_write
 
 __all__ = ["write_report", "write_figures", "write_html", "markdown_table"]
-
-
-def markdown_table(headers: list[str], rows: list[list]) -> str:
-    """A GitHub Markdown table; floats to 4 significant digits (one decimal from 1000), NaN/None as a dash."""
-    def cell(value) -> str:
-        if value is None or (isinstance(value, float) and math.isnan(value)):
-            return "—"
-        if isinstance(value, (float, np.floating)):
-            return f"{value:.4g}" if abs(value) < 1e3 else f"{value:.1f}"
-        return str(value).replace("|", "\\|")
-
-    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
-    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in rows]
-    return "\n".join(lines)
 
 
 def write_figures(study: Study, out: Path, frame: pd.DataFrame, truth, thresholds: dict[str, float]) -> dict:
@@ -129,10 +115,7 @@ def write_report(study: Study, out: Path | str, frame: pd.DataFrame | None = Non
     out.mkdir(parents=True, exist_ok=True)
     if study.per_plant:
         if study.report.get("table") == "leaderboard":
-            from evaluation.suite import study_leaderboard
-
             return study_leaderboard(study, out)["md"]
-        from evaluation.comparison import write_comparison
 
         path = write_comparison(study, out)
         write_html(path, title=study.title)
@@ -190,46 +173,6 @@ def _write_markdown(path: Path, lines: list[str], title: str) -> Path:
     with atomic_write(path) as handle:
         handle.write("\n".join(lines))
     write_html(path, title=title)
-    return path
-
-
-def write_html(markdown_path: Path | str, title: str = "") -> Path:
-    """Write the Markdown report as one self-contained HTML page beside it (``report.html``).
-
-    Images linked relatively are inlined as base64 PNG; every table scrolls
-    sideways inside its own box on a narrow screen.
-
-    Parameters
-    ----------
-    markdown_path : Path or str
-        The ``report.md`` of a study.
-    title : str, optional
-        Title of the page (default: the file's folder name).
-
-    Returns
-    -------
-    Path
-        The ``.html`` file.
-    """
-    from markdown_it import MarkdownIt
-
-    from agents.html_page import image_tag, page, scrolling
-
-    markdown_path = Path(markdown_path)
-    body = MarkdownIt("commonmark").enable("table").render(markdown_path.read_text(encoding="utf-8"))
-
-    def inline(match: re.Match) -> str:
-        src, alt = html.unescape(match.group(1)), html.unescape(match.group(2))
-        image = markdown_path.parent / src
-        if "://" in src or not image.is_file():
-            raise ValueError(f"{markdown_path}: image {src!r} is not a file beside the report")
-        return image_tag(image.read_bytes(), alt)
-
-    body = re.sub(r'<p><img src="([^"]*)" alt="([^"]*)" /></p>', inline, body)
-    body = re.sub(r"<table>.*?</table>", lambda m: scrolling(m.group(0)), body, flags=re.S)
-    path = markdown_path.with_suffix(".html")
-    with atomic_write(path) as handle:
-        handle.write(page(title or markdown_path.parent.name, body))
     return path
 
 

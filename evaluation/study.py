@@ -90,6 +90,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import agents
+
 #: Study names: letters, digits, ``_`` and ``-`` (no dots: ``..`` is no name, and no path).
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]+")
 
@@ -215,8 +217,6 @@ class Threshold:
 
         if self.tuner is not None:
             import gymnasium as gym
-
-            import agents
 
             spec = env.spec
             quiet = gym.make(spec.id, **{**(spec.kwargs or {}), "noise": False})

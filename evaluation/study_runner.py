@@ -44,9 +44,12 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+import agents
+import gbo_envs  # noqa: F401  (registers the envs)
 from agents.jsonable import to_json
 from agents.run_display import progress_bar
 from agents.thread_limits import single_thread
+from evaluation.curve_table import CURVES_FILE, read_curves, write_curves
 from evaluation.study import Plant, Study, StudySpecError, TunerEntry, slugify
 from gbo_envs.atomic_write import atomic_write
 from gbo_envs.physics.block import validated_count
@@ -196,8 +199,6 @@ def resolve_params(entry: TunerEntry, n_initial: int | None) -> dict:
     ValueError
         Unknown tuner name (the message lists the registered ones) or params the tuner rejects.
     """
-    import agents
-
     params = dict(entry.params)
     try:
         tuner = agents.make(entry.name, **params)
@@ -222,8 +223,6 @@ def check_env(env_id: str) -> None:
         The id is unknown, or its module cannot be imported; the message lists the registered ids.
     """
     import gymnasium as gym
-
-    import gbo_envs  # noqa: F401  (registers the envs)
 
     try:
         gym.spec(env_id)
@@ -289,8 +288,6 @@ def forget(study: Study, out: Path | str, labels) -> int:
     ValueError
         A label that is no tuner entry of the study.
     """
-    from evaluation.curves import CURVES_FILE, read_curves, write_curves
-
     unknown = [label for label in labels if label not in study.labels]
     if unknown:
         raise ValueError(f"--rerun: {unknown} are not tuner labels of {study.name}; labels: {study.labels}")
@@ -311,9 +308,7 @@ def forget(study: Study, out: Path | str, labels) -> int:
 
 
 def kept_files(out: Path) -> set[str]:
-    """Batch file names of the runs kept as curves in ``out/curves.parquet`` (:mod:`evaluation.curves`)."""
-    from evaluation.curves import CURVES_FILE, read_curves
-
+    """Batch file names of the runs kept as curves in ``out/curves.parquet`` (:mod:`evaluation.curve_table`)."""
     curves = read_curves(Path(out) / CURVES_FILE)
     return {name for name in curves["file"] if isinstance(name, str)}
 
@@ -326,9 +321,6 @@ def run_batch(task: BatchTask):
     ``task.seed`` and BLAS runs single-threaded, so any process on any backend
     returns the same numbers.
     """
-    import agents
-    import gbo_envs  # noqa: F401  (registers the envs)
-
     import_study_modules(task.imports, task.import_path)
     with single_thread(user_api=None):  # BLAS and OpenMP: same numbers on every backend, no oversubscription
         kwargs = dict(task.env_kwargs)

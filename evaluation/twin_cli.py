@@ -15,6 +15,8 @@ allowed; experiments numbered from 1); see :mod:`agents.twin.csvio`.
 where, and prints the path. ``diagnose --json`` prints exactly one JSON object
 on stdout. Bad data exits with status 2 and one line naming the file, and the
 row and column, or the experiment, where one is at fault.
+
+The commands' arguments are declared in :mod:`evaluation.twin_parser`; this module runs them.
 """
 
 from __future__ import annotations
@@ -25,89 +27,20 @@ import json
 import warnings
 from pathlib import Path
 
-from evaluation.cli_args import int_at_least, job_count, positive_int
+from agents.jsonable import to_json
+from agents.run_display import progress_bar
+from agents.twin.csvio import read_csv
+from agents.twin.data import GreyData
+from agents.twin.fits import fit_structure
+from agents.twin.identify import check_orders
+from agents.twin.ladder_text import advice, unobservable_lines
+from agents.twin.model import ModelSpec
+from agents.twin.report import compare_figure, residual_figure, write_report
+from agents.twin.workbench import compare, diagnose, error_ladder, residuals
+from evaluation.figures import save
+from gbo_envs.physics import EFFECT_NAMES
 
-__all__ = ["add_parser"]
-
-
-def add_parser(subparsers) -> None:
-    """Add ``twin`` with its sub-commands to the ``gbo`` sub-command parsers."""
-    raw = argparse.RawDescriptionHelpFormatter
-    twin = subparsers.add_parser("twin", help="twin workbench: compare, residuals, diagnose, report",
-                                 description="Compare a digital twin with measured closed-loop data "
-                                             "(CSV: experiment,t,r,u,y), see where it fails and which physical "
-                                             "effect it misses.",
-                                 epilog="Examples:\n  gbo twin compare data.csv\n  gbo twin diagnose data.csv\n"
-                                        "  gbo twin report data.csv --out out/twin/report",
-                                 formatter_class=raw)
-    sub = twin.add_subparsers(dest="twin_command", required=True)
-
-    def common(p):
-        p.add_argument("data", help="CSV with the columns experiment,t,r,u,y (experiments numbered from 1)")
-        p.add_argument("--effects", default="", help="effects of the current model, comma-separated catalogue "
-                                                      "names (default: the linear model alone)")
-        p.add_argument("--poles", type=positive_int, default=2, help="poles of the linear part (default 2)")
-        p.add_argument("--zeros", type=int_at_least(0), default=0, help="zeros of the linear part (default 0)")
-        p.add_argument("--integrators", type=int_at_least(0), default=0,
-                       help="poles at s = 0 (default 0; 1 for a position loop)")
-        p.add_argument("--output", choices=("speed", "position"), default="speed",
-                       help="what y measures (friction acts on y or on dy/dt; default speed)")
-        p.add_argument("--initial", choices=("auto", "rest", "zero", "steady"), default="auto",
-                       help="how the experiments start: auto (default) detects it per experiment (at a rest the "
-                            "data show, pinned; from standstill with the drive just on; or at an unshown rest, "
-                            "estimated); rest: at the rest of the first sample; zero: at rest with u = 0 before "
-                            "the record; steady: estimate every rest level and rest input")
-        p.add_argument("--y-unit", default=None, help="unit of y for the printout, e.g. rad/s (default: units of y)")
-        p.add_argument("--u-unit", default=None, help="unit of u for the printout, e.g. V (default: input units)")
-        p.add_argument("--quiet", action="store_true",
-                       help="no progress bar (without it, a bar on stderr when stderr is a terminal)")
-
-    def jobs(p) -> None:
-        p.add_argument("--jobs", type=job_count, default=-1,
-                       help="worker processes for the fits (default -1: one per core; 1: none; the result is the "
-                            "same)")
-
-    p = sub.add_parser("compare", help="fit %% and RMSE per experiment, overlay plots",
-                       description="Fit the model to the data and print fit %% and RMSE per experiment; the "
-                                   "overlay plot goes to out/twin/<data name>/compare.png unless --out says where.",
-                       epilog="Example:\n  gbo twin compare data.csv --effects saturation --out out/twin/sat",
-                       formatter_class=raw)
-    common(p)
-    p.add_argument("--out", default=None, help="folder for compare.png (default: out/twin/<data name>)")
-    p.add_argument("--json", action="store_true", help="print JSON")
-    p.set_defaults(handler=_compare)
-    p = sub.add_parser("resid", help="residual whiteness, input cross-correlation and where the model fails",
-                       description="Residual analysis of the fitted model: whiteness, cross-correlation with the "
-                                   "input, residual RMS by time, experiment, input and output level.",
-                       epilog="Example:\n  gbo twin resid data.csv --effects saturation --out out/twin/sat",
-                       formatter_class=raw)
-    common(p)
-    p.add_argument("--out", default=None, help="folder for residuals.png")
-    p.add_argument("--json", action="store_true", help="print JSON")
-    p.set_defaults(handler=_resid)
-    p = sub.add_parser("diagnose", help="rank every catalogued effect as an addition to the model",
-                       description="Try every catalogued effect as an addition to the model, rank them on held-out "
-                                   "experiments, list what the data cannot show, and say what to do next.",
-                       epilog="Examples:\n  gbo twin diagnose data.csv --y-unit rad/s --u-unit V\n"
-                              "  gbo twin diagnose data.csv --effects saturation   # look for a second effect",
-                       formatter_class=raw)
-    common(p)
-    p.add_argument("--json", action="store_true", help="print exactly one JSON object")
-    p.add_argument("--folds", type=int_at_least(2), default=None,
-                   help="folds of the cross-validation over experiments, 2 to the number of experiments "
-                        "(default: 4, or one per experiment when there are fewer)")
-    jobs(p)
-    p.set_defaults(handler=_diagnose)
-    p = sub.add_parser("report", help="self-contained HTML report with the error ladder",
-                       description="Build the error ladder (add the best effect, diagnose again, until nothing "
-                                   "helps), print each step in words, and write one self-contained HTML page.",
-                       epilog="Example:\n  gbo twin report data.csv --out out/twin/report --y-unit rad/s --u-unit V",
-                       formatter_class=raw)
-    common(p)
-    p.add_argument("--out", required=True, help="output folder (index.html)")
-    p.add_argument("--max-steps", type=positive_int, default=3, help="effects added at most (default 3)")
-    jobs(p)
-    p.set_defaults(handler=_report)
+__all__ = ["default_out"]
 
 
 def _progress(args):
@@ -130,10 +63,6 @@ def _u_unit(args) -> str:
 
 
 def _load(args):
-    from agents.twin.csvio import read_csv
-    from agents.twin.data import GreyData
-    from agents.twin.model import ModelSpec
-
     records = read_csv(args.data)
     data = GreyData.from_records(records, initial=args.initial)  # experiment index = the CSV's experiment id
     spec = ModelSpec(args.poles, args.zeros, args.integrators, args.output)
@@ -142,12 +71,10 @@ def _load(args):
 
 
 def _fit(data, spec, effects):
-    """The grey-box fit (:class:`agents.twin.GreyBoxTwin`) of ``spec``'s linear part plus ``effects``."""
-    from agents.twin.workbench import GreyBoxTwin
-
-    twin = GreyBoxTwin(effects=effects, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
-                       output=spec.output)
-    return twin.fit(data).greybox_
+    """The grey-box fit of ``spec``'s linear part plus ``effects``: what :class:`agents.twin.GreyBoxTwin` fits
+    (:func:`agents.twin.fits.fit_structure`), without loading scikit-learn."""
+    check_orders(spec.n_poles, spec.n_zeros, spec.n_integrators)
+    return fit_structure(data, effects, spec)
 
 
 def _run(handler):
@@ -166,8 +93,6 @@ def _run(handler):
 
 
 def _check_effects(effects: str) -> None:
-    from gbo_envs.physics import EFFECT_NAMES
-
     unknown = [e.strip() for e in effects.split(",") if e.strip() and e.strip() not in EFFECT_NAMES]
     if unknown:
         raise ValueError(f"--effects: unknown effect {unknown[0]!r}; the catalogue is {', '.join(EFFECT_NAMES)}")
@@ -194,8 +119,6 @@ def _naming_the_file(path: str):
 
 def _print_unobservable(result) -> None:
     """The effects ``result`` (a diagnosis) finds unobservable, one line each, if any."""
-    from agents.twin.ladder_text import unobservable_lines
-
     lines = unobservable_lines(result)
     if lines:
         print("not observable in this data:")
@@ -221,12 +144,6 @@ def _load_and_fit(args, bar):
 
 @_run
 def _compare(args) -> int:
-    from agents.jsonable import to_json
-    from agents.run_display import progress_bar
-    from agents.twin.report import compare_figure
-    from agents.twin.workbench import compare
-    from evaluation.figures import save
-
     bar = progress_bar(3, "twin compare", _progress(args), unit="step")
     try:
         data, fit = _load_and_fit(args, bar)
@@ -256,19 +173,12 @@ def _compare(args) -> int:
 
 @_run
 def _resid(args) -> int:
-    from agents.jsonable import to_json
-    from agents.run_display import progress_bar
-    from agents.twin.workbench import residuals
-    from evaluation.figures import save
-
     bar = progress_bar(3, "twin resid", _progress(args), unit="step")
     try:
         data, fit = _load_and_fit(args, bar)
         bar.set_postfix_str("residual analysis")
         ra = residuals(data, fit)
         if args.out:
-            from agents.twin.report import residual_figure
-
             save(residual_figure(ra, fit.spec.label, y_unit=_y_unit(args), u_unit=_u_unit(args)),
                  Path(args.out) / "residuals.png", dpi=100)
         bar.update(1)
@@ -299,10 +209,6 @@ def _resid(args) -> int:
 
 @_run
 def _diagnose(args) -> int:
-    from agents.jsonable import to_json
-    from agents.twin.ladder_text import advice
-    from agents.twin.workbench import diagnose
-
     data, spec, effects = _load(args)
     result = diagnose(data, effects=effects, spec=spec, n_folds=args.folds, progress=_progress(args),
                       n_jobs=args.jobs)
@@ -339,10 +245,6 @@ def _diagnose(args) -> int:
 
 @_run
 def _report(args) -> int:
-    from agents.twin.ladder_text import advice
-    from agents.twin.report import write_report
-    from agents.twin.workbench import error_ladder, residuals
-
     data, spec, effects = _load(args)
     rungs, diagnoses = error_ladder(data, effects=effects, spec=spec, max_steps=args.max_steps,
                                     progress=_progress(args), units=_units(args), n_jobs=args.jobs)

@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 from agents.result import TuningResult
+from agents.twin.csvio import write_csv
 from evaluation.sessions.store import SessionInfo, SessionStore
 
 __all__ = ["export_csv", "load_result", "sessions_table"]
@@ -80,8 +81,6 @@ def export_csv(store: SessionStore, out: str | Path, session_id: int | None = No
     LookupError
         If the session holds no experiment to write.
     """
-    from agents.twin.csvio import write_csv
-
     info = store.session(session_id) if session_id is not None else store.latest_session()
     records = []
     for row in store.experiments(info.id):

@@ -16,9 +16,11 @@ from typing import Any
 
 import numpy as np
 
+import agents
 from agents.base import TuningInterrupted, TuningStopped
 from agents.run_display import env_id as env_name
 from agents.space import GainSpace
+from evaluation.sessions.export import load_result
 from evaluation.sessions.recorder import CRASH_POLICIES, SessionRecorder
 from evaluation.sessions.store import SessionStore, session_key
 
@@ -83,8 +85,6 @@ class TuningSession:
                  max_consecutive_skips: int = 5, force: bool = False) -> None:
         import gymnasium as gym
 
-        import agents
-
         if int(budget) < 1:
             raise ValueError(f"budget: must be an integer >= 1, got {budget}")
         if on_crash not in CRASH_POLICIES:
@@ -144,8 +144,6 @@ class TuningSession:
         ``.result`` of a :class:`~agents.TuningStopped` or
         :class:`~agents.TuningInterrupted` holds every stored experiment of the session.
         """
-        from evaluation.sessions.export import load_result
-
         with SessionStore(self.db) as store:
             info = store.open_session(self.key, self.spec, self.space.names, force=self.force)
             self.session_id = sid = info.id
