@@ -9,7 +9,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gbo_envs.experiment import SIGNALS, Experiment
+from gbo_envs.lazy_pyplot import pyplot
 from gbo_envs.metrics import METRIC_NAMES
+from gbo_envs.plotting import COST_LABEL, REFERENCE, axis_label, cost_surface, legend_outside, style
 
 __all__ = ["TuningResult", "METRIC_COLUMNS", "SAMPLE_COLUMNS", "TABLE_COLUMNS"]
 
@@ -237,9 +239,6 @@ class TuningResult:
         -------
         matplotlib Axes
         """
-        from gbo_envs.lazy_pyplot import pyplot
-        from gbo_envs.plotting import COST_LABEL, REFERENCE, axis_label, legend_outside, style
-
         plt = pyplot()
         with style():
             if ax is None:
@@ -279,8 +278,6 @@ class TuningResult:
         -------
         matplotlib Axes
         """
-        from gbo_envs.plotting import cost_surface
-
         path = self._gains_of(self.plant_rows)
         twin = self._gains_of(self._twin_rows())
         points = {f"twin evaluations ({len(twin)})": twin} if len(twin) else None

@@ -8,7 +8,8 @@ Prints, for each of ``gbo_envs``, ``agents``, ``agents.twin`` and ``evaluation``
   ``if TYPE_CHECKING:`` (those that ``exclude_type_checking_imports = true`` hides from the contracts);
 * the **function-local imports of the project's own modules** (``import``/``from`` statements inside a
   function body naming ``gbo_envs``, ``agents`` or ``evaluation``, or relative), and how many of them carry a
-  comment ``# heavy optional dependency: <name>`` (the one reason allowed to keep such an import local).
+  comment ``# heavy optional dependency: <name>`` or ``# heavy dependency: <name>`` (the one reason allowed to
+  keep such an import local: it would load that third-party library at every start).
 
 The counts of ``agents`` leave out ``agents.twin``, which has its own line. Run from the repository root::
 
@@ -22,6 +23,7 @@ from __future__ import annotations
 import argparse
 import ast
 import io
+import re
 import tokenize
 from collections import deque
 from dataclasses import dataclass
@@ -34,7 +36,8 @@ from scipy.sparse.csgraph import connected_components
 
 ROOTS = ("gbo_envs", "agents", "evaluation")
 PACKAGES = ("gbo_envs", "agents", "agents.twin", "evaluation")
-HEAVY_COMMENT = "heavy optional dependency"
+#: The comment that keeps a function-local import of a project module local (on its line or the line above).
+HEAVY_COMMENT = re.compile(r"#.*\bheavy (optional )?dependency: *\S")
 REPOSITORY = Path(__file__).resolve().parent.parent
 
 
@@ -142,7 +145,7 @@ def _comment_lines(source: str) -> dict[int, str]:
 def function_local_imports(path: Path) -> list[LocalImport]:
     """Return every import statement made inside a function (or lambda) body of the file at ``path``.
 
-    An import counts as commented when ``# heavy optional dependency`` stands on one of its lines or on
+    An import counts as commented when :data:`HEAVY_COMMENT` matches a comment on one of its lines or on
     the line just above it.
     """
     source = path.read_text(encoding="utf-8")
@@ -159,7 +162,7 @@ def function_local_imports(path: Path) -> list[LocalImport]:
                     names = [child.module or ""] if child.level == 0 else ["."]
                 project = any(name == "." or name.split(".")[0] in ROOTS for name in names)
                 lines = range(child.lineno - 1, (child.end_lineno or child.lineno) + 1)
-                heavy = any(HEAVY_COMMENT in comments.get(line, "") for line in lines)
+                heavy = any(HEAVY_COMMENT.search(comments.get(line, "")) for line in lines)
                 found.append(LocalImport(path, child.lineno, ast.unparse(child), project, heavy))
             visit(child, in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)))
 
@@ -200,7 +203,7 @@ def main() -> None:
         third_party_commented = [imp for imp in imports if not imp.project and imp.heavy_comment]
         print(
             f"  function-local imports of project modules: {len(project)}"
-            f" ({len(commented)} with a '{HEAVY_COMMENT}' comment);"
+            f" ({len(commented)} with a 'heavy dependency' comment);"
             f" of third-party modules with that comment: {len(third_party_commented)}"
         )
         totals = [totals[0] + len(project), totals[1] + len(commented), totals[2] + len(third_party_commented)]

@@ -20,7 +20,7 @@ import sys
 import threading
 
 import gbo_envs  # noqa: F401  (registers the envs)
-from evaluation.allocator import retain_freed_memory
+from evaluation import allocator
 from evaluation.cli_args import (
     EXIT_BAD_INPUT,
     EnvId,
@@ -75,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gbo`` script; returns the exit status (2: bad input, one line on stderr)."""
-    retain_freed_memory()  # the twin fits' large temporaries are reused, not faulted in again
+    allocator.retain_freed_memory()  # the twin fits' large temporaries are reused, not faulted in again
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv  # anywhere on the line, not only before the sub-command
     args = build_parser().parse_args([a for a in argv if a != "--debug"])

@@ -17,6 +17,7 @@ from tqdm.auto import tqdm
 from gbo_envs.gain_grid import grid_axes, grid_points
 from gbo_envs.ground_truth_tables import load_search_table, load_table
 from gbo_envs.optimum_search import certified_minimum, default_points
+from gbo_envs.plotting import cost_surface
 
 __all__ = ["GRID_MAX_GAINS", "GroundTruth", "METHODS", "ground_truth", "search_settings"]
 
@@ -99,8 +100,6 @@ class GroundTruth:
         **kwargs
             Passed to :func:`gbo_envs.plotting.cost_surface`.
         """
-        from gbo_envs.plotting import cost_surface
-
         if len(self.gain_names) > 2 or self.costs is None:
             if env is None:
                 raise ValueError(f"env: the ground truth has {len(self.gain_names)} gains; pass the env to draw "

@@ -81,13 +81,13 @@ def tuner_registry(monkeypatch):
 
 @pytest.fixture
 def study_tuners(tuner_registry, monkeypatch, request):
-    """``benchmarks.study_tuners`` imported afresh into a copy of the registry, and forgotten after the test.
+    """``evaluation.study_tuners`` imported afresh into a copy of the registry, and forgotten after the test.
 
     The module registers its tuners when it is imported. Left in ``sys.modules`` while the registry is
     restored, a later test in the same process would find it imported and its tuners unknown.
     """
     import sys
 
-    monkeypatch.delitem(sys.modules, "benchmarks.study_tuners", raising=False)
-    request.addfinalizer(lambda: sys.modules.pop("benchmarks.study_tuners", None))
+    monkeypatch.delitem(sys.modules, "evaluation.study_tuners", raising=False)
+    request.addfinalizer(lambda: sys.modules.pop("evaluation.study_tuners", None))
     return tuner_registry

@@ -17,6 +17,7 @@ from gbo_envs.closed_loop import ClosedLoop, StepResponse
 from gbo_envs.experiment import Experiment
 from gbo_envs.metrics import METRIC_NAMES, weighted_cost
 from gbo_envs.physics.block import validated_count
+from gbo_envs.plotting import figure_to_rgb, response_figure
 
 __all__ = ["ControllerTuningEnv", "OUT_OF_BOUNDS_POLICIES", "expected_outcome"]
 
@@ -215,7 +216,6 @@ class ControllerTuningEnv(gym.Env):
         """RGB array of the last step response (``render_mode="rgb_array"``)."""
         if self.render_mode != "rgb_array":
             return None
-        from gbo_envs.plotting import figure_to_rgb, response_figure
 
         if self._last_response is None:
             title = f"{type(self).__name__}: no experiment yet"

@@ -7,6 +7,7 @@ import numpy as np
 from gbo_envs.closed_loop import ClosedLoop
 from gbo_envs.controllers import PIController
 from gbo_envs.envs.base import ControllerTuningEnv
+from gbo_envs.physics.effects import build_effects
 from gbo_envs.physics.lti import ContinuousPlant
 
 __all__ = ["DCMotorEnv", "DC_MOTOR", "NOMINAL_FOPDT"]
@@ -186,6 +187,5 @@ def dc_motor_plant(gain: float, tau1: float, tau2: float, delay: float) -> Conti
 def _build_effects(effects):
     if not effects:
         return ()
-    from gbo_envs.physics.effects import build_effects
 
     return build_effects(effects)

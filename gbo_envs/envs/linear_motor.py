@@ -49,6 +49,7 @@ import numpy as np
 from gbo_envs.closed_loop import ClosedLoop
 from gbo_envs.controllers import PDT1Controller
 from gbo_envs.envs.base import ControllerTuningEnv
+from gbo_envs.physics.effects import build_effects
 from gbo_envs.physics.lti import ContinuousPlant
 
 __all__ = ["LinearMotorEnv", "LINEAR_MOTOR", "linear_motor_plant", "vertex_gains"]
@@ -284,6 +285,5 @@ def linear_motor_effects(current_limit: float | None, sensor_resolution: float |
 def _build_effects(spec: dict[str, dict[str, Any]]) -> tuple:
     if not spec:
         return ()
-    from gbo_envs.physics.effects import build_effects
 
     return tuple(build_effects(spec))

@@ -163,11 +163,11 @@ def test_twin_rows_carry_their_fidelity_and_only_real_experiments_count():
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::UserWarning")
 def test_a_wrong_twin_is_refitted_as_records_arrive(monkeypatch, study_tuners):
-    # another plant's fitted twin (60 ms dead time, 120-unit drive limit; benchmarks/study_tuners.wrong_twin) is used
+    # another plant's fitted twin (60 ms dead time, 120-unit drive limit; evaluation/study_tuners.wrong_twin) is used
     # as given until the records show its error, then refitted on them; the refitted twin follows the plant.
     # (On DCMotor-v0 the auto twin fitted on the first record is already right, so it shows no refit.)
     monkeypatch.syspath_prepend(str(REPO_ROOT))
-    from benchmarks.study_tuners import wrong_twin
+    from evaluation.study_tuners import wrong_twin
 
     wrong = wrong_twin()
     tuner = agents.make("mf-bo", twin=wrong)

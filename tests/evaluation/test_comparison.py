@@ -110,8 +110,7 @@ COMMITTED = ["guided_bo_ablation", "time_varying", "peers", "mf_bo", "effect_awa
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", COMMITTED)
-def test_the_committed_reports_are_what_the_engine_computes_from_the_committed_curves(name, monkeypatch, study_tuners):
-    monkeypatch.chdir(REPO_ROOT)  # the studies import benchmarks/study_tuners.py from the repository root
+def test_the_committed_reports_are_what_the_engine_computes_from_the_committed_curves(name, study_tuners):
     spec = load_study(name)
     folder = REPO_ROOT / "docs" / "reports" / name
     budgets = {}

@@ -159,7 +159,7 @@ def test_shipped_studies_pin_the_paper_guidance_in_the_current_spelling():
 
     for name in shipped_studies():
         study = load_study(name)
-        for module in study.imports:  # the tuners a study defines in its own modules (benchmarks/study_tuners.py)
+        for module in study.imports:  # the tuners a study defines in its own modules (evaluation/study_tuners.py)
             importlib.import_module(module)
         for entry in study.tuners:
             if entry.name == "rl":

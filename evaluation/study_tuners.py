@@ -1,8 +1,7 @@
 """Tuners that only the benchmark studies use: guided BO with a wrong or an exact twin, mf-bo with a noise twin.
 
-The studies import this module (``[study] imports = ["benchmarks.study_tuners"]``, run from the
-repository root) and name the tuners it registers, as a researcher's module registers a tuner for
-``gbo bench suite --import``:
+The studies import this module (``[study] imports = ["evaluation.study_tuners"]``) and name the tuners
+it registers, as a researcher's module registers a tuner for ``gbo bench suite --import``:
 
 * ``guided-bo-wrong-twin``: the default guided BO given a deliberately wrong fitted twin
   (:func:`wrong_twin`), which must not make it worse than BO (issue 15; the ablation's
@@ -21,8 +20,10 @@ import numpy as np
 from sklearn.base import BaseEstimator
 
 import agents
+import gbo_envs  # noqa: F401  (registers the envs)
 from agents.guided_bo import GuidedBO
 from agents.mf_bo import MultiFidelityBO
+from agents.twin import LinearTwin
 
 __all__ = ["NoiseTwinMFBO", "OracleTwin", "OracleTwinGuidedBO", "WrongTwinGuidedBO", "wrong_twin"]
 
@@ -30,9 +31,6 @@ __all__ = ["NoiseTwinMFBO", "OracleTwin", "OracleTwinGuidedBO", "WrongTwinGuided
 def wrong_twin():
     """A fitted :class:`~agents.twin.LinearTwin` of another plant: DCMotor-v0 behind a 60 ms dead time and a
     120-unit drive limit, identified from two experiments (its optimum costs DCMotor-v0 over 1.5 J*)."""
-    import gbo_envs  # noqa: F401  (registers the envs)
-    from agents.twin import LinearTwin
-
     other = gym.make("gbo_envs/DCMotor-v0", effects={"time_delay": {"delay": 0.06}, "saturation": {"limit": 120.0}})
     other.reset(seed=0)
     records = [other.step(np.array(gains))[4] for gains in ([0.5, 1.2], [0.9, 1.6])]

@@ -21,7 +21,7 @@ sensor noise of 0.05 rad/s on the measured speed:
 The rigs are simulated, so unlike real hardware they have a noise-free expected cost:
 :class:`SimulatedRig` adds ``evaluate`` (the mean cost over ``draws`` fixed noise draws, common
 random numbers as the built-in envs), which :func:`gbo_envs.ground_truth` needs for ``J*``.
-Import this module (a study's ``imports``, ``gbo tune --import benchmarks.beyond_catalogue``) to
+Import this module (a study's ``imports``, ``gbo tune --import evaluation.beyond_catalogue``) to
 register the ids.
 """
 
@@ -207,5 +207,5 @@ BEYOND_IDS = tuple(f"beyond/{name}-v0" for name in KINDS.values())
 
 for _kind, _name in KINDS.items():
     if f"beyond/{_name}-v0" not in gym.registry:
-        gym.register(id=f"beyond/{_name}-v0", entry_point="benchmarks.beyond_catalogue:SimulatedRig",
+        gym.register(id=f"beyond/{_name}-v0", entry_point="evaluation.beyond_catalogue:SimulatedRig",
                      kwargs={"kind": _kind}, max_episode_steps=35)
