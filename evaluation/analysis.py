@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pandas as pd
 
@@ -120,8 +121,6 @@ def study_ground_truth(study, out: Path | str | None = None):
 
 def resolve_thresholds(study, truth) -> dict[str, float]:
     """Threshold label -> optimality ratio (controller thresholds evaluated noise-free on the env)."""
-    import gymnasium as gym
-
     env = None
     ratios = {}
     for threshold in study.thresholds:

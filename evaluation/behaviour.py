@@ -28,6 +28,7 @@ import functools
 import hashlib
 import json
 
+import gymnasium as gym
 import numpy as np
 
 import gbo_envs  # noqa: F401  (registers the envs)
@@ -74,8 +75,6 @@ def plant_behaviour(env_id: str, env_kwargs: str | dict | None = None) -> str:
 
 @functools.cache
 def _plant_behaviour(env_id: str, kwargs: str) -> str:
-    import gymnasium as gym
-
     digest = hashlib.sha256(f"{env_id}\0{kwargs}\0".encode())
     with single_thread(user_api=None):
         env = gym.make(env_id, **json.loads(kwargs))
@@ -115,8 +114,6 @@ def tuner_behaviour(name: str, params: str | dict | None = None) -> str:
 
 @functools.cache
 def _tuner_behaviour(name: str, params: str) -> str:
-    import gymnasium as gym
-
     task = BatchTask(study="behaviour", label=name, tuner=name, params=json.loads(params), batch=0, seed=0,
                      env_id=TUNER_ENV, env_kwargs={}, budget=TUNER_BUDGET)
     frame = run_batch(task)

@@ -36,6 +36,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pandas as pd
 from scipy import stats
@@ -193,8 +194,6 @@ def _columns(study) -> list[tuple[str, Callable[[Row], str]]]:
 def threshold_ratios(study, optima: dict[str, np.ndarray]) -> dict[str, list[tuple[str, float, object]]]:
     """Plant label -> ``[(label, ratio, threshold)]``: a ``ratio`` threshold as given, a controller or tuner
     threshold evaluated on the noise-free plant over its ``J*``."""
-    import gymnasium as gym
-
     out = {}
     for plant in study.plants:
         rows = []

@@ -25,6 +25,7 @@ import hashlib
 import json
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pandas as pd
 
@@ -98,8 +99,6 @@ def experiments_to_target(curve, target: float, instant=None, start: int = 0, bu
 # -- ground truth per experiment ---------------------------------------------------------------------
 def change_at(env_id: str, env_kwargs: dict) -> int | None:
     """First experiment (0-based) on the changed plant of a plant-changing env, None for any other env."""
-    import gymnasium as gym
-
     schedule = getattr(gym.make(env_id, **env_kwargs).unwrapped, "schedule", None)
     return getattr(schedule, "at", None)
 
@@ -178,8 +177,6 @@ def _read_json(path) -> dict:
 
 
 def _compute_optima(env_id: str, env_kwargs: dict, budget: int, resolution: int) -> np.ndarray:
-    import gymnasium as gym
-
     plant = gym.make(env_id, **env_kwargs).unwrapped
     if not hasattr(plant, "plant_params_at"):
         return np.full(budget, float(gbo_envs.ground_truth(env_id, resolution=resolution, **env_kwargs).cost))

@@ -37,6 +37,8 @@ import subprocess
 from functools import cache, lru_cache
 from pathlib import Path
 
+import gymnasium as gym
+
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents import registry
 
@@ -278,8 +280,6 @@ def tuner_modules(name: str, tree: SourceTree | None = None) -> list[str]:
 
 @cache
 def _entry_module(env_id: str) -> str:
-    import gymnasium as gym
-
     entry = gym.spec(env_id).entry_point
     return entry.partition(":")[0] if isinstance(entry, str) else inspect.getmodule(entry).__name__
 

@@ -13,6 +13,7 @@ import json
 import time
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pandas as pd
 
@@ -254,7 +255,6 @@ def _gains_section(study: Study, frame, truth) -> list[str]:
     labels = analysis.tuner_order(frame, study.labels)
     table = analysis.best_gains_table(frame, truth.cost, names, at_experiment=at, order=labels)
     rows = [["ground truth (grid)", "ours", *truth.gains.tolist(), truth.cost, 1.0]]
-    import gymnasium as gym
 
     env = None
     for threshold in study.thresholds:

@@ -90,6 +90,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
+import numpy as np
+
 import agents
 
 #: Study names: letters, digits, ``_`` and ``-`` (no dots: ``..`` is no name, and no path).
@@ -213,11 +216,7 @@ class Threshold:
         """
         if self.ratio is not None:
             return float(self.ratio)
-        import numpy as np
-
         if self.tuner is not None:
-            import gymnasium as gym
-
             spec = env.spec
             quiet = gym.make(spec.id, **{**(spec.kwargs or {}), "noise": False})
             result = agents.make(self.tuner, **self.params).run(quiet, budget=1, seed=0, progress=False)

@@ -33,6 +33,7 @@ import importlib
 import inspect
 import json
 import os
+import signal
 import sys
 import time
 import traceback
@@ -43,6 +44,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from joblib import Parallel, delayed
 
 import agents
 import gbo_envs  # noqa: F401  (registers the envs)
@@ -222,8 +224,6 @@ def check_env(env_id: str) -> None:
     StudySpecError
         The id is unknown, or its module cannot be imported; the message lists the registered ids.
     """
-    import gymnasium as gym
-
     try:
         gym.spec(env_id)
         return
@@ -430,14 +430,13 @@ def _local(tasks: list[BatchTask], workers: int) -> Iterator:
         for task in tasks:
             yield _safe_run_batch(task)
         return
-    from joblib import Parallel, delayed
 
     parallel = Parallel(n_jobs=workers, return_as="generator_unordered", batch_size=1)
     yield from parallel(delayed(_safe_run_batch)(task) for task in tasks)
 
 
 def _dask(tasks: list[BatchTask], workers: int, address: str | None) -> Iterator:
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, LocalCluster, as_completed  # heavy optional dependency: dask
 
     cluster = None
     if address:
@@ -461,8 +460,6 @@ class _sigint_ignored:
     """Processes started inside inherit an ignored SIGINT (main thread only; no-op elsewhere)."""
 
     def __enter__(self):
-        import signal
-
         try:
             self._previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
         except ValueError:  # not the main thread
@@ -470,8 +467,6 @@ class _sigint_ignored:
         return self
 
     def __exit__(self, *exc):
-        import signal
-
         if self._previous is not None:
             signal.signal(signal.SIGINT, self._previous)
         return False

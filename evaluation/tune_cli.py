@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 
 from agents import TuningStopped
@@ -38,8 +39,6 @@ class _PrintEvents(logging.Handler):
 
 
 def _tune(args: argparse.Namespace) -> int:
-    import math
-
     progress = False if args.quiet else None
     events, printer, level = logging.getLogger("agents.base"), _PrintEvents(), None
     if not progress_enabled(progress):  # without a bar the tuner's events (e.g. "twin: + saturation ...") are printed

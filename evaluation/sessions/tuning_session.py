@@ -14,6 +14,7 @@ import inspect
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 import agents
@@ -83,8 +84,6 @@ class TuningSession:
     def __init__(self, db: str | Path, env, tuner, budget: int, seed: int | None = 0, env_kwargs: dict | None = None,
                  tuner_kwargs: dict | None = None, env_id: str | None = None, on_crash: str = "rerun",
                  max_consecutive_skips: int = 5, force: bool = False) -> None:
-        import gymnasium as gym
-
         if int(budget) < 1:
             raise ValueError(f"budget: must be an integer >= 1, got {budget}")
         if on_crash not in CRASH_POLICIES:
