@@ -13,11 +13,11 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from gbo_envs import plotting
 from gbo_envs.closed_loop import ClosedLoop, StepResponse
 from gbo_envs.experiment import Experiment
 from gbo_envs.metrics import METRIC_NAMES, weighted_cost
 from gbo_envs.physics.block import validated_count
-from gbo_envs.plotting import figure_to_rgb, response_figure
 
 __all__ = ["ControllerTuningEnv", "OUT_OF_BOUNDS_POLICIES", "expected_outcome"]
 
@@ -223,9 +223,9 @@ class ControllerTuningEnv(gym.Env):
             gains = ", ".join(f"{name} = {value:.3g} {unit}" for name, value, unit in
                               zip(self.gain_names, self._last_gains, self.gain_units))
             title = f"{type(self).__name__}, experiment {self.experiment_index}: {gains}"
-        fig = response_figure(self.loop, self._last_response, title=title, output_unit=self.output_unit,
+        fig = plotting.response_figure(self.loop, self._last_response, title=title, output_unit=self.output_unit,
                               input_unit=self.input_unit)
-        return figure_to_rgb(fig)
+        return plotting.figure_to_rgb(fig)
 
     # -- experiment helpers ----------------------------------------------------------------------
     def validate_gains(self, action) -> np.ndarray:
