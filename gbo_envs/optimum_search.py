@@ -25,8 +25,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize
-from scipy.stats import qmc
 from tqdm.auto import tqdm
 
 __all__ = ["SearchDisagreement", "SearchResult", "certified_minimum", "default_points"]
@@ -153,6 +151,8 @@ def certified_minimum(cost: Callable[[np.ndarray], np.ndarray], low, high, *, n_
 def _search(cost, dim: int, n_points: int, n_starts: int, seed: int, method: str, chunk: int,
             max_evaluations: int, bar) -> tuple[np.ndarray, float, int]:
     """One search on the unit box: Sobol points, then ``method`` from the best ``n_starts``; (x, J, evaluations)."""
+    from scipy.stats import qmc  # heavy dependency: scipy.stats (0.9 s), loaded by a search, not by `import gbo_envs`
+
     points = qmc.Sobol(d=dim, scramble=True, rng=np.random.default_rng(seed)).random(n_points)
     values = []
     for start in range(0, n_points, chunk):
@@ -174,6 +174,8 @@ def _search(cost, dim: int, n_points: int, n_starts: int, seed: int, method: str
 
 def _local(cost, x0: np.ndarray, f0: float, method: str, box, max_evaluations: int) -> tuple[np.ndarray, float, int]:
     """One local search from ``x0`` (unit box); the best point it evaluated, its cost and the evaluations."""
+    from scipy.optimize import minimize  # heavy dependency: scipy.optimize, loaded by a search, not at import
+
     dim = x0.size
     best = [x0.copy(), f0]
     count = [0]
