@@ -4,7 +4,8 @@ Each table sits between two marker comments, ``<!-- NAME -->`` and ``<!-- /NAME 
 rendered from ``benchmarks/results/`` by the function :data:`SECTIONS` names for it: the cost
 surfaces of ``rig_surfaces.py`` (``rig_surfaces.json``), the optimum's move against the number of
 noise draws (``rig_draws_sweep.json``) and the rigs' shipped ground-truth tables of
-``ground_truth_tables.py`` (``ground_truth_tables.json``). Everything outside the markers is
+``ground_truth_tables.py`` (``ground_truth_tables.json``: grids, and the certified searches of envs
+with more than two gains). Everything outside the markers is
 left as it is. ``tests/test_readme.py`` checks that the committed tables are what this script
 renders from the committed results.
 
@@ -73,13 +74,25 @@ def rig_draws_sweep(root: Path) -> str:
 
 
 def ground_truth_tables(root: Path) -> str:
-    """The rigs' shipped 100 x 100 ground truths: draws, ``J*``, optimum cell, computation time, size."""
+    """The shipped ground truths: a 100 x 100 grid (two gains) or a certified search (more gains).
+
+    A search's optimum is certified when a second, independent search ends within its tolerance
+    (relative difference of ``J*``).
+    """
     rows = []
     for entry in _load(root, "ground_truth_tables.json"):
-        rows.append([f"`{_env(entry['env'])}`", f"{entry['resolution']} x {entry['resolution']}",
-                     f"{entry['expectation_draws']}", f"{entry['J*']:.4f}", _gains(entry["optimum_cell"]),
-                     f"{entry['cpu_s_this_run']:.1f}", f"{entry['table_bytes'] / 1000:.1f} kB"])
-    return _table(["env", "grid", "draws", "J*", "optimum cell", "CPU s of the last run", "table"], rows)
+        if "search" in entry:
+            search = entry["search"]
+            method = (f"search: {search['n_points']} Sobol points, {search['n_starts']} starts; second search "
+                      f"within {entry['disagreement']:.1e} ({'certified' if entry['certified'] else 'not certified'}"
+                      f" at {entry['tolerance']:g})")
+            optimum = _gains(list(entry["gains"].values()))
+        else:
+            method = f"grid {entry['resolution']} x {entry['resolution']}"
+            optimum = f"cell {_gains(entry['optimum_cell'])}"
+        rows.append([f"`{_env(entry['env'])}`", method, f"{entry['expectation_draws']}", f"{entry['J*']:.5f}",
+                     optimum, f"{entry['cpu_s_this_run']:.1f}", f"{entry['table_bytes'] / 1000:.1f} kB"])
+    return _table(["env", "method", "draws", "J*", "optimum", "CPU s of the last run", "table"], rows)
 
 
 #: the generated tables: marker name -> renderer of its Markdown from the repository root
