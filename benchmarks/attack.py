@@ -403,10 +403,10 @@ def api_identify_zero(folder: Path, fx: Fixtures):
 def api_diagnose_folds(folds: int) -> Callable:
     def run(folder: Path, fx: Fixtures):
         from agents.twin.csvio import read_csv
-        from agents.twin.data import GreyData
+        from agents.twin.records import Batch
         from agents.twin.workbench import diagnose
 
-        return {"best": diagnose(GreyData.from_records(read_csv(fx.paths["csv3"])), n_folds=folds).best}
+        return {"best": diagnose(Batch.from_records(read_csv(fx.paths["csv3"])), n_folds=folds).best}
     return run
 
 

@@ -68,7 +68,7 @@ import gbo_envs  # noqa: F401  (registers the envs)
 # --command on CSVs that exist, an older tree (PYTHONPATH) is timed though it lacks them (3345589 has
 # no agents.twin.data).
 if TYPE_CHECKING:
-    from agents.twin.data import GreyData
+    from agents.twin.records import Batch
 
 #: Reference step through zero speed, for the effects that need a speed (and command) reversal.
 REVERSAL = (-30.0, 30.0)
@@ -114,11 +114,11 @@ def case_records(case: str, n_experiments: int = 12, seed: int = 0) -> tuple[lis
     return records_from_loop(loop, gains, rng=np.random.default_rng(seed)), env.unwrapped.gain_names
 
 
-def case_data(case: str, n_experiments: int = 12, seed: int = 0) -> GreyData:
+def case_data(case: str, n_experiments: int = 12, seed: int = 0) -> Batch:
     """:func:`case_records` as the workbench's data."""
-    from agents.twin.data import GreyData
+    from agents.twin.records import Batch
 
-    return GreyData.from_records(case_records(case, n_experiments, seed)[0])
+    return Batch.from_records(case_records(case, n_experiments, seed)[0])
 
 
 def _warm_up() -> float | None:

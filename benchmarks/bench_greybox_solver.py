@@ -33,10 +33,10 @@ import gbo_envs  # noqa: F401  (registers the envs)
 from agents.thread_limits import single_thread
 from agents.twin.candidates import candidate_problems
 from agents.twin.csvio import records_from_loop
-from agents.twin.data import GreyData
 from agents.twin.least_squares import Problem, fit_problems, make_problem, residual
 from agents.twin.linear_fit import linear_fit
 from agents.twin.model import FITTED_PARAMETERS
+from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
 
 EFFECTS = ("saturation", "coulomb_friction", "dead_zone", "viscous_friction", "backlash", "stiction", "offset",
@@ -45,13 +45,13 @@ MAX_ITER = 25
 TOL = 1e-7
 
 
-def diagnose_problems() -> tuple[GreyData, list[Problem]]:
+def diagnose_problems() -> tuple[Batch, list[Problem]]:
     """The data and the problems diagnose builds on a saturating DC motor with Coulomb friction."""
     env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 150.0}, "coulomb_friction": {
         "torque": 3.0}}, output_noise_std=0.1)
     loop = env.unwrapped.loop.replace(duration=1.5)
     gains = np.array([[0.3, 1.0], [0.9, 1.2], [1.05, 2.0]])
-    data = GreyData.from_records(records_from_loop(loop, gains, rng=np.random.default_rng(0)))
+    data = Batch.from_records(records_from_loop(loop, gains, rng=np.random.default_rng(0)))
     base = linear_fit(data)
     rows = np.arange(data.n_records)
     problems = [make_problem(data, base.spec, base.theta, base.y0, base.bias, rows, tag="current")]
@@ -65,7 +65,7 @@ def copy_problem(p: Problem) -> Problem:
     return Problem(p.spec, p.rows, p.theta.copy(), p.lower, p.upper, p.scale, p.free, tag=p.tag)
 
 
-def hand_lm(data: GreyData, problems: list[Problem], max_iter: int = MAX_ITER, tol: float = TOL) -> list[Problem]:
+def hand_lm(data: Batch, problems: list[Problem], max_iter: int = MAX_ITER, tol: float = TOL) -> list[Problem]:
     """The hand-written bounded Levenberg-Marquardt that ``fit_problems`` had: all problems in lock-step.
 
     Each iteration simulates, in one batch, the forward-difference sets of the
@@ -178,7 +178,7 @@ def hand_lm(data: GreyData, problems: list[Problem], max_iter: int = MAX_ITER, t
     return problems
 
 
-def _timed(solve, data: GreyData, problems: list[Problem], max_iter: int, lockstep: bool) -> tuple[float, list]:
+def _timed(solve, data: Batch, problems: list[Problem], max_iter: int, lockstep: bool) -> tuple[float, list]:
     fits = [copy_problem(p) for p in problems]
     start = time.perf_counter()
     if lockstep:

@@ -30,11 +30,11 @@ from pathlib import Path
 from agents.jsonable import to_json
 from agents.run_display import progress_bar
 from agents.twin.csvio import read_csv
-from agents.twin.data import GreyData
 from agents.twin.fits import fit_structure
 from agents.twin.identify import check_orders
 from agents.twin.ladder_text import advice, unobservable_lines
 from agents.twin.model import ModelSpec
+from agents.twin.records import Batch
 from agents.twin.report import compare_figure, residual_figure, write_report
 from agents.twin.workbench import compare, diagnose, error_ladder, residuals
 from evaluation.figures import save
@@ -64,7 +64,7 @@ def _u_unit(args) -> str:
 
 def _load(args):
     records = read_csv(args.data)
-    data = GreyData.from_records(records, initial=args.initial)  # experiment index = the CSV's experiment id
+    data = Batch.from_records(records, initial=args.initial)  # experiment index = the CSV's experiment id
     spec = ModelSpec(args.poles, args.zeros, args.integrators, args.output)
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
     return data, spec, effects

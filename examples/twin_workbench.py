@@ -26,8 +26,8 @@ import numpy as np
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.csvio import read_csv, records_from_env, write_csv
-from agents.twin.data import GreyData
 from agents.twin.ladder_text import advice, unobservable_lines
+from agents.twin.records import Batch
 from agents.twin.workbench import GreyBoxTwin, compare, diagnose
 from gbo_envs.experiment import Experiment
 
@@ -51,7 +51,7 @@ def main(max_effects: int = 3) -> None:
     path = write_csv([decimated(r, STRIDE) for r in records_from_env(env, gains, seed=1)],
                      Path(tempfile.mkdtemp()) / "rig.csv")
     records = read_csv(path)
-    data = GreyData.from_records(records)  # experiments numbered from 1, as in the CSV
+    data = Batch.from_records(records)  # experiments numbered from 1, as in the CSV
     print(f"data: {path} ({data.n_records} experiments of {data.u.shape[1]} samples)")
 
     effects: list[str] = []

@@ -279,7 +279,7 @@ class Experiment:
 
 def _frozen(array: np.ndarray) -> np.ndarray:
     """``array`` as read-only float64: itself when it is read-only already, down to the array that owns its
-    memory (e.g. a row of :class:`agents.twin.data.GreyData`, a column that :func:`agents.twin.csvio.read_csv`
+    memory (e.g. a row of :class:`agents.twin.records.Batch`, a column that :func:`agents.twin.csvio.read_csv`
     parsed), else a read-only copy. Records of much data then share it instead of copying it."""
     if array.dtype == np.float64 and _read_only(array):
         return array

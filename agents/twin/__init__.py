@@ -15,13 +15,13 @@ import importlib
 
 from agents.twin.compare import compare
 from agents.twin.csvio import read_csv, write_csv
-from agents.twin.data import GreyData
 from agents.twin.diagnose import diagnose
 from agents.twin.env import TwinEnv, make_twin_env
 from agents.twin.fits import fit_model
 from agents.twin.identify import identify_linear
 from agents.twin.ladder import error_ladder
 from agents.twin.model import GreyFit, ModelSpec
+from agents.twin.records import Batch
 from agents.twin.residuals import residuals
 
 #: The scikit-learn estimators, loaded on first access: the workbench's pipeline imports no scikit-learn (0.4 s
@@ -29,7 +29,7 @@ from agents.twin.residuals import residuals
 _ESTIMATORS = {"GreyBoxTwin": "agents.twin.greybox_twin", "LinearTwin": "agents.twin.linear_twin"}
 
 __all__ = ["GreyBoxTwin", "LinearTwin", "TwinEnv", "identify_linear", "make_twin_env"]
-__all__ += ["GreyData", "GreyFit", "ModelSpec", "compare", "diagnose", "error_ladder", "fit_model", "read_csv",
+__all__ += ["Batch", "GreyFit", "ModelSpec", "compare", "diagnose", "error_ladder", "fit_model", "read_csv",
             "residuals", "write_csv"]
 
 

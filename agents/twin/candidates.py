@@ -18,12 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.twin.data import GreyData
 from agents.twin.evidence import both_directions, excitation_notes, unobservable_effects
 from agents.twin.guesses import effect_starts, residual_frequencies, rest_command
 from agents.twin.least_squares import Problem, make_problem
 from agents.twin.linear_fit import PROFILE_EFFECTS, profile
 from agents.twin.model import GreyFit, ModelSpec, fitted_parameters
+from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
 from gbo_envs.physics.effects import EFFECT_NAMES
 
@@ -65,7 +65,7 @@ class Candidate:
     name: str
     variants: tuple = ({},)
 
-    def problems(self, data: GreyData, current: GreyFit) -> list[Problem]:
+    def problems(self, data: Batch, current: GreyFit) -> list[Problem]:
         """The starting problems of every variant added to ``current``, tagged with :attr:`name`."""
         out = []
         for options in self.variants:
@@ -94,7 +94,7 @@ class OrderCandidate:
         return ModelSpec(spec.n_poles + self.poles, spec.n_zeros + self.zeros, spec.n_integrators, spec.output,
                          spec.effects)
 
-    def problems(self, data: GreyData, current: GreyFit, n_keep: int = 2) -> list[Problem]:
+    def problems(self, data: Batch, current: GreyFit, n_keep: int = 2) -> list[Problem]:
         """Starts of the grown structure: SRIVC at the new orders under the current effects
         (:func:`agents.twin.linear_fit.profile`), and the current linear part times a factor of the
         new poles or zeros (:meth:`factor_starts`), the best ``n_keep`` of them by simulation error."""
@@ -121,7 +121,7 @@ class OrderCandidate:
                                              lower, upper, scale, tag=self.name, start=current.start))
         return problems
 
-    def factor_starts(self, data: GreyData, current: GreyFit) -> list[np.ndarray]:
+    def factor_starts(self, data: Batch, current: GreyFit) -> list[np.ndarray]:
         """Linear parameters ``[b_0..b_m, a_1..a_(n-k)]`` of the current plant times ``F(s)`` with ``F(0) = 1``.
 
         A pole pair ``w^2 / (s^2 + 2 zeta w s + w^2)`` at the frequencies where the residual rings
@@ -182,13 +182,13 @@ class CandidatePlan:
         return [c.name for c in self.candidates]
 
 
-def candidate_plan(data: GreyData, current: GreyFit, names: Sequence[str] | None = None,
+def candidate_plan(data: Batch, current: GreyFit, names: Sequence[str] | None = None,
                    skip_unexcited: bool = True, orders: bool = True) -> CandidatePlan:
     """The candidates of a diagnosis of ``current`` on ``data``.
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
     current : GreyFit
         The model diagnosed; its effects are not tried again.
     names : sequence of str, optional
@@ -210,7 +210,7 @@ def candidate_plan(data: GreyData, current: GreyFit, names: Sequence[str] | None
     return CandidatePlan(candidates, skipped, notes, unobservable)
 
 
-def _variants(name: str, data: GreyData, spec: ModelSpec) -> tuple[dict, ...]:
+def _variants(name: str, data: Batch, spec: ModelSpec) -> tuple[dict, ...]:
     """Variants of effect ``name`` worth fitting on ``data``.
 
     ``drift`` of the gain and of each denominator coefficient; ``coulomb_friction`` also with a
@@ -226,7 +226,7 @@ def _variants(name: str, data: GreyData, spec: ModelSpec) -> tuple[dict, ...]:
     return ({},)
 
 
-def forward_bias(data: GreyData, fit: GreyFit, spec: ModelSpec, theta: np.ndarray) -> np.ndarray:
+def forward_bias(data: Batch, fit: GreyFit, spec: ModelSpec, theta: np.ndarray) -> np.ndarray:
     """Plant-input bias that keeps each record's rest input after adding effect blocks.
 
     The blocks of ``spec`` at ``theta`` map the rest command (:func:`rest_command` of ``fit``)
@@ -308,7 +308,7 @@ def _profile_problems(data, current, spec, name, starts, lo, hi, lower, upper, s
     return [make_problem(data, spec, theta, y0, bias, rows, lower, upper, scale, tag=tag)]
 
 
-def candidate_problems(data: GreyData, current: GreyFit, name: str, options: Mapping | None = None,
+def candidate_problems(data: Batch, current: GreyFit, name: str, options: Mapping | None = None,
                        n_keep: int = 2, tag=None) -> list[Problem]:
     """Problems for ``current`` plus effect ``name``: its data-based starts, screened, the best ``n_keep`` kept.
 
@@ -352,7 +352,7 @@ def candidate_problems(data: GreyData, current: GreyFit, name: str, options: Map
     return problems
 
 
-def effect_bounds(data: GreyData, current: GreyFit, lower: np.ndarray, upper: np.ndarray,
+def effect_bounds(data: Batch, current: GreyFit, lower: np.ndarray, upper: np.ndarray,
                   scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bounds and scales of the effects already in ``current`` (their data-based ranges, :func:`effect_starts`).
 
@@ -368,7 +368,7 @@ def effect_bounds(data: GreyData, current: GreyFit, lower: np.ndarray, upper: np
     return lower, upper, scale
 
 
-def refit_problem(data: GreyData, fit: GreyFit, rows=None, free_global: bool = True, theta=None, y0=None, bias=None,
+def refit_problem(data: Batch, fit: GreyFit, rows=None, free_global: bool = True, theta=None, y0=None, bias=None,
                   tag=None) -> Problem:
     """``fit``'s structure on the records ``rows`` (default all), started from ``fit`` (or the given global
     parameters ``theta``, rest levels ``y0`` and biases ``bias``), within its effects' data-based bounds."""

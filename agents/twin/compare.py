@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.twin.data import GreyData
 from agents.twin.fidelity import rmse
 from agents.twin.model import GreyFit
+from agents.twin.records import Batch
 
 __all__ = ["CompareResult", "compare"]
 
@@ -21,7 +21,7 @@ class CompareResult:
     Attributes
     ----------
     experiments : ndarray of int, shape (n_records,)
-        Experiment numbers, counted from 1 (:attr:`GreyData.numbers`).
+        Experiment numbers, counted from 1 (:attr:`Batch.numbers`).
     fit_percent, rmse : ndarray of shape (n_records,)
         ``100 (1 - ||y - y_sim|| / ||y - mean(y)||)`` (MATLAB ``compare``) and RMSE in units of ``y``.
     fit_percent_all, rmse_all : float
@@ -43,10 +43,10 @@ class CompareResult:
                                 for e, f, r in zip(self.experiments, self.fit_percent, self.rmse)]}
 
 
-def compare(data: GreyData, fit: GreyFit, experiments: Sequence[int] | None = None) -> CompareResult:
+def compare(data: Batch, fit: GreyFit, experiments: Sequence[int] | None = None) -> CompareResult:
     """Fit % and RMSE of ``fit`` on ``data`` per experiment and overall.
 
-    ``experiments`` labels the records (default :attr:`GreyData.numbers`, counted from 1).
+    ``experiments`` labels the records (default :attr:`Batch.numbers`, counted from 1).
     """
     every = bool(data.mask.all())
 

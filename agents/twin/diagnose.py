@@ -1,6 +1,6 @@
 """Diagnose the missing effect: the workbench's pipeline, top-down.
 
-records (:class:`~agents.twin.data.GreyData`, with how each one starts) -> linear fit
+records (:class:`~agents.twin.records.Batch`, with how each one starts) -> linear fit
 (:func:`~agents.twin.linear_fit.linear_fit`, plus the given effects:
 :func:`~agents.twin.fits.fit_model`) -> candidates (:func:`~agents.twin.candidates.candidate_plan`)
 -> fits (:func:`~agents.twin.fits.fit_candidates`) -> ranking (:func:`~agents.twin.ranking.rank`)
@@ -20,12 +20,12 @@ from agents.run_display import progress_bar
 from agents.thread_limits import single_thread
 from agents.twin.candidates import candidate_plan
 from agents.twin.compare import compare
-from agents.twin.data import GreyData
 from agents.twin.fits import fit_candidates, fit_structure
 from agents.twin.ladder_text import rung_text
 from agents.twin.model import GreyFit, ModelSpec
 from agents.twin.noise_floor import NoiseFloor, noise_floor_estimate
 from agents.twin.ranking import Ranking, rank, validated_folds
+from agents.twin.records import Batch
 from agents.twin.workers import check_n_jobs, worker_processes
 
 __all__ = ["Diagnosis", "as_step", "diagnose"]
@@ -58,7 +58,7 @@ class Diagnosis:
     noise: NoiseFloor
     fit_percent: float
     unobservable: list = field(default_factory=list)
-    data_: GreyData | None = field(default=None, repr=False)
+    data_: Batch | None = field(default=None, repr=False)
 
     @property
     def candidates(self) -> list[dict]:
@@ -131,7 +131,7 @@ class Diagnosis:
 
 
 @single_thread()
-def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
+def diagnose(data: Batch, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
              current: GreyFit | None = None, n_folds: int | None = None, bic_margin: float = 10.0,
              min_gain: float = 0.02, max_iter: int = 20, *, noise_gain: float = 0.05, skip_unexcited: bool = True,
              screen_iter: int = 8, orders: bool = True, progress: bool | None = False, n_jobs: int | None = None,
@@ -140,7 +140,7 @@ def diagnose(data: GreyData, effects=None, candidates: Sequence[str] | None = No
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
     effects : names or ``{name: {parameter: value}}``, optional
         Effects of the current model (default: the linear model alone).
     candidates : sequence of str, optional
@@ -255,7 +255,7 @@ def as_step(rung: dict, before: dict, added: str, intervals: dict, units, output
     return rung
 
 
-def _initial_summary(data: GreyData | None) -> dict:
+def _initial_summary(data: Batch | None) -> dict:
     """How the records start, for the JSON: the count of each case and the pinned rest levels."""
     if data is None:
         return {}

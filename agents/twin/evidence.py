@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from agents.twin.data import GreyData
 from agents.twin.fidelity import rmse
+from agents.twin.guesses import residual_frequencies
 from agents.twin.model import GreyFit
+from agents.twin.records import Batch
 from agents.twin.residuals import residuals
 
 __all__ = ["DRIFT_MIN_RECORDS", "REVEALING_EXPERIMENTS", "SEPARATING_EXPERIMENTS", "both_directions",
@@ -85,7 +86,7 @@ def separating_experiment(a: str, b: str) -> str:
 
 
 
-def excitation_notes(data: GreyData, output: str) -> dict[str, str]:
+def excitation_notes(data: Batch, output: str) -> dict[str, str]:
     """Effects the data cannot show, with the reason, judged on all experiments together.
 
     An effect that acts on a record as a constant load or input offset (a friction whose
@@ -108,7 +109,7 @@ def excitation_notes(data: GreyData, output: str) -> dict[str, str]:
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
     output : {"speed", "position"}
         What ``y`` measures.
 
@@ -148,7 +149,7 @@ def excitation_notes(data: GreyData, output: str) -> dict[str, str]:
     return notes
 
 
-def both_directions(data: GreyData, output: str) -> bool:
+def both_directions(data: Batch, output: str) -> bool:
     """Whether the data show the mechanism moving both ways with its loads pinned: a record that reverses its
     speed, or records that show their rest (:mod:`agents.twin.initial`) with speeds of both signs between them.
 
@@ -222,9 +223,7 @@ def order_change(name: str, current: GreyFit, fit: GreyFit) -> dict[str, dict]:
     return {}
 
 
-def _order_evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit, tail: str) -> str:
-    from agents.twin.guesses import residual_frequencies
-
+def _order_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit, tail: str) -> str:
     change = order_change(name, current, fit)
     if name == "pole_pair" and change:
         w, zeta = change["frequency"]["value"], change["damping"]["value"]
@@ -242,14 +241,14 @@ def _order_evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit, t
     return f"a {name.replace('_', ' ')} in the linear part" + tail
 
 
-def effect_evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit) -> str:
+def effect_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit) -> str:
     """The residual signature of effect ``name`` in the current model's residual.
 
     Parameters
     ----------
     name : str
         Catalogue effect.
-    data : GreyData
+    data : Batch
     current : GreyFit
         The model diagnosed.
     fit : GreyFit
@@ -318,8 +317,6 @@ def effect_evidence(name: str, data: GreyData, current: GreyFit, fit: GreyFit) -
     if name == "cogging":
         return f"residual periodic in position with period {params.get('period', 0.0):.4g} (r={r:.2f})" + tail
     if name == "compliance":
-        from agents.twin.guesses import residual_frequencies
-
         rings = residual_frequencies(data, current, n_peaks=1)
         seen = f"residual rings at {rings[0]:.3g} rad/s" if rings else "residual oscillates"
         return (f"{seen}: a flexible coupling resonating at {params.get('frequency', 0.0):.3g} rad/s with damping "

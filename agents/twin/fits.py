@@ -15,12 +15,12 @@ import numpy as np
 
 from agents.thread_limits import single_thread
 from agents.twin.candidates import CandidatePlan, candidate_problems, effect_bounds, forward_bias, refit_problem
-from agents.twin.data import GreyData
 from agents.twin.guesses import quantization_scan
 from agents.twin.least_squares import Problem, fit_problems, make_problem
 from agents.twin.linear_fit import linear_fit, profile
 from agents.twin.model import GreyFit, ModelSpec, effect_items, effect_offset, fitted_parameters
 from agents.twin.noise_floor import quantization_step
+from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
 from agents.twin.workers import map_independent
 
@@ -32,12 +32,12 @@ GIVEN_VALUES_MAX_ITER = 20
 
 
 @single_thread()
-def fit_structure(data: GreyData, effects=None, spec: ModelSpec | None = None, max_iter: int = 25) -> GreyFit:
+def fit_structure(data: Batch, effects=None, spec: ModelSpec | None = None, max_iter: int = 25) -> GreyFit:
     """The model of a given structure fitted to ``data``: the linear part (:func:`linear_fit`) with ``effects`` added.
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
     effects : names, comma-separated str or ``{name: {parameter: value}}``, optional
         Catalogue effects. When every fitted parameter of every effect is given, the linear part is
         profiled at those values and everything refitted from there (at most
@@ -56,7 +56,7 @@ def fit_structure(data: GreyData, effects=None, spec: ModelSpec | None = None, m
     return fit_model(data, effects, base=base, max_iter=max_iter)
 
 
-def _fit_from_given_values(data: GreyData, spec: ModelSpec, items, base: GreyFit, max_iter: int) -> GreyFit:
+def _fit_from_given_values(data: Batch, spec: ModelSpec, items, base: GreyFit, max_iter: int) -> GreyFit:
     """All effect values given: the linear part profiled at them, then everything refitted from there."""
     for name, given in items:
         options = {k: v for k, v in given.items() if k not in dict(fitted_parameters(name, given))}
@@ -73,11 +73,11 @@ def _fit_from_given_values(data: GreyData, spec: ModelSpec, items, base: GreyFit
     lower, upper, scale = effect_bounds(data, start, np.zeros(n_eff), np.zeros(n_eff), np.zeros(n_eff))
     problem = make_problem(data, spec, theta, y0, bias, np.arange(data.n_records), lower, upper, scale)
     fit_problems(data, [problem], max_iter=min(int(max_iter), GIVEN_VALUES_MAX_ITER))
-    return refine_grid_parameters(data, GreyFit.from_problem(data, problem))
+    return refine_grid_parameters(data, problem.fit(data))
 
 
 @single_thread()
-def fit_model(data: GreyData, effects: Sequence | Mapping | None = None, spec: ModelSpec | None = None,
+def fit_model(data: Batch, effects: Sequence | Mapping | None = None, spec: ModelSpec | None = None,
               base: GreyFit | None = None, max_iter: int = 25) -> GreyFit:
     """Grey-box fit of the linear model plus ``effects`` (names, or ``{name: {parameter: value}}`` guesses).
 
@@ -98,11 +98,11 @@ def fit_model(data: GreyData, effects: Sequence | Mapping | None = None, spec: M
                     p.theta[pos + j] = float(np.clip(given[pname], p.lower[pos + j], p.upper[pos + j]))
         fit_problems(data, problems, max_iter=max_iter)
         best = min(problems, key=lambda p: p.cost)
-        fit = refine_grid_parameters(data, GreyFit.from_problem(data, best))
+        fit = refine_grid_parameters(data, best.fit(data))
     return fit
 
 
-def refine_grid_parameters(data: GreyData, fit: GreyFit) -> GreyFit:
+def refine_grid_parameters(data: Batch, fit: GreyFit) -> GreyFit:
     """Refine the quantization step of a fit on a fine grid around its value (other parameters fixed).
 
     Where the output's changes show its resolution (:func:`agents.twin.noise_floor.quantization_step`), the
@@ -122,7 +122,7 @@ def refine_grid_parameters(data: GreyData, fit: GreyFit) -> GreyFit:
         th[j] = q
         problem = make_problem(data, fit.spec, th, fit.y0, fit.bias, rows, free_global=False, start=fit.start)
         fit_problems(data, [problem], max_iter=0)
-        cand = GreyFit.from_problem(data, problem)
+        cand = problem.fit(data)
         if cand.rmse < best.rmse:
             best = cand
     return best
@@ -148,7 +148,7 @@ class CandidateFits:
     restarted: bool = False
 
 
-def fit_candidates(data: GreyData, current: GreyFit, plan: CandidatePlan, max_iter: int = 20,
+def fit_candidates(data: Batch, current: GreyFit, plan: CandidatePlan, max_iter: int = 20,
                    screen_iter: int = 8, progress=None, noise: float | None = None) -> CandidateFits:
     """Fit the current model and every candidate of ``plan`` to all data.
 
@@ -164,7 +164,7 @@ def fit_candidates(data: GreyData, current: GreyFit, plan: CandidatePlan, max_it
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
     current : GreyFit
     plan : CandidatePlan
     max_iter, screen_iter : int
@@ -187,7 +187,7 @@ def fit_candidates(data: GreyData, current: GreyFit, plan: CandidatePlan, max_it
         if progress is not None:
             progress.set_postfix_str(f"fitting {len(plan.candidates)} candidates")
         _screened_fit(data, problems, max_iter, screen_iter)
-        polished = GreyFit.from_problem(data, problems[0])
+        polished = problems[0].fit(data)
         if polished.rmse < current.rmse:
             current = refine_grid_parameters(data, polished)
         fits = {}
@@ -202,7 +202,7 @@ def fit_candidates(data: GreyData, current: GreyFit, plan: CandidatePlan, max_it
     raise AssertionError("unreachable")
 
 
-def _starting_problems(data: GreyData, current: GreyFit, candidates: list, progress=None) -> dict[str, list]:
+def _starting_problems(data: Batch, current: GreyFit, candidates: list, progress=None) -> dict[str, list]:
     """``{name: problems}``: each candidate's starting problems (SRIVC profiles, screening simulations), which
     do not depend on one another's (in the worker processes of :func:`agents.twin.workers.worker_processes`)."""
     made = {}
@@ -214,11 +214,11 @@ def _starting_problems(data: GreyData, current: GreyFit, candidates: list, progr
     return made
 
 
-def _problems_of(candidate, data: GreyData, current: GreyFit) -> list[Problem]:
+def _problems_of(candidate, data: Batch, current: GreyFit) -> list[Problem]:
     return candidate.problems(data, current)
 
 
-def _best_variant(data: GreyData, problems: list[Problem], floor: float | None = None, margin: float = 10.0,
+def _best_variant(data: Batch, problems: list[Problem], floor: float | None = None, margin: float = 10.0,
                   noise_gain: float = 0.05) -> GreyFit:
     """The fit of lowest training BIC, ``n log(RSS / n) + k log n``, among a candidate's problems.
 
@@ -239,10 +239,10 @@ def _best_variant(data: GreyData, problems: list[Problem], floor: float | None =
     best = min(problems, key=bic)
     gain = np.sqrt(simplest.cost / n) - np.sqrt(best.cost / n)
     resolved = floor is None or gain >= noise_gain * floor
-    return GreyFit.from_problem(data, best if bic(best) < bic(simplest) - margin and resolved else simplest)
+    return (best if bic(best) < bic(simplest) - margin and resolved else simplest).fit(data)
 
 
-def _screened_fit(data: GreyData, problems: list[Problem], max_iter: int, screen_iter: int) -> None:
+def _screened_fit(data: Batch, problems: list[Problem], max_iter: int, screen_iter: int) -> None:
     """Fit the current model (``problems[0]``, ``max_iter`` trial points) and the candidates (``screen_iter``).
 
     The candidates whose cost is then below the current model's go on to all ``max_iter``
@@ -263,7 +263,7 @@ def _screened_fit(data: GreyData, problems: list[Problem], max_iter: int, screen
         fit_problems(data, [problems[i] for i in ahead], max_iter=max_iter, resume=True)
 
 
-def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit | None:
+def _without_new_effect(data: Batch, current: GreyFit, fits: dict) -> GreyFit | None:
     """The best candidate fit with its new effect switched off, if that beats the current model.
 
     A candidate starts from its own profile fit of the linear part, which can
@@ -281,7 +281,7 @@ def _without_new_effect(data: GreyData, current: GreyFit, fits: dict) -> GreyFit
                                free_global=False, start=fit.start)
         problem.free[:] = False
         fit_problems(data, [problem], max_iter=0)
-        reduced = GreyFit.from_problem(data, problem)
+        reduced = problem.fit(data)
         if reduced.rmse < current.rmse * (1.0 - 1e-3) and (best is None or reduced.rmse < best.rmse):
             best = reduced
     return best

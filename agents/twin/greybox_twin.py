@@ -10,13 +10,13 @@ from sklearn.utils._param_validation import Interval, StrOptions
 from sklearn.utils.validation import check_is_fitted
 
 from agents.thread_limits import single_thread
-from agents.twin.data import GreyData
 from agents.twin.fidelity import rmse
 from agents.twin.fits import fit_structure
 from agents.twin.guesses import rest_command
 from agents.twin.identify import check_orders, linear_constraints
 from agents.twin.least_squares import fit_problems, make_problem
 from agents.twin.model import GreyFit, ModelSpec, output_error
+from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
 from gbo_envs.physics.effects import build_effect
 
@@ -125,9 +125,9 @@ class GreyBoxTwin(BaseEstimator):
 
         Parameters
         ----------
-        records : GreyData, mapping, sequence of mappings or of arrays (n_steps, 4), or DataFrame
+        records : Batch, mapping, sequence of mappings or of arrays (n_steps, 4), or DataFrame
             Experiment records with ``t, r, u, y`` (see :func:`agents.twin.records.as_records`),
-            or already stacked :class:`agents.twin.least_squares.GreyData`.
+            or already stacked :class:`agents.twin.records.Batch`.
         y : None
             Ignored (scikit-learn signature).
 
@@ -148,7 +148,7 @@ class GreyBoxTwin(BaseEstimator):
         return self
 
     @classmethod
-    def from_fit(cls, fit: GreyFit, data: GreyData, n_samples: int | None = None, max_iter: int = 25) -> GreyBoxTwin:
+    def from_fit(cls, fit: GreyFit, data: Batch, n_samples: int | None = None, max_iter: int = 25) -> GreyBoxTwin:
         """A fitted twin from a grey-box fit already made on ``data`` (e.g. a diagnosis's), without refitting.
 
         Its ``effects`` are the fit's effect values, so ``clone(twin).fit(records)`` starts from them;
@@ -191,15 +191,15 @@ class GreyBoxTwin(BaseEstimator):
     def __sklearn_is_fitted__(self) -> bool:
         return hasattr(self, "plant_")
 
-    def _data(self, records) -> GreyData:
+    def _data(self, records) -> Batch:
         """The records stacked (decimated to ``n_samples``; their :attr:`~gbo_envs.Experiment.index` kept)."""
-        if isinstance(records, GreyData):
+        if isinstance(records, Batch):
             if self.n_samples is not None:
-                raise ValueError("n_samples: must be None when the records are given as GreyData (already stacked)")
+                raise ValueError("n_samples: must be None when the records are given as Batch (already stacked)")
             return records
-        return GreyData.decimated(records, self.n_samples)
+        return Batch.from_records(records, n_samples=self.n_samples)
 
-    def _store(self, data: GreyData, fit: GreyFit) -> None:
+    def _store(self, data: Batch, fit: GreyFit) -> None:
         spec = fit.spec
         nl = spec.n_linear
         nb = spec.n_zeros + 1
@@ -228,7 +228,7 @@ class GreyBoxTwin(BaseEstimator):
         self.n_samples_ = int(data.u.shape[1])
         self.dt_ = float(data.dt)
 
-    def _refit_rest(self, records) -> tuple[GreyData, GreyFit]:
+    def _refit_rest(self, records) -> tuple[Batch, GreyFit]:
         """The fitted model on new records: only their rest levels and biases are fitted."""
         check_is_fitted(self)
         data = self._data(records)
@@ -238,9 +238,9 @@ class GreyBoxTwin(BaseEstimator):
         bias = self._rest_bias_start(data, y0)
         problem = make_problem(data, fit.spec, fit.theta, y0, bias, rows, free_global=False)
         fit_problems(data, [problem], max_iter=10)
-        return data, GreyFit.from_problem(data, problem)
+        return data, problem.fit(data)
 
-    def _rest_bias_start(self, data: GreyData, y0: np.ndarray) -> np.ndarray:
+    def _rest_bias_start(self, data: Batch, y0: np.ndarray) -> np.ndarray:
         """Each new record's starting plant-input bias: the better replay of two guesses.
 
         The bias that puts the linear part at equilibrium under the record's first command, or the
@@ -259,7 +259,7 @@ class GreyBoxTwin(BaseEstimator):
         return np.where(costs[1] < costs[0], starts[1], starts[0])
 
 
-def _normalised_rmse(data: GreyData, fit: GreyFit) -> float:
+def _normalised_rmse(data: Batch, fit: GreyFit) -> float:
     """Eq. (RMSE) of ``fit`` on ``data`` normalised by each record's step height ``|r2 - y0|``."""
     height = np.abs(data.r[np.arange(data.n_records), data.mask.sum(axis=1) - 1] - fit.y0)
     return rmse(output_error(data.y, fit.y_sim, data.mask, fit.spec, data.closed_loop), mask=data.mask, height=height)

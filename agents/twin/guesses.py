@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from agents.twin.data import GreyData
 from agents.twin.model import GreyFit
 from agents.twin.noise_floor import quantization_step
+from agents.twin.records import Batch
 from gbo_envs.physics.effects import EFFECT_NAMES
 
 __all__ = ["data_scales", "effect_starts", "quantization_scan", "residual_frequencies", "rest_command",
            "standstill_input"]
 
 
-def data_scales(data: GreyData, output: str = "speed") -> dict[str, float]:
+def data_scales(data: Batch, output: str = "speed") -> dict[str, float]:
     """Magnitudes read from the data: input, output, speed and time scales (for guesses and bounds)."""
     u = data.u[data.mask]
     y = data.y[data.mask]
@@ -31,7 +31,7 @@ def data_scales(data: GreyData, output: str = "speed") -> dict[str, float]:
 SATURATION_GRID_RATIO = 1.02
 
 
-def effect_starts(name: str, data: GreyData, base: GreyFit, with_starts: bool = True, options=None) -> tuple[
+def effect_starts(name: str, data: Batch, base: GreyFit, with_starts: bool = True, options=None) -> tuple[
         list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
     """Starting values, bounds and scales of the fitted parameters of effect ``name``, from the data.
 
@@ -121,7 +121,7 @@ def effect_starts(name: str, data: GreyData, base: GreyFit, with_starts: bool = 
     raise ValueError(f"unknown effect {name!r}; the catalogue is {EFFECT_NAMES}")
 
 
-def quantization_scan(data: GreyData, base: GreyFit, span: float, n_best: int = 3,
+def quantization_scan(data: Batch, base: GreyFit, span: float, n_best: int = 3,
                        y_true: np.ndarray | None = None) -> list[float]:
     """Quantization steps ``q`` that make ``Q_q(y_true)`` of the base model match ``y``, best first.
 
@@ -169,7 +169,7 @@ def quantization_scan(data: GreyData, base: GreyFit, span: float, n_best: int = 
     return [q for _, q in sorted(found)]
 
 
-def standstill_input(data: GreyData, output: str = "speed", hold: float = 0.02) -> float | None:
+def standstill_input(data: Batch, output: str = "speed", hold: float = 0.02) -> float | None:
     """The largest drive ``|u|`` that a body at rest withstood: held for a while without the speed leaving zero.
 
     A sample counts when the speed (``y``, or ``dy/dt`` for a position) stays within its noise of zero
@@ -198,7 +198,7 @@ def standstill_input(data: GreyData, output: str = "speed", hold: float = 0.02) 
     return best
 
 
-def residual_frequencies(data: GreyData, fit: GreyFit, n_peaks: int = 2) -> list[float]:
+def residual_frequencies(data: Batch, fit: GreyFit, n_peaks: int = 2) -> list[float]:
     """Angular frequencies (rad/s) at which the residual of ``fit`` rings: the peaks of its mean periodogram.
 
     The residual ``y - y_sim`` of each record, its mean removed, is transformed (real FFT, the records'
@@ -238,7 +238,7 @@ def rest_command(fit: GreyFit) -> np.ndarray:
     return d.equilibrium(fit.y0)[1] - fit.bias
 
 
-def _gain_trend(data: GreyData, base: GreyFit) -> float:
+def _gain_trend(data: Batch, base: GreyFit) -> float:
     """Relative change per experiment of a per-record gain fitted to the base model's response."""
     if data.n_records < 2:
         return 0.0

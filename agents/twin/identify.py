@@ -9,6 +9,7 @@ normalised by the step height (:func:`agents.twin.fidelity.rmse`).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 from numbers import Integral, Real
@@ -18,13 +19,82 @@ from scipy.optimize import least_squares, minimize_scalar
 
 from agents.twin import srivc
 from agents.twin.fidelity import rmse
-from agents.twin.records import as_records, decimate_records, make_batches
+from agents.twin.records import Batch
 from gbo_envs import ContinuousPlant
 
-__all__ = ["LinearIdentification", "check_orders", "identify", "identify_linear", "linear_constraints",
-           "prepare_signals", "simulation_error"]
+__all__ = ["IdentifyOptions", "LinearIdentification", "check_orders", "identify", "identify_linear",
+           "linear_constraints", "prepare_signals", "simulation_error"]
 
 SCAN_ITER = 8  # SRIVC iterations per delay while scanning the delay grid
+
+
+@dataclass(frozen=True, kw_only=True)
+class IdentifyOptions:
+    """The settings of :func:`identify` (their allowed values: :func:`linear_constraints`).
+
+    Attributes
+    ----------
+    n_poles : int, default 2
+        Degree ``n`` of ``A(s)``.
+    n_zeros : int, default 0
+        Degree ``m < n`` of ``B(s)``.
+    n_integrators : int, default 0
+        Known poles at ``s = 0`` (1 for a position loop such as the linear motor).
+    delay : float, optional
+        Known input delay in s; ``None`` searches it.
+    max_delay : float, optional
+        Upper end of the delay search in s (default: 20 samples of the fitted
+        data, at most 20 % of the shortest record).
+    delay_step : float, optional
+        Spacing of the delay grid in s (default: one sample of the fitted data).
+    refine_delay : bool, default True
+        Refine the best grid delay by a bounded scalar search (fractional delays).
+    offset : bool, default True
+        Estimate each record's rest levels ``(y0, u0)`` (the pre-step equilibrium);
+        ``False`` takes ``y0 = y[0]`` and ``u0 = 0`` (records already in deviations).
+    n_samples : int, optional
+        Keep this many uniformly spaced samples per record, the paper's sampling
+        length ``n_tilde`` of eq. (Ds) (paper: 100). Default ``None`` uses the
+        whole record: the loop's input is held between samples, so at the full
+        rate the filters are exact and the fit is best. Where the command moves
+        within the hold intervals, more samples are kept, or all
+        (:func:`agents.twin.records.decimate_records`).
+    hold : {"auto", "zoh", "foh"}, default "auto"
+        Intersample behaviour of ``u`` and ``y`` in the prefilters: zero-order
+        hold (exact for a digital loop sampled at the record rate) or
+        first-order hold (linear interpolation, for decimated records). "auto"
+        is "zoh" for full records and "foh" when ``n_samples`` decimates.
+    oversample : int, default 10
+        Filter-grid refinement for ``hold="foh"``.
+    max_iter : int, default 50
+        Maximum SRIVC iterations per delay.
+    tol : float, default 1e-8
+        Convergence tolerance on the relative parameter change.
+    svf_bandwidth : float, optional
+        Bandwidth ``lambda`` in rad/s of the initial state-variable filter
+        ``1/(s + lambda)^n`` (default: ``10 / T`` with ``T`` the record length).
+    polish : bool, default False
+        Safeguard: refine ``(theta, tau)`` by minimising the simulation error
+        (``scipy.optimize.least_squares``) from the SRIVC estimate and keep the
+        result only if it lowers the RMSE (it matters on short, noisy,
+        decimated records; on full records SRIVC is already at the minimum).
+    """
+
+    n_poles: int = 2
+    n_zeros: int = 0
+    n_integrators: int = 0
+    delay: float | None = None
+    max_delay: float | None = None
+    delay_step: float | None = None
+    refine_delay: bool = True
+    offset: bool = True
+    n_samples: int | None = None
+    hold: str = "auto"
+    oversample: int = 10
+    max_iter: int = 50
+    tol: float = 1e-8
+    svf_bandwidth: float | None = None
+    polish: bool = False
 
 
 @functools.cache
@@ -35,6 +105,7 @@ def linear_constraints() -> dict[str, list]:
     Built on first use, so that the workbench's pipeline, which calls no estimator, does not import
     scikit-learn (0.4 s of every ``gbo twin`` command on the project machine).
     """
+    # heavy dependency kept off the diagnose start-up path: scikit-learn
     from sklearn.utils._param_validation import Interval, StrOptions
 
     return {
@@ -54,30 +125,6 @@ def linear_constraints() -> dict[str, list]:
         "svf_bandwidth": [None, Interval(Real, 0, None, closed="neither")],
         "polish": ["boolean"],
     }
-
-
-def _validated(fn, name: str):
-    """``fn`` as ``name`` behind scikit-learn's ``validate_params`` with :func:`linear_constraints`, the validator
-    built at the first call (scikit-learn imported then, not with this module)."""
-
-    def named(*args, **kwargs):
-        return fn(*args, **kwargs)
-
-    functools.update_wrapper(named, fn)
-    named.__name__ = named.__qualname__ = name  # the name scikit-learn's messages give
-    checked = []
-
-    @functools.wraps(named)
-    def wrapper(*args, **kwargs):
-        if not checked:
-            from sklearn.utils._param_validation import validate_params
-
-            checked.append(validate_params({"records": "no_validation", "start": [None, tuple],
-                                            "rest_levels": [None, "array-like"], **linear_constraints()},
-                                           prefer_skip_nested_validation=True)(named))
-        return checked[0](*args, **kwargs)
-
-    return wrapper
 
 
 @dataclass(frozen=True, eq=False)
@@ -166,46 +213,49 @@ def check_orders(n_poles: int, n_zeros: int, n_integrators: int) -> srivc.Orders
     return srivc.Orders(int(n_poles), int(n_zeros), int(n_integrators))
 
 
-def prepare_signals(records, orders: srivc.Orders, n_samples: int | None = None, hold: str = "auto",
+def prepare_signals(batch: Batch, orders: srivc.Orders, n_samples: int | None = None, hold: str = "auto",
                     oversample: int = 10, offset: bool = True, rest_levels: np.ndarray | None = None):
-    """Validate, decimate (``n_samples``), batch and lay the records on the SRIVC filter grid.
+    """Decimate (``n_samples``) the records and lay their groups of one length on the SRIVC filter grid.
 
     Parameters
     ----------
-    records : see :func:`agents.twin.records.as_records`
+    batch : Batch
+        The validated records (:meth:`agents.twin.records.Batch.from_records`).
     orders : srivc.Orders
     n_samples, hold, oversample, offset, rest_levels
-        As in :func:`identify_linear`.
+        As in :func:`identify` (:class:`IdentifyOptions`).
 
     Returns
     -------
-    data : list of Record
+    data : Batch
         The (decimated) records.
-    batches : list of Batch
-        Records of equal length stacked (:func:`agents.twin.records.make_batches`).
+    groups : list of ndarray of int
+        The rows of each group of one length (:meth:`agents.twin.records.Batch.groups`).
     signals : list of srivc.Signals
-        One per batch.
+        One per group.
     """
-    raw = as_records(records, min_steps=3)
     if rest_levels is not None:
         rest_levels = np.asarray(rest_levels, dtype=float)
-        if rest_levels.shape != (len(raw), 2):
-            raise ValueError(f"rest_levels: expected shape ({len(raw)}, 2), one (y0, u0) row per record, "
+        if rest_levels.shape != (batch.n_records, 2):
+            raise ValueError(f"rest_levels: expected shape ({batch.n_records}, 2), one (y0, u0) row per record, "
                              f"got {rest_levels.shape}")
-    _check_excitation(raw, rest_levels)
-    data = decimate_records(raw, n_samples)
-    total = sum(rec.n_steps for rec in data)
-    if total < orders.n_params + 3:
-        raise ValueError(f"records: {total} samples in all are too few for {orders.n_params} parameters")
+    _check_excitation(batch, rest_levels)
+    data = batch.thinned(n_samples)
+    if data.n_samples < orders.n_params + 3:
+        raise ValueError(f"records: {data.n_samples} samples in all are too few for {orders.n_params} parameters")
     if hold == "auto":
-        hold = "foh" if any(d.n_steps < r.n_steps for d, r in zip(data, raw)) else "zoh"
-    batches = make_batches(data)
-    signals = [srivc.prepare(b.dt, b.u, b.y, b.r2, offset, hold, int(oversample),
-                             None if rest_levels is None else rest_levels[b.index]) for b in batches]
-    return data, batches, signals
+        hold = "foh" if np.any(data.lengths < batch.lengths) else "zoh"
+    groups = data.groups()
+    signals = []
+    for rows in groups:
+        m = int(data.lengths[rows[0]])
+        signals.append(srivc.prepare(data.record_dt(int(rows[0])), np.ascontiguousarray(data.u[rows, :m]),
+                                     np.ascontiguousarray(data.y[rows, :m]), data.r[rows, m - 1], offset, hold,
+                                     int(oversample), None if rest_levels is None else rest_levels[rows]))
+    return data, groups, signals
 
 
-def _check_excitation(records, rest_levels: np.ndarray | None = None) -> None:
+def _check_excitation(batch: Batch, rest_levels: np.ndarray | None = None) -> None:
     """Refuse records without excitation: a constant input, or a constant output, in every experiment.
 
     A record whose pinned rest command (``rest_levels``) differs from its input is excited by that
@@ -216,10 +266,11 @@ def _check_excitation(records, rest_levels: np.ndarray | None = None) -> None:
     ValueError
         Naming the signal; SRIVC would otherwise diverge at every delay.
     """
-    stepped = [rest_levels is not None and np.isfinite(rest_levels[k, 1]) and np.any(rec.u != rest_levels[k, 1])
-               for k, rec in enumerate(records)]
-    for name in ("u", "y"):
-        if all(np.ptp(getattr(rec, name)) == 0.0 and not (name == "u" and step) for rec, step in zip(records, stepped)):
+    rows = [(batch.u[k, :m], batch.y[k, :m]) for k, m in enumerate(batch.lengths)]  # the real samples
+    stepped = [rest_levels is not None and np.isfinite(rest_levels[k, 1]) and np.any(u != rest_levels[k, 1])
+               for k, (u, _) in enumerate(rows)]
+    for i, name in enumerate(("u", "y")):
+        if all(np.ptp(row[i]) == 0.0 and not (name == "u" and step) for row, step in zip(rows, stepped)):
             what = "input u" if name == "u" else "output y"
             raise ValueError(f"records: the {what} is constant in every experiment (e.g. all zero), so the data has "
                              "no excitation to identify a model from; record experiments with a reference step")
@@ -252,12 +303,8 @@ def simulation_error(orders: srivc.Orders, theta: np.ndarray, delay: float, sign
     return float(total[0]), float(total[1]), np.concatenate(levels)
 
 
-def identify(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrators: int = 0,
-             delay: float | None = None, max_delay: float | None = None, delay_step: float | None = None,
-             refine_delay: bool = True, offset: bool = True, n_samples: int | None = None,
-             hold: str = "auto", oversample: int = 10, max_iter: int = 50, tol: float = 1e-8,
-             svf_bandwidth: float | None = None, polish: bool = False,
-             start: tuple | None = None, rest_levels=None) -> LinearIdentification:
+def identify(batch: Batch, options: IdentifyOptions | None = None, *, start: tuple | None = None,
+             rest_levels=None) -> LinearIdentification:
     r"""Continuous-time transfer function with input delay, identified by SRIVC from closed-loop records.
 
     Model (:mod:`agents.twin.srivc`): ``y = y0 + B(s)/A(s) e^{-s tau} (u - u0)``
@@ -267,58 +314,17 @@ def identify(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrators: int 
     minimises the simulation-error RMSE over a grid of delays, refined by a
     bounded scalar search between the neighbours of the best grid point.
 
-    :func:`identify_linear` is this function with its settings validated (scikit-learn's
-    ``validate_params``: an out-of-range setting raises, naming it); :func:`identify` itself
-    takes checked settings, as the workbench's pipeline passes them.
+    :func:`identify` takes records already validated (a :class:`~agents.twin.records.Batch`) and
+    checked settings, as the workbench's pipeline passes them; :func:`identify_linear` takes records in
+    any form :func:`agents.twin.records.as_records` reads and validates its settings (scikit-learn's
+    parameter constraints: an out-of-range setting raises, naming it).
 
     Parameters
     ----------
-    records : mapping, sequence of mappings or of arrays (n_steps, 4), or DataFrame
-        Experiment records with ``t, r, u, y`` (see :func:`agents.twin.records.as_records`).
-    n_poles : int, default 2
-        Degree ``n`` of ``A(s)``.
-    n_zeros : int, default 0
-        Degree ``m < n`` of ``B(s)``.
-    n_integrators : int, default 0
-        Known poles at ``s = 0`` (1 for a position loop such as the linear motor).
-    delay : float, optional
-        Known input delay in s; ``None`` searches it.
-    max_delay : float, optional
-        Upper end of the delay search in s (default: 20 samples of the fitted
-        data, at most 20 % of the shortest record).
-    delay_step : float, optional
-        Spacing of the delay grid in s (default: one sample of the fitted data).
-    refine_delay : bool, default True
-        Refine the best grid delay by a bounded scalar search (fractional delays).
-    offset : bool, default True
-        Estimate each record's rest levels ``(y0, u0)`` (the pre-step equilibrium);
-        ``False`` takes ``y0 = y[0]`` and ``u0 = 0`` (records already in deviations).
-    n_samples : int, optional
-        Keep this many uniformly spaced samples per record, the paper's sampling
-        length ``n_tilde`` of eq. (Ds) (paper: 100). Default ``None`` uses the
-        whole record: the loop's input is held between samples, so at the full
-        rate the filters are exact and the fit is best. Where the command moves
-        within the hold intervals, more samples are kept, or all
-        (:func:`agents.twin.records.decimate_records`).
-    hold : {"auto", "zoh", "foh"}, default "auto"
-        Intersample behaviour of ``u`` and ``y`` in the prefilters: zero-order
-        hold (exact for a digital loop sampled at the record rate) or
-        first-order hold (linear interpolation, for decimated records). "auto"
-        is "zoh" for full records and "foh" when ``n_samples`` decimates.
-    oversample : int, default 10
-        Filter-grid refinement for ``hold="foh"``.
-    max_iter : int, default 50
-        Maximum SRIVC iterations per delay.
-    tol : float, default 1e-8
-        Convergence tolerance on the relative parameter change.
-    svf_bandwidth : float, optional
-        Bandwidth ``lambda`` in rad/s of the initial state-variable filter
-        ``1/(s + lambda)^n`` (default: ``10 / T`` with ``T`` the record length).
-    polish : bool, default False
-        Safeguard: refine ``(theta, tau)`` by minimising the simulation error
-        (``scipy.optimize.least_squares``) from the SRIVC estimate and keep the
-        result only if it lowers the RMSE (it matters on short, noisy,
-        decimated records; on full records SRIVC is already at the minimum).
+    batch : Batch
+        The records (:meth:`agents.twin.records.Batch.from_records`), validated there.
+    options : IdentifyOptions, optional
+        The model structure and the settings of the search (default: :class:`IdentifyOptions`'s).
     start : tuple (theta, delay), optional
         A previous solution (``theta`` as :attr:`LinearIdentification.theta`, delay in s):
         SRIVC starts there and the delay grid shrinks to the delay +- 2 grid steps
@@ -349,14 +355,16 @@ def identify(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrators: int 
     >>> bool(np.allclose(fit.params, (9.544, 4.145, 4.199), rtol=1e-3))
     True
     """
-    orders = check_orders(n_poles, n_zeros, n_integrators)
-    data, batches, signals = prepare_signals(records, orders, n_samples, hold, oversample, offset, rest_levels)
-    batch_index = np.concatenate([b.index for b in batches])  # record of each row of the signals, batch after batch
-    del batches  # stacked copies of u and y: the signals hold what SRIVC needs
-    dt = min(rec.dt for rec in data)
-    horizon = min(rec.t[-1] - rec.t[0] for rec in data)
+    o = IdentifyOptions() if options is None else options
+    delay, max_delay, delay_step, offset = o.delay, o.max_delay, o.delay_step, o.offset
+    max_iter, tol = o.max_iter, o.tol
+    orders = check_orders(o.n_poles, o.n_zeros, o.n_integrators)
+    data, groups, signals = prepare_signals(batch, orders, o.n_samples, o.hold, o.oversample, offset, rest_levels)
+    batch_index = np.concatenate(groups)  # record of each row of the signals, group after group
+    dt = min(data.record_dt(k) for k in range(data.n_records))
+    horizon = min(data.span(k) for k in range(data.n_records))
 
-    bandwidth = svf_bandwidth if svf_bandwidth is not None else 10.0 / horizon
+    bandwidth = o.svf_bandwidth if o.svf_bandwidth is not None else 10.0 / horizon
     theta0 = None
     if delay is not None:
         grid = np.array([float(delay)])
@@ -388,7 +396,7 @@ def identify(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrators: int 
         scores.append(evaluate(tau, theta0, scan_iter))
         theta0 = cache[float(tau)][1].theta if np.isfinite(scores[-1]) else None
     best = int(np.argmin(scores))
-    if delay is None and refine_delay and grid.size > 1:
+    if delay is None and o.refine_delay and grid.size > 1:
         lo = grid[max(best - 1, 0)]
         hi = grid[min(best + 1, grid.size - 1)]
         warm = cache[float(grid[best])][1].theta
@@ -409,24 +417,64 @@ def identify(records, *, n_poles: int = 2, n_zeros: int = 0, n_integrators: int 
         raise RuntimeError("identify_linear: SRIVC diverged at every delay; check the data or the model orders")
 
     theta = result.theta
-    if polish:
+    if o.polish:
         bounds = (float(grid[0]), float(grid[-1])) if delay is None else None
         theta, tau_best = _polish(orders, theta, tau_best, signals, score, bounds, offset)
     fit_rmse, fit_rmse_abs, levels = simulation_error(orders, theta, tau_best, signals, offset)
-    rest = np.empty((len(data), 2))
+    rest = np.empty((data.n_records, 2))
     rest[batch_index] = levels
     order = np.argsort(list(cache))
     return LinearIdentification(
         orders=orders, theta=theta, delay=float(tau_best), rmse=float(fit_rmse), rmse_abs=float(fit_rmse_abs),
         rest_levels=rest, n_iter=int(result.n_iter), converged=bool(result.converged),
         delay_grid=np.array(list(cache))[order], delay_rmse=np.array([cache[tau][0] for tau in cache])[order],
-        n_records=len(data), n_samples=max(rec.n_steps for rec in data), dt=float(dt))
+        n_records=data.n_records, n_samples=int(data.lengths.max()), dt=float(dt))
 
 
-#: :func:`identify` behind scikit-learn's parameter validation (``validate_params`` with
-#: :func:`linear_constraints`): the function for users. The workbench's pipeline calls :func:`identify`
-#: itself with settings it has checked, and so imports no scikit-learn.
-identify_linear = _validated(identify, "identify_linear")
+def identify_linear(records, *, start: tuple | None = None, rest_levels=None, **settings) -> LinearIdentification:
+    """:func:`identify` on records in any form, with its settings validated: the function for users.
+
+    Parameters
+    ----------
+    records : Experiment, mapping, sequence of those or of arrays (n_steps, 4), or DataFrame
+        Experiment records with ``t, r, u, y`` (see :func:`agents.twin.records.as_records`), every one with
+        the same sample time; validated once, into a :class:`~agents.twin.records.Batch`.
+    start, rest_levels
+        As in :func:`identify`.
+    **settings
+        The fields of :class:`IdentifyOptions` (``n_poles``, ``max_delay``, ...), each checked against
+        :func:`linear_constraints`.
+
+    Returns
+    -------
+    LinearIdentification
+
+    Raises
+    ------
+    ValueError
+        A setting outside its allowed range (named), or bad records.
+    TypeError
+        A setting that :class:`IdentifyOptions` does not have.
+    """
+    options = checked_options({**settings, "start": start, "rest_levels": rest_levels}, "identify_linear")
+    check_orders(options.n_poles, options.n_zeros, options.n_integrators)
+    return identify(Batch.from_records(records), options, start=start, rest_levels=rest_levels)
+
+
+def checked_options(settings: dict, caller: str) -> IdentifyOptions:
+    """``settings`` as :class:`IdentifyOptions`, each checked against :func:`linear_constraints` (a setting out of
+    range raises ``ValueError`` naming it and ``caller``); ``start`` (a tuple) and ``rest_levels`` (array-like)
+    are checked too and left out of the options."""
+    # heavy dependency kept off the diagnose start-up path: scikit-learn
+    from sklearn.utils._param_validation import validate_parameter_constraints
+
+    fields = {f.name for f in dataclasses.fields(IdentifyOptions)}
+    unknown = sorted(set(settings) - fields - {"start", "rest_levels"})
+    if unknown:
+        raise TypeError(f"{caller}() got unexpected keyword argument(s) {unknown}")
+    constraints = {"start": [None, tuple], "rest_levels": [None, "array-like"], **linear_constraints()}
+    validate_parameter_constraints(constraints, settings, caller_name=caller)
+    return IdentifyOptions(**{name: value for name, value in settings.items() if name in fields})
 
 
 def _polish(orders, theta, tau, signals, score, delay_bounds, offset):

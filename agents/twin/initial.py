@@ -25,7 +25,7 @@ A record's model needs its initial state. Real data start in three ways:
   ``initial``).
 
 :func:`initial_conditions` classifies the records from the data; ``initial=`` of
-:meth:`agents.twin.data.GreyData.from_records` overrides it for every record.
+:meth:`agents.twin.records.Batch.from_records` overrides it for every record.
 """
 
 from __future__ import annotations

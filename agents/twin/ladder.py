@@ -11,23 +11,23 @@ from collections.abc import Mapping
 
 from agents.jsonable import jsonable
 from agents.run_display import progress_bar
-from agents.twin.data import GreyData
 from agents.twin.diagnose import Diagnosis, as_step, diagnose
 from agents.twin.fits import fit_structure
 from agents.twin.ladder_text import rung_text
 from agents.twin.model import ModelSpec
+from agents.twin.records import Batch
 
 __all__ = ["error_ladder"]
 
 
-def error_ladder(data: GreyData, effects=None, spec: ModelSpec | None = None, max_steps: int = 3,
+def error_ladder(data: Batch, effects=None, spec: ModelSpec | None = None, max_steps: int = 3,
                  progress: bool | None = False, units: Mapping[str, str] | None = None,
                  **kwargs) -> tuple[list[dict], list[Diagnosis]]:
     """RMSE of the linear model, then with the best effect added, then the next, until nothing helps.
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
     effects : names or ``{name: {parameter: value}}``, optional
         Effects of the first model (default: the linear model alone).
     spec : ModelSpec, optional

@@ -31,9 +31,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize._lsq.common import make_strictly_feasible  # least_squares' own (private module)
 
-from agents.twin.data import GreyData
+from agents.twin.fidelity import rmse
 from agents.twin.jacobian import RecordQR, dense_jacobian
-from agents.twin.model import ModelSpec, fitted_parameters, residual_in_increments, to_increments
+from agents.twin.model import GreyFit, ModelSpec, fitted_parameters, output_error, residual_in_increments, to_increments
+from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
 from agents.twin.trust_region import trf
 from agents.twin.workers import map_independent, workers_available
@@ -91,6 +92,17 @@ class Problem:
         cols = np.asarray(cols) - g
         return np.where(cols < 2 * k, cols % k, (cols - 2 * k) // max(m, 1))
 
+    def fit(self, data: Batch) -> GreyFit:
+        """The solved problem as a :class:`~agents.twin.model.GreyFit` (its records must be ``data``'s)."""
+        g, k, m = self.n_global, self.rows.size, self.n_start
+        theta = self.theta
+        rows = self.rows
+        y, mask = (data.y, data.mask) if data.is_all(rows) else (data.y[rows], data.mask[rows])  # no copies
+        return GreyFit(self.spec, theta[:g].copy(), self.spec.plant(theta[:g]), self.spec.blocks(theta[:g]),
+                       theta[g : g + k].copy(), theta[g + k : g + 2 * k].copy(), self.y_sim,
+                       rmse(output_error(y, self.y_sim, mask, self.spec, data.closed_loop[self.rows]), mask=mask),
+                       theta[g + 2 * k :].reshape(k, m).copy())
+
     def nuisance_of(self, theta: np.ndarray, records) -> np.ndarray:
         """The per-record parameters of ``theta`` for the records ``records`` (a slice or index of ``rows``)."""
         g, k, m = self.n_global, self.rows.size, self.n_start
@@ -98,7 +110,7 @@ class Problem:
         return np.concatenate([theta[g : g + k][records], theta[g + k : g + 2 * k][records], start])
 
 
-def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarray | None = None,
+def residual(data: Batch, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarray | None = None,
              increments: bool = False) -> np.ndarray:
     r"""Simulation error ``y_sim - y`` of the records ``rows``, the residual :func:`fit_problems` minimises.
 
@@ -118,7 +130,7 @@ def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarra
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
     rows : ndarray of int
         The records simulated, in the order of the rows of ``y_sim``.
     y_sim : ndarray of shape (len(rows), n_steps)
@@ -147,7 +159,7 @@ def residual(data: GreyData, rows: np.ndarray, y_sim: np.ndarray, out: np.ndarra
     return to_increments(err, mask, data.closed_loop[rows]) if increments else err
 
 
-def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7, *,
+def fit_problems(data: Batch, problems: list[Problem], max_iter: int = 25, tol: float = 1e-7, *,
                  budgets: Sequence[int] | None = None, resume: bool = False) -> list[Problem]:
     """Solve bounded least-squares problems of the simulation error with ``scipy.optimize.least_squares``.
 
@@ -170,7 +182,7 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
     problems : list of Problem
     max_iter : int, default 25
         Trial points per problem after the start; 0 only simulates the starts.
@@ -212,14 +224,14 @@ def fit_problems(data: GreyData, problems: list[Problem], max_iter: int = 25, to
     return problems
 
 
-def _at_start(data: GreyData, problems: list[Problem]) -> None:
+def _at_start(data: Batch, problems: list[Problem]) -> None:
     """Simulate ``problems`` at their parameters in one vectorised pass: their ``y_sim``, ``residual`` and ``cost``."""
     for p, y in zip(problems, simulate_sets(data, [(p.spec, p.theta, p.rows) for p in problems])):
         p.y_sim, p.residual = y, residual(data, p.rows, y, increments=residual_in_increments(p.spec))
         p.cost = float(np.sum(p.residual**2))
 
 
-def _solved(data: GreyData, p: Problem, max_iter: int, tol: float, resume: bool, start: bool) -> Problem:
+def _solved(data: Batch, p: Problem, max_iter: int, tol: float, resume: bool, start: bool) -> Problem:
     """``p`` solved in place (:func:`_solve`; first simulated at its start, :func:`_at_start`, when ``start``),
     returned (from a worker process: a copy)."""
     if start:
@@ -264,7 +276,7 @@ def _difference_sets(p: Problem, theta: np.ndarray, columns: list[list[int]]) ->
     return sets, steps
 
 
-def jacobian(data: GreyData, p: Problem, theta: np.ndarray) -> np.ndarray:
+def jacobian(data: Batch, p: Problem, theta: np.ndarray) -> np.ndarray:
     """Forward-difference Jacobian of the residual of ``p`` with respect to its free parameters, at ``theta``.
 
     One simulation per free global parameter and one for each group of per-record
@@ -274,7 +286,7 @@ def jacobian(data: GreyData, p: Problem, theta: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
     p : Problem
         Its ``free`` mask, ``scale``, ``upper`` and ``rows`` are used.
     theta : ndarray
@@ -307,7 +319,7 @@ def _dense_jacobian(p: Problem, free: np.ndarray, columns: list[list[int]], shar
     return dense_jacobian(shared, per_record, positions)
 
 
-def _solve(data: GreyData, p: Problem, max_iter: int, tol: float, resume: bool = False) -> None:
+def _solve(data: Batch, p: Problem, max_iter: int, tol: float, resume: bool = False) -> None:
     """One :class:`Problem` by the trust-region reflective method from its start; see :func:`fit_problems`.
 
     With ``resume`` and a :attr:`Problem.solver_state`, the iteration goes on from where the last
@@ -433,14 +445,14 @@ def _record_positions(p: Problem, free: np.ndarray, columns: list[list[int]], n_
     return out
 
 
-def make_problem(data: GreyData, spec: ModelSpec, theta_global: np.ndarray, y0: np.ndarray, bias: np.ndarray,
+def make_problem(data: Batch, spec: ModelSpec, theta_global: np.ndarray, y0: np.ndarray, bias: np.ndarray,
                  rows: np.ndarray, lower=None, upper=None, scale=None, free_global: bool = True,
                  tag=None, start=None) -> Problem:
     """A :class:`Problem` of ``spec`` on the records ``rows``, with default bounds for the linear part and nuisances.
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
     spec : ModelSpec
     theta_global : ndarray of shape (n_global,)
         Starting global parameters (``spec.global_names()``).

@@ -15,18 +15,16 @@ from collections.abc import Sequence
 import numpy as np
 
 from agents.thread_limits import single_thread
-from agents.twin.data import GreyData
-from agents.twin.identify import LinearIdentification, identify
+from agents.twin.identify import IdentifyOptions, LinearIdentification, identify
 from agents.twin.least_squares import Problem, fit_problems, make_problem
 from agents.twin.model import GreyFit, ModelSpec, effect_offset
-from agents.twin.records import decimate_records
-from gbo_envs.experiment import Experiment
+from agents.twin.records import Batch
 
 __all__ = ["PROFILE_EFFECTS", "PROFILE_SAMPLES", "STATEFUL_ACTUATORS", "linear_fit", "profile", "step_start"]
 
 
 @single_thread()
-def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = True) -> GreyFit:
+def linear_fit(data: Batch, spec: ModelSpec | None = None, refine: bool = True) -> GreyFit:
     """Base linear model: SRIVC with a delay of at most one sample, then refined by simulation error.
 
     Where SRIVC diverges at every delay (data far from any linear model, e.g. a drive that does not
@@ -34,19 +32,17 @@ def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = Tru
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
     spec : ModelSpec, optional
         Orders and output kind (its effects are ignored); default 2 poles, no zero.
     refine : bool, default True
         Polish the SRIVC estimate by least squares on the simulation error (:func:`fit_problems`).
     """
     spec = ModelSpec() if spec is None else ModelSpec(spec.n_poles, spec.n_zeros, spec.n_integrators, spec.output)
-    lengths = data.mask.sum(axis=1)  # real samples lead each row, padding follows (GreyData.from_records)
-    records = [{"t": data.t[k, :m], "r": data.r[k, :m], "u": data.u[k, :m], "y": data.y[k, :m]}
-               for k, m in enumerate(lengths)]  # views of the rows: no copy of the data
+    options = IdentifyOptions(n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
+                              max_delay=data.dt, refine_delay=False)
     try:
-        fit = identify(records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
-                              max_delay=data.dt, refine_delay=False, rest_levels=data.initial.rest_levels)
+        fit = identify(data, options, rest_levels=data.initial.rest_levels)
     except RuntimeError:  # SRIVC diverged at every delay
         problem = step_start(data, spec)
     else:
@@ -55,10 +51,10 @@ def linear_fit(data: GreyData, spec: ModelSpec | None = None, refine: bool = Tru
         v_rest = fit.plant(spec.output).discretize(data.dt).equilibrium(y0)[1]
         problem = make_problem(data, spec, theta, y0, v_rest - u0, np.arange(data.n_records))
     fit_problems(data, [problem], max_iter=30 if refine else 0)  # the delay is refined here, in [0, dt]
-    return GreyFit.from_problem(data, problem)
+    return problem.fit(data)
 
 
-def step_start(data: GreyData, spec: ModelSpec) -> Problem:
+def step_start(data: Batch, spec: ModelSpec) -> Problem:
     """A start for the linear part without SRIVC: ``n`` equal real poles and the records' static gain.
 
     ``G(s) = K p^(n-k) / (s^k (s + p)^(n-k))`` (``k`` integrators, no zero): ``K`` is the least-squares
@@ -110,8 +106,8 @@ def _srivc_start(spec: ModelSpec, linear: np.ndarray | None, delay: float | None
     return np.concatenate([linear[spec.n_zeros + 1 :], linear[: spec.n_zeros + 1]]), delay
 
 
-def _records_through(data: GreyData, blocks: Sequence, output: str) -> list[Experiment]:
-    """Records whose ``u`` is replaced by the plant input of the actuator ``blocks`` (speed from the measured y).
+def _records_through(data: Batch, blocks: Sequence, output: str) -> Batch:
+    """The records with ``u`` replaced by the plant input of the actuator ``blocks`` (speed from the measured y).
 
     A ``drift`` of the plant's gain scales each record's input by its factor
     (the same as scaling the numerator), so it is profiled the same way.
@@ -125,7 +121,8 @@ def _records_through(data: GreyData, blocks: Sequence, output: str) -> list[Expe
     for block in actuators:
         block.reset(data.n_records, None, data.dt)
     if any(b.name in STATEFUL_ACTUATORS for b in actuators):
-        from gbo_envs.physics import kernels  # numba is imported by the first simulation, not with this module
+        # heavy dependency kept off the diagnose start-up path: numba
+        from gbo_envs.physics import kernels
 
         stepped = kernels.step_actuators(actuators, u, speed, data.dt)  # compiled: the same numbers
         if stepped is not None:
@@ -139,18 +136,10 @@ def _records_through(data: GreyData, blocks: Sequence, output: str) -> list[Expe
     else:  # maps of (u, speed): every sample at once, the same values
         for block in actuators:
             u = block.actuate(u, speed)
-    u = np.asarray(u, dtype=float)
-    u.setflags(write=False)  # rows of read-only arrays are shared by the records, not copied (Experiment)
-
-    def row(signal: np.ndarray, k: int) -> np.ndarray:
-        return signal[k] if data.mask[k].all() else signal[k][data.mask[k]]
-
-    # indexed by position, as identify_linear numbers the rest levels' rows
-    return [Experiment(gains=(), t=row(data.t, k), r=row(data.r, k), u=row(u, k), y=row(data.y, k), index=k)
-            for k in range(data.n_records)]
+    return data.with_input(u)
 
 
-def _rest_through(data: GreyData, blocks: Sequence, output: str) -> np.ndarray:
+def _rest_through(data: Batch, blocks: Sequence, output: str) -> np.ndarray:
     """``(y0, v0)`` per record: the pinned rest level and the plant input of the rest command through the
     actuator ``blocks`` (at the rest's speed: ``y0``, or 0 for a position); ``NaN`` rows where estimated."""
     rest = data.initial.rest_levels.copy()
@@ -166,14 +155,14 @@ def _rest_through(data: GreyData, blocks: Sequence, output: str) -> np.ndarray:
     return rest
 
 
-def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float | None = None,
+def profile(data: Batch, spec: ModelSpec, theta: np.ndarray, max_delay: float | None = None,
             max_iter: int = 20, tol: float = 1e-6, delay_step: float | None = None,
             warm: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """SRIVC fit of the linear part on the plant input implied by ``spec``'s actuator blocks at ``theta``.
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
     spec : ModelSpec
     theta : ndarray of shape (n_global,)
         Global parameters; the effect parameters are kept.
@@ -208,12 +197,12 @@ def profile(data: GreyData, spec: ModelSpec, theta: np.ndarray, max_delay: float
     try:  # a plant input the blocks make non-finite is refused by the records (ValueError): no fit there
         records = _records_through(data, blocks, spec.output)
         rest = _rest_through(data, blocks, spec.output)  # pinned records: their rest command through the blocks
-        if int(data.mask.sum(axis=1).max()) > PROFILE_SAMPLES:  # the mean input over each hold: the same impulse
-            records = decimate_records(records, PROFILE_SAMPLES, mean_input=True)
-        fit: LinearIdentification = identify(
-            records, n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators, delay=delay,
-            max_delay=max_delay, max_iter=max_iter, tol=tol, rest_levels=rest, hold="zoh", delay_step=delay_step,
-            start=_srivc_start(spec, warm, delay))
+        if int(data.lengths.max()) > PROFILE_SAMPLES:  # the mean input over each hold: the same impulse
+            records = records.thinned(PROFILE_SAMPLES, mean_input=True)
+        options = IdentifyOptions(n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
+                                  delay=delay, max_delay=max_delay, max_iter=max_iter, tol=tol, hold="zoh",
+                                  delay_step=delay_step)
+        fit: LinearIdentification = identify(records, options, rest_levels=rest, start=_srivc_start(spec, warm, delay))
     except (ValueError, RuntimeError, np.linalg.LinAlgError):
         return np.inf, theta, np.zeros(data.n_records), np.zeros(data.n_records)
     out = theta.copy()

@@ -9,7 +9,15 @@ from sklearn.utils.validation import check_is_fitted
 
 from agents.thread_limits import single_thread
 from agents.twin import srivc
-from agents.twin.identify import check_orders, identify_linear, linear_constraints, prepare_signals, simulation_error
+from agents.twin.identify import (
+    IdentifyOptions,
+    check_orders,
+    identify,
+    linear_constraints,
+    prepare_signals,
+    simulation_error,
+)
+from agents.twin.records import Batch
 
 __all__ = ["LinearTwin"]
 
@@ -122,9 +130,9 @@ oversample, max_iter, tol, svf_bandwidth, polish
         """
         self._validate_params()
         orders = check_orders(self.n_poles, self.n_zeros, self.n_integrators)
-        settings = {name: getattr(self, name) for name in linear_constraints()}
+        options = IdentifyOptions(**{name: getattr(self, name) for name in linear_constraints()})
         with single_thread():  # tiny matrices: BLAS threads only contend
-            fit = identify_linear(records, **settings, start=self._warm_start_point(orders))
+            fit = identify(_batch(records), options, start=self._warm_start_point(orders))
         self.num_ = fit.num
         self.den_ = fit.den
         self.params_ = fit.params
@@ -154,11 +162,11 @@ oversample, max_iter, tol, svf_bandwidth, polish
         list of ndarray of shape (n_steps,)
             ``y_sim`` in the units of ``y`` at the (decimated) sample times.
         """
-        orders, signals, batches = self._prepared(records)
-        out: list[np.ndarray | None] = [None] * sum(b.index.size for b in batches)
-        for batch, sig in zip(batches, signals):
+        orders, signals, groups = self._prepared(records)
+        out: list[np.ndarray | None] = [None] * sum(rows.size for rows in groups)
+        for rows, sig in zip(groups, signals):
             y_sim = srivc.simulate(orders, self._theta(orders), self.delay_, sig, self.offset)[0]
-            for row, idx in enumerate(batch.index):
+            for row, idx in enumerate(rows):
                 out[idx] = y_sim[row]
         return out
 
@@ -184,9 +192,9 @@ oversample, max_iter, tol, svf_bandwidth, polish
         check_is_fitted(self)
         self._validate_params()
         orders = check_orders(self.n_poles, self.n_zeros, self.n_integrators)
-        _, batches, signals = prepare_signals(records, orders, self.n_samples, self.hold, self.oversample,
-                                              self.offset)
-        return orders, signals, batches
+        _, groups, signals = prepare_signals(_batch(records), orders, self.n_samples, self.hold, self.oversample,
+                                             self.offset)
+        return orders, signals, groups
 
     def _theta(self, orders: srivc.Orders) -> np.ndarray:
         return np.concatenate([self.den_[1 : orders.n - orders.k + 1], self.num_])
@@ -197,3 +205,8 @@ oversample, max_iter, tol, svf_bandwidth, polish
                 or self.num_.size != orders.m + 1 or np.any(self.den_[orders.n - orders.k + 1 :] != 0.0):
             return None
         return self._theta(orders), self.delay_
+
+
+def _batch(records) -> Batch:
+    """The records as one validated batch (:meth:`agents.twin.records.Batch.from_records`), or a batch as it is."""
+    return records if isinstance(records, Batch) else Batch.from_records(records)

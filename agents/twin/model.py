@@ -17,17 +17,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from agents.twin.fidelity import rmse
 from gbo_envs.physics.effects import EFFECT_NAMES, EFFECTS, build_effect
 from gbo_envs.physics.lti import ContinuousPlant
-
-if TYPE_CHECKING:  # annotations only: the data and the problems come later in the pipeline
-    from agents.twin.data import GreyData
-    from agents.twin.least_squares import Problem
 
 __all__ = ["FITTED_PARAMETERS", "VARIANT_PARAMETERS", "GreyFit", "ModelSpec", "effect_items", "effect_offset",
            "fitted_parameters", "output_error", "residual_in_increments", "to_increments"]
@@ -195,7 +189,7 @@ def output_error(y: np.ndarray, y_sim: np.ndarray, mask: np.ndarray, spec: Model
     moment earlier than the plant's stays off for the rest of the record, an offset the loop itself,
     whose controller sees it, does not keep. An open-loop record has no controller to correct it: its
     position error is the error. ``closed`` (bool, one per record; default all) says which records are
-    closed-loop (:attr:`agents.twin.data.GreyData.closed_loop`).
+    closed-loop (:attr:`agents.twin.records.Batch.closed_loop`).
     """
     err = np.where(mask, y - y_sim, 0.0)
     return to_increments(err, mask, closed) if residual_in_increments(spec) else err
@@ -239,16 +233,6 @@ class GreyFit:
     def __post_init__(self) -> None:
         if self.start is None:
             object.__setattr__(self, "start", np.zeros((self.y0.size, 0)))
-
-    @classmethod
-    def from_problem(cls, data: GreyData, p: Problem) -> GreyFit:
-        """Collect a solved :class:`Problem` (its records must be ``data``'s)."""
-        g, k, m = p.n_global, p.rows.size, p.n_start
-        y, mask = (data.y, data.mask) if data.is_all(p.rows) else (data.y[p.rows], data.mask[p.rows])  # no copies
-        return cls(p.spec, p.theta[:g].copy(), p.spec.plant(p.theta[:g]), p.spec.blocks(p.theta[:g]),
-                   p.theta[g : g + k].copy(), p.theta[g + k : g + 2 * k].copy(), p.y_sim,
-                   rmse(output_error(y, p.y_sim, mask, p.spec, data.closed_loop[p.rows]), mask=mask),
-                   p.theta[g + 2 * k :].reshape(k, m).copy())
 
     def nuisance(self, rows=None) -> np.ndarray:
         """The per-record parameters of the records ``rows`` (default all), as a problem holds them after its

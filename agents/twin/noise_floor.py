@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.twin.data import GreyData
+from agents.twin.records import Batch
 
 __all__ = ["NOISE_FLOOR_LABELS", "NoiseFloor", "noise_floor", "noise_floor_estimate", "noise_floor_method",
            "quantization_step", "settled_noise", "white_noise", "white_noise_floor"]
@@ -135,7 +135,7 @@ def white_noise(y: np.ndarray, mask: np.ndarray) -> float | None:
     return float(np.sqrt(np.median(d2**2) / (6.0 * _CHI2_MEDIAN)))
 
 
-def settled_noise(data: GreyData) -> float | None:
+def settled_noise(data: Batch) -> float | None:
     """Spread of ``y`` where the response has settled: the noise's own std, coloured or filtered included.
 
     A segment is a run of samples over which the input ``u`` is constant (open-loop steps, or a
@@ -186,7 +186,7 @@ def _constant_runs(x: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
 
-def noise_floor_estimate(data: GreyData) -> NoiseFloor:
+def noise_floor_estimate(data: Batch) -> NoiseFloor:
     """The measurement's noise floor: settled spread (else white noise), floored by the quantum.
 
     The floor is an estimate of the measurement noise, not a lower bound of a model's error: a
@@ -203,7 +203,7 @@ def noise_floor_estimate(data: GreyData) -> NoiseFloor:
     return NoiseFloor(None if value is None else float(value), method, quantum, white, settled)
 
 
-def white_noise_floor(data: GreyData) -> float | None:
+def white_noise_floor(data: Batch) -> float | None:
     """The white-noise part of the floor, as a twin simulates measurement noise: second differences of ``y``,
     or ``q / sqrt(12)`` when more than half of them are exactly zero (a quantized output without visible noise).
 
@@ -221,11 +221,11 @@ def white_noise_floor(data: GreyData) -> float | None:
     return None if q is None else float(q / np.sqrt(12.0))
 
 
-def noise_floor(data: GreyData) -> float | None:
+def noise_floor(data: Batch) -> float | None:
     """The floor of :func:`noise_floor_estimate`, in units of ``y`` (``None`` when not estimable)."""
     return noise_floor_estimate(data).rmse
 
 
-def noise_floor_method(data: GreyData) -> str:
+def noise_floor_method(data: Batch) -> str:
     """How :func:`noise_floor` estimated the floor: a key of :data:`NOISE_FLOOR_LABELS`."""
     return noise_floor_estimate(data).method

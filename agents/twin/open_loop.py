@@ -390,7 +390,9 @@ def _free_response(d: DiscretePlant, dx: np.ndarray, n: int) -> np.ndarray:
         mk = d.phi @ mk + den[k - 1] * np.eye(order)
         den[k] = -np.trace(d.phi @ mk) / k
         num[:, k] = dx[:, :order] @ (mk.T @ d.c)  # c M_k dx, per row
-    from gbo_envs.physics import kernels  # numba is imported by the first simulation, not with this module
+    # heavy dependency kept off the diagnose start-up path: numba
+    # heavy dependency kept off the diagnose start-up path: numba
+    from gbo_envs.physics import kernels
 
     impulse = np.zeros((1, n + 1))
     impulse[0, 0] = 1.0
@@ -417,7 +419,9 @@ def _direct(continuous, discrete, chains, u, commands, rows, dt, y0, bias, out, 
     when it knows every block of the rows, else in :func:`_direct_numpy`: the same numbers. The results
     go into the rows ``rows`` of the outputs ``out``.
     """
-    from gbo_envs.physics import kernels  # numba is imported by the first simulation, not with this module
+    # heavy dependency kept off the diagnose start-up path: numba
+    # heavy dependency kept off the diagnose start-up path: numba
+    from gbo_envs.physics import kernels
 
     compiled = all(kernels.known(b) for chain in chains for b in chain if b.side != "plant")
     # the numpy maps take their parameters as column vectors, the kernel one value per row
@@ -448,6 +452,7 @@ def _direct(continuous, discrete, chains, u, commands, rows, dt, y0, bias, out, 
 def _direct_numpy(rest: _Rest, u: np.ndarray, out: dict) -> None:
     """:func:`_direct` in numpy (blocks the kernel does not know): the maps act on whole records at once,
     their parameters as column vectors, one per row."""
+    # heavy dependency kept off the diagnose start-up path: numba
     from gbo_envs.physics import kernels
 
     n = u.shape[1]
@@ -503,6 +508,7 @@ def _kernel_input(u: np.ndarray) -> np.ndarray:
 def _packed(groups, batch: int, dt: float):
     """``(sensors, actuators)``: the rows' blocks packed for the kernels (:func:`gbo_envs.physics.kernels.pack_blocks`),
     each ``None`` when a block of its side is unknown to them."""
+    # heavy dependency kept off the diagnose start-up path: numba
     from gbo_envs.physics import kernels
 
     sides = {}
@@ -745,7 +751,9 @@ def _stepping(continuous, discrete, chains, u, commands, rows, dt, y0, bias, out
         c_rows[row, :m] = d.c
         speed_rows[row, :m] = d.c if p.output != "position" else d.velocity_row()
 
-    from gbo_envs.physics import kernels  # numba is imported by the first simulation, not with this module
+    # heavy dependency kept off the diagnose start-up path: numba
+    # heavy dependency kept off the diagnose start-up path: numba
+    from gbo_envs.physics import kernels
 
     sensors, actuators = _packed(groups, batch, dt)
     if sensors is None or actuators is None:

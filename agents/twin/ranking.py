@@ -24,12 +24,12 @@ import numpy as np
 from agents.jsonable import jsonable
 from agents.thread_limits import single_thread
 from agents.twin.candidates import refit_problem
-from agents.twin.data import GreyData
 from agents.twin.evidence import REVEALING_EXPERIMENTS, effect_evidence, order_change, separating_experiment
 from agents.twin.fidelity import rmse
 from agents.twin.least_squares import Problem, fit_problems
 from agents.twin.model import FITTED_PARAMETERS, GreyFit, effect_offset, fitted_parameters, output_error
 from agents.twin.noise_floor import NoiseFloor
+from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
 from agents.twin.uncertainty import parameter_intervals
 from agents.twin.workers import map_independent
@@ -59,13 +59,13 @@ def validated_folds(n_folds, n_records: int) -> int:
     return int(n_folds)
 
 
-def _folds(data: GreyData, n_folds: int) -> list[np.ndarray]:
+def _folds(data: Batch, n_folds: int) -> list[np.ndarray]:
     order = np.argsort(data.index, kind="stable")
     k = min(n_folds, data.n_records)
     return [order[i::k] for i in range(k)]
 
 
-def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_iter: int = 6) -> np.ndarray:
+def heldout_rss(data: Batch, fits: Sequence[GreyFit], n_folds: int = 4, max_iter: int = 6) -> np.ndarray:
     """Held-out residual sum of squares of each model, cross-validated over experiments.
 
     Each fold's experiments are left out, every model is refitted on the others
@@ -99,7 +99,7 @@ def heldout_rss(data: GreyData, fits: Sequence[GreyFit], n_folds: int = 4, max_i
     return rss
 
 
-def _keep_undetermined(data: GreyData, train: list[Problem], fits: Sequence[GreyFit]) -> None:
+def _keep_undetermined(data: Batch, train: list[Problem], fits: Sequence[GreyFit]) -> None:
     """Put back the full-data value of every effect parameter that a fold's refit moved without cause.
 
     A parameter the fold's experiments do not excite (a drive limit that no command of
@@ -147,7 +147,7 @@ def _keep_undetermined(data: GreyData, train: list[Problem], fits: Sequence[Grey
         fit_problems(data, [train[i] for i in sorted(changed)], max_iter=0)  # their costs at the kept values
 
 
-def effect_intervals(data: GreyData, fit: GreyFit, name: str, level: float = 0.95) -> dict[str, dict]:
+def effect_intervals(data: Batch, fit: GreyFit, name: str, level: float = 0.95) -> dict[str, dict]:
     """Value, standard error, ``level`` confidence interval and unit of each fitted parameter of effect ``name``.
 
     From :func:`agents.twin.uncertainty.parameter_intervals`; the unit is the catalogue's
@@ -171,7 +171,7 @@ def effect_intervals(data: GreyData, fit: GreyFit, name: str, level: float = 0.9
 
 
 @single_thread()
-def effect_size(data: GreyData, fit: GreyFit) -> float:
+def effect_size(data: Batch, fit: GreyFit) -> float:
     """RMS change of the output when the last effect of ``fit`` is switched off (its magnitude at zero).
 
     The plant output before the sensor blocks, or the measurement for a sensor effect.
@@ -231,7 +231,7 @@ class Ranking:
     suggested_experiment: str | None
 
 
-def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_folds: int,
+def rank(data: Batch, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_folds: int,
          bic_margin: float = 10.0, min_gain: float = 0.02, noise_gain: float = 0.05, progress=None) -> Ranking:
     """Rank the candidate ``fits`` against ``current`` and select the best; see :func:`agents.twin.diagnose.diagnose`.
 
@@ -309,7 +309,7 @@ def rank(data: GreyData, current: GreyFit, fits: dict, plan, noise: NoiseFloor, 
     return Ranking(cands, best, cur_rmse, validation, pairs + blind_pairs, suggestion)
 
 
-def _described(data: GreyData, current: GreyFit, fit: GreyFit, name: str) -> tuple:
+def _described(data: Batch, current: GreyFit, fit: GreyFit, name: str) -> tuple:
     """``(grown, params, intervals, effect_rms, evidence)`` of candidate ``name`` fitted as ``fit``: whether it grows
     the linear part, its parameters with their intervals, the RMS its effect itself makes (or, for a grown
     order, the change of the output) and the evidence in words. Each candidate's apart from the others' (in the

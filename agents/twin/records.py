@@ -1,11 +1,16 @@
-"""Experiment records for identification: validation, decimation and batching.
+"""Experiment records for identification: validation, decimation and the one batch the twin works on.
 
 A record is an :class:`gbo_envs.experiment.Experiment` (docs/design.md,
 "The experiment record"): equal-length float arrays ``t, r, u, y`` with ``t`` the
 time since the reference step in s, ``r`` the reference (its last value is the
 post-step level ``r2``), ``u`` the commanded plant input and ``y`` the measured
-output. Every record starts at rest at the pre-step level. Identification
-needs a uniform time grid, so :func:`as_records` checks that too.
+output. Identification needs a uniform time grid, so :func:`as_records` checks that too.
+
+Records come in as Experiments (or the forms :func:`as_records` converts once, at the edge);
+inside the twin they live as one :class:`Batch`: the records stacked into padded, masked rows
+with how each one starts. It is the first stage of the workbench's pipeline (records, linear
+fit, candidates, fits, ranking, report), and SRIVC (:func:`agents.twin.identify.identify`) reads
+its rows of equal length (:meth:`Batch.groups`).
 """
 
 from __future__ import annotations
@@ -16,10 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from agents.twin.initial import InitialConditions, initial_conditions
 from gbo_envs.experiment import SIGNALS, Experiment, RecordError, validate_signals
 
 __all__ = ["BATCH_SAMPLES", "Batch", "MAX_HOLD_SPREAD", "UNIFORM_RTOL", "as_records", "decimate", "decimate_records",
-           "hold_spread", "make_batches"]
+           "hold_spread"]
 
 #: Largest relative deviation of a sample step from the median step that identification accepts.
 UNIFORM_RTOL = 1e-6
@@ -31,34 +37,8 @@ UNIFORM_RTOL = 1e-6
 #: step off (0.018 % on the whole record), and on LinearMotor-v0 the diagnosed twin put the 7 A drive
 #: limit at 38 A (on the whole records: 7.000 A, gain and pole within 0.01 %).
 MAX_HOLD_SPREAD = 0.15
-#: Most samples (records times steps) stacked in one SRIVC batch (:func:`make_batches`).
+#: Most samples (records times steps) in one group of SRIVC's filters (:meth:`Batch.groups`).
 BATCH_SAMPLES = 2**18
-
-
-@dataclass(frozen=True, eq=False)
-class Batch:
-    """Records of equal length and sample time, stacked for vectorised filtering.
-
-    Attributes
-    ----------
-    dt : float
-        Sample time in s.
-    u, y, r2 : ndarray of shape (n_records, n_steps), (n_records, n_steps), (n_records,)
-        Stacked input, output and post-step reference level.
-    index : ndarray of int, shape (n_records,)
-        Position of each record in the validated list.
-    """
-
-    dt: float
-    u: np.ndarray
-    y: np.ndarray
-    r2: np.ndarray
-    index: np.ndarray
-
-    @property
-    def n_steps(self) -> int:
-        """Samples per record."""
-        return self.u.shape[1]
 
 
 def as_records(records, min_steps: int = 3) -> list[Experiment]:
@@ -251,26 +231,231 @@ def decimate_records(records: Sequence[Experiment], n_samples: int | None,
             for rec in records]
 
 
-def make_batches(records: list[Experiment], max_samples: int = BATCH_SAMPLES) -> list[Batch]:
-    """Group records by (length, sample time) and stack each group, in batches of at most ``max_samples`` samples.
+@dataclass(frozen=True, eq=False)
+class Batch:
+    """Validated records stacked into padded, masked rows: the one form the twin's records take inside it.
 
-    A group larger than ``max_samples`` is split (a record longer than it is a batch alone), so that
-    the filters of SRIVC work on bounded arrays however many records there are.
+    Made by :meth:`from_records` from :class:`~gbo_envs.Experiment` records (or the forms
+    :func:`as_records` accepts), validated there once; its arrays are read-only.
+
+    Attributes
+    ----------
+    t, r, u, y : ndarray of shape (n_records, n_steps)
+        Time (s), reference, commanded input and measured output; padded with the last value (``t`` with
+        its grid).
+    mask : ndarray of bool, shape (n_records, n_steps)
+        True on real samples, which lead each row (the padding follows them).
+    dt : float
+        Common sample time in s.
+    index : ndarray of int, shape (n_records,)
+        Experiment index of each record (0 for the first; used by ``drift``).
+    first_index : int, default 0
+        The 0-based :attr:`~gbo_envs.Experiment.index` of the experiment whose ``index`` is 0.
+        ``numbers`` (``index + first_index + 1``) are the experiment numbers a person reads:
+        counted from 1, as in the workbench CSV (docs/design.md, "Experiment numbers").
+    initial : InitialConditions, optional
+        How each record starts (:mod:`agents.twin.initial`): at a rest its data show (the rest
+        level and command are pinned), at an unobserved rest, or moving; default: detected.
     """
-    groups: dict[tuple[int, float], list[int]] = {}
-    for i, rec in enumerate(records):
-        key = (rec.n_steps, round(rec.dt, 12))
-        groups.setdefault(key, []).append(i)
-    batches = []
-    for (n_steps, _), group in groups.items():
-        size = max(1, max_samples // n_steps)
-        for start in range(0, len(group), size):
-            batches.append(_stack(records, group[start : start + size]))
-    return batches
+
+    t: np.ndarray
+    r: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    mask: np.ndarray
+    dt: float
+    index: np.ndarray
+    first_index: int = 0
+    initial: InitialConditions | None = None
+
+    def __post_init__(self) -> None:
+        if self.initial is None:
+            object.__setattr__(self, "initial", initial_conditions(self.r, self.u, self.y, self.mask))
+        closed = np.array([not np.array_equal(self.r[k][self.mask[k]], self.u[k][self.mask[k]])
+                           for k in range(self.u.shape[0])])
+        # per record: the largest |y| (padding included) and whether it is padded, for the residual's fast path
+        extent = np.maximum(self.y.max(axis=1), -self.y.min(axis=1)) if self.y.size else np.zeros(0)
+        padded = ~self.mask.all(axis=1)
+        lengths = self.mask.sum(axis=1)
+        for array in (closed, extent, padded, lengths):
+            array.setflags(write=False)
+        object.__setattr__(self, "_closed", closed)
+        object.__setattr__(self, "_extent", extent)
+        object.__setattr__(self, "_padded", padded)
+        object.__setattr__(self, "_lengths", lengths)
+
+    @classmethod
+    def from_records(cls, records, experiment_index: Sequence[int] | None = None, initial: str = "auto", *,
+                     n_samples: int | None = None) -> Batch:
+        """Validate records (:func:`as_records`) and stack them into read-only arrays.
+
+        Parameters
+        ----------
+        records : Experiment, mapping, sequence of those or of arrays, or pandas.DataFrame
+            As :func:`as_records` takes them; every record with one sample time.
+        experiment_index : sequence of int, optional
+            Default: the records' :attr:`~gbo_envs.Experiment.index` as :func:`as_records` sets it.
+        initial : str, default "auto"
+            How the records start (:func:`agents.twin.initial.initial_conditions`: ``"auto"`` detects it).
+        n_samples : int, optional
+            Decimate the records to about ``n_samples`` samples each first, with the mean input over each
+            hold (:func:`decimate_records`); ``None`` keeps every sample.
+
+        Raises
+        ------
+        ValueError
+            Bad records (:func:`as_records`), records of different sample times, or an ``experiment_index``
+            of another length.
+        """
+        data = as_records(records, min_steps=3)
+        if n_samples is not None:
+            data = as_records(decimate_records(data, n_samples, mean_input=True), min_steps=3)
+        dts = np.array([rec.dt for rec in data])
+        if np.any(np.abs(dts - dts[0]) > 1e-6 * dts[0]):
+            k = int(np.argmax(np.abs(dts - dts[0]) > 1e-6 * dts[0]))  # numbered from 1, as in the CSV
+            raise ValueError(f"records: every experiment must have the same sample time; experiment "
+                             f"{data[0].index + 1} has {dts[0]:g} s, experiment {data[k].index + 1} {dts[k]:g} s")
+        if experiment_index is None:
+            experiment_index = [rec.index for rec in data]
+        index = np.asarray(list(experiment_index), dtype=int)
+        if index.size != len(data):
+            raise ValueError(f"experiment_index: need {len(data)} values, got {index.size}")
+        first = int(index.min())
+        arrays, mask = _stacked(data, grid=True)
+        start = initial_conditions(arrays["r"], arrays["u"], arrays["y"], mask, initial)
+        return cls(**arrays, mask=mask, dt=float(dts[0]), index=index - first, first_index=first, initial=start)
+
+    @property
+    def closed_loop(self) -> np.ndarray:
+        """Records with a controller (``r`` not equal to ``u``), bool of shape (n_records,) (read-only)."""
+        return self._closed
+
+    @property
+    def n_records(self) -> int:
+        """Number of records."""
+        return self.u.shape[0]
+
+    @property
+    def numbers(self) -> np.ndarray:
+        """Experiment number of each record, counted from 1 (the workbench CSV's ``experiment`` id)."""
+        return self.index + self.first_index + 1
+
+    @property
+    def n_samples(self) -> int:
+        """Real samples in all."""
+        return int(self.mask.sum())
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """Real samples of each record, int of shape (n_records,) (read-only)."""
+        return self._lengths
+
+    def record(self, k: int) -> Experiment:
+        """Record ``k``'s real samples as an :class:`~gbo_envs.Experiment` (views of the rows, no copy)."""
+        m = int(self._lengths[k])
+        return Experiment(gains=(), t=self.t[k, :m], r=self.r[k, :m], u=self.u[k, :m], y=self.y[k, :m], index=k)
+
+    def record_dt(self, k: int) -> float:
+        """Mean sample time of record ``k`` in s, ``(t_last - t_first) / (n - 1)`` over its real samples
+        (:attr:`gbo_envs.Experiment.dt`)."""
+        m = int(self._lengths[k])
+        return float((self.t[k, m - 1] - self.t[k, 0]) / (m - 1))
+
+    def span(self, k: int) -> float:
+        """Time from record ``k``'s first real sample to its last, s."""
+        return float(self.t[k, int(self._lengths[k]) - 1] - self.t[k, 0])
+
+    def y_extent(self, rows: np.ndarray) -> float:
+        """``max |y|`` over the records ``rows`` (their padding included), units of ``y``."""
+        return float(self._extent.max()) if self.is_all(rows) else float(self._extent[rows].max())
+
+    def padded(self, rows: np.ndarray) -> bool:
+        """Whether any of the records ``rows`` is shorter than the longest (has masked padding)."""
+        return bool(self._padded.any()) if self.is_all(rows) else bool(self._padded[rows].any())
+
+    def rows_of(self, array: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """``array[rows]`` (an array of this batch's shape), a view, not a copy, when ``rows`` are consecutive."""
+        if rows.size and rows[-1] - rows[0] == rows.size - 1 and np.all(np.diff(rows) == 1):
+            return array[rows[0]: rows[-1] + 1]
+        return array[rows]
+
+    def is_all(self, rows: np.ndarray) -> bool:
+        """Whether ``rows`` are all the records in order (so that the arrays serve as they are, uncopied)."""
+        return rows.size == self.n_records and np.array_equal(rows, np.arange(rows.size))
+
+    def subset(self, rows: Sequence[int]) -> Batch:
+        """The records ``rows`` (experiment indices kept)."""
+        rows = np.asarray(rows, dtype=int)
+        return Batch(self.t[rows], self.r[rows], self.u[rows], self.y[rows], self.mask[rows], self.dt,
+                     self.index[rows], self.first_index, self.initial.subset(rows))
+
+    def with_input(self, u: np.ndarray) -> Batch:
+        """The records with the input ``u`` (shape of :attr:`u`; e.g. the plant input an actuator block makes of
+        the command), their starts kept.
+
+        Raises
+        ------
+        ValueError
+            ``u`` is not finite on a real sample (naming the record).
+        """
+        u = np.asarray(u, dtype=float)
+        bad = ~np.all(np.isfinite(u) | ~self.mask, axis=1)
+        if bad.any():
+            raise RecordError("u", f"non-finite value(s) in experiment {int(self.numbers[np.argmax(bad)])}")
+        u.setflags(write=False)
+        return dataclasses.replace(self, u=u)
+
+    def thinned(self, n_samples: int | None, mean_input: bool = False) -> Batch:
+        """The records decimated to about ``n_samples`` samples each (:func:`decimate_records`: one stride,
+        the kept samples' times and values as they are), their starts kept; this batch when nothing is dropped.
+        """
+        if n_samples is None:
+            return self
+        records = [self.record(k) for k in range(self.n_records)]
+        kept = decimate_records(records, n_samples, mean_input)
+        if all(a is b for a, b in zip(kept, records)):
+            return self
+        arrays, mask = _stacked(kept, grid=False)
+        return Batch(**arrays, mask=mask, dt=self.dt, index=self.index, first_index=self.first_index,
+                     initial=self.initial)
+
+    def groups(self, max_samples: int = BATCH_SAMPLES) -> list[np.ndarray]:
+        """The records in groups of one length and sample time, each at most ``max_samples`` samples (a record
+        longer than that is a group alone): the rows SRIVC's filters stack (:func:`agents.twin.srivc.prepare`).
+
+        Returns
+        -------
+        list of ndarray of int
+            The rows of each group, in the order of their first record.
+        """
+        keys: dict[tuple[int, float], list[int]] = {}
+        for k in range(self.n_records):
+            keys.setdefault((int(self._lengths[k]), round(self.record_dt(k), 12)), []).append(k)
+        out = []
+        for (n_steps, _), group in keys.items():
+            size = max(1, max_samples // n_steps)
+            out.extend(np.array(group[start : start + size]) for start in range(0, len(group), size))
+        return out
 
 
-def _stack(records: list[Experiment], members: list[int]) -> Batch:
-    """The records ``members`` stacked into one batch."""
-    return Batch(dt=float(records[members[0]].dt), u=np.stack([records[i].u for i in members]),
-                 y=np.stack([records[i].y for i in members]), r2=np.array([records[i].r[-1] for i in members]),
-                 index=np.array(members))
+def _stacked(records: Sequence[Experiment], grid: bool) -> tuple[dict, np.ndarray]:
+    """``t, r, u, y`` of ``records`` stacked into read-only rows padded with the last value, and the mask of the
+    real samples. ``grid``: every row's ``t`` is its first time plus multiples of its sample time; else the
+    record's own times, the padding on from the last by its sample time."""
+    n = max(rec.n_steps for rec in records)
+    arrays = {name: np.empty((len(records), n)) for name in SIGNALS}
+    mask = np.zeros((len(records), n), dtype=bool)
+    for k, rec in enumerate(records):
+        m = rec.n_steps
+        mask[k, :m] = True
+        for name in ("r", "u", "y"):
+            arrays[name][k, :m] = getattr(rec, name)
+            arrays[name][k, m:] = getattr(rec, name)[-1]
+        if grid:
+            arrays["t"][k] = rec.t[0] + np.arange(n) * rec.dt
+        else:
+            arrays["t"][k, :m] = rec.t
+            arrays["t"][k, m:] = rec.t[-1] + np.arange(1, n - m + 1) * rec.dt
+    for array in (*arrays.values(), mask):  # read-only: records of their rows share them, uncopied
+        array.setflags(write=False)
+    return arrays, mask

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from agents.html_page import image_tag, page, scrolling
-from agents.twin.data import GreyData
 from agents.twin.ladder_text import advice, unobservable_lines
 from agents.twin.model import GreyFit
+from agents.twin.records import Batch
 from agents.twin.workbench import Diagnosis, ResidualAnalysis, compare
 from gbo_envs.atomic_write import atomic_write
 from gbo_envs.lazy_pyplot import pyplot
@@ -31,12 +31,12 @@ __all__ = ["RESIDUAL_PANELS", "compare_figure", "ladder_figure", "residual_figur
 RESIDUAL_PANELS = ("acf", "ccf", "time", "experiment", "input", "output")
 
 
-def shown_experiments(data: GreyData, max_experiments: int = 4) -> np.ndarray:
+def shown_experiments(data: Batch, max_experiments: int = 4) -> np.ndarray:
     """Positions of at most ``max_experiments`` records spread over the data set."""
     return np.unique(np.linspace(0, data.n_records - 1, min(max_experiments, data.n_records)).round().astype(int))
 
 
-def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int = 4, y_unit: str = "",
+def compare_figure(data: Batch, fits: Sequence[GreyFit], max_experiments: int = 4, y_unit: str = "",
                    experiments: Sequence[int] | None = None):
     """Measured ``y`` above each model's simulated output per experiment, with the errors below.
 
@@ -46,7 +46,7 @@ def compare_figure(data: GreyData, fits: Sequence[GreyFit], max_experiments: int
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
     fits : sequence of GreyFit
         Models to overlay (e.g. the linear model and the model with the diagnosed effect).
     max_experiments : int, default 4
@@ -203,14 +203,14 @@ def _table(rows: Sequence[dict], columns: Sequence[str], table_id: str = "") -> 
     return scrolling(f"<table{id_attr}><tr>{head}</tr>{''.join(body)}</table>")
 
 
-def write_report(out_dir: str | Path, data: GreyData, rungs: Sequence[dict], diagnoses: Sequence[Diagnosis],
+def write_report(out_dir: str | Path, data: Batch, rungs: Sequence[dict], diagnoses: Sequence[Diagnosis],
                  analyses: Sequence[ResidualAnalysis], source: str = "", y_unit: str = "", u_unit: str = "") -> Path:
     """Write ``index.html`` (self-contained) into ``out_dir`` and return its path.
 
     Parameters
     ----------
     out_dir : str or Path
-    data : GreyData
+    data : Batch
     rungs, diagnoses : from :func:`agents.twin.workbench.error_ladder`
     analyses : residual analyses of the first and the last model of the ladder
     source : str

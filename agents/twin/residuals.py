@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.twin.data import GreyData
 from agents.twin.model import GreyFit
+from agents.twin.records import Batch
 
 __all__ = ["ResidualAnalysis", "residuals"]
 
@@ -58,7 +58,7 @@ class ResidualAnalysis:
                 "worst": self.worst}
 
 
-def residuals(data: GreyData, fit: GreyFit, max_lag: int | None = None, n_bins: int = 10,
+def residuals(data: Batch, fit: GreyFit, max_lag: int | None = None, n_bins: int = 10,
               n_worst: int = 5) -> ResidualAnalysis:
     """Residual whiteness, residual-input correlation and the residual's distribution over the operating range."""
     m = data.mask
@@ -141,7 +141,7 @@ def _by_sign(signs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return keys, np.searchsorted(keys, signs)
 
 
-def _worst_segments(data: GreyData, e: np.ndarray, n_worst: int) -> list[dict]:
+def _worst_segments(data: Batch, e: np.ndarray, n_worst: int) -> list[dict]:
     n_min = int(data.mask.sum(axis=1).min())
     width = max(5, n_min // 20)
     kernel = np.ones(width) / width

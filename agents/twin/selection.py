@@ -12,11 +12,11 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from agents.twin.data import GreyData
 from agents.twin.greybox_twin import GreyBoxTwin
 from agents.twin.ladder import error_ladder
 from agents.twin.model import ModelSpec
 from agents.twin.noise_floor import white_noise_floor
+from agents.twin.records import Batch
 from gbo_envs.physics.effects import EFFECTS
 
 __all__ = ["TWIN_CANDIDATES", "diagnosed_twin", "measurement_noise"]
@@ -59,7 +59,7 @@ def diagnosed_twin(records: Sequence, spec: ModelSpec, effects: Mapping | None =
     rungs : list of dict
         The ladder: ``{"model", "added", "rmse", "fit_percent", "heldout_rmse", "params"}`` per rung.
     """
-    data = GreyData.decimated(records, n_samples)
+    data = Batch.from_records(records, n_samples=n_samples)
     steps = max(int(max_effects) - len(effects or {}), 0)
     rungs, diagnoses = error_ladder(data, effects=dict(effects or {}), spec=spec, max_steps=steps,
                                     candidates=TWIN_CANDIDATES)
@@ -72,5 +72,5 @@ def measurement_noise(record) -> float:
 
     ``0.0`` when it cannot be estimated (too short, or quantized without visible noise and no common step).
     """
-    floor = white_noise_floor(GreyData.from_records([record]))
+    floor = white_noise_floor(Batch.from_records([record]))
     return float(floor) if floor is not None and np.isfinite(floor) else 0.0

@@ -13,9 +13,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from agents.twin.data import GreyData
 from agents.twin.model import ModelSpec
 from agents.twin.open_loop import simulate_open_loop
+from agents.twin.records import Batch
 
 __all__ = ["SIMULATION_BATCH_SAMPLES", "simulate_both", "simulate_sets"]
 
@@ -26,7 +26,7 @@ SIMULATION_BATCH_SAMPLES = 2**20
 SIMULATION_THREADS = min(2, os.cpu_count() or 1)
 
 
-def simulate_sets(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]],
+def simulate_sets(data: Batch, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]],
                   true_output: bool = False) -> list[np.ndarray]:
     """Simulated measurements of many ``(spec, theta, rows)`` sets in one vectorised pass.
 
@@ -41,7 +41,7 @@ def simulate_sets(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np
     return [pair[1 if true_output else 0] for pair in simulate_both(data, sets)]
 
 
-def simulate_both(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]]) -> list[tuple]:
+def simulate_both(data: Batch, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]]) -> list[tuple]:
     """``(measurement, plant output before the sensors)`` of each set, in vectorised passes.
 
     Consecutive sets are simulated together up to :data:`SIMULATION_BATCH_SAMPLES` samples
@@ -74,7 +74,7 @@ def simulate_both(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np
     return [pair for result in results for pair in result]
 
 
-def _simulate_in_parts(data: GreyData, spec: ModelSpec, theta: np.ndarray, rows: np.ndarray) -> tuple:
+def _simulate_in_parts(data: Batch, spec: ModelSpec, theta: np.ndarray, rows: np.ndarray) -> tuple:
     """``(measurement, plant output before the sensors)`` of one large set, a few records per pass."""
     k, n_steps = rows.size, data.u.shape[1]
     g = spec.n_global
@@ -94,7 +94,7 @@ def _nuisance(tail: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndar
     return tail[:k], tail[k : 2 * k], tail[2 * k :].reshape(k, m)
 
 
-def _simulate_batch(data: GreyData, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]]) -> list[tuple]:
+def _simulate_batch(data: Batch, sets: Sequence[tuple[ModelSpec, np.ndarray, np.ndarray]]) -> list[tuple]:
     """``(measurement, plant output before the sensors)`` of each set, in one vectorised pass.
 
     Every row replays its record's commands in ``data.u`` itself (``command_rows``, no copy of them),

@@ -200,7 +200,9 @@ class _Prefilter:
         Every state of every row in one compiled pass (:func:`gbo_envs.physics.kernels.lfilter_rows`, the
         numbers of ``scipy.signal.lfilter``), zero until the input arrives (the shift).
         """
-        from gbo_envs.physics import kernels  # numba is imported by the first SRIVC fit, not with this module
+        # heavy dependency kept off the diagnose start-up path: numba
+        # heavy dependency kept off the diagnose start-up path: numba
+        from gbo_envs.physics import kernels
 
         flat = x.reshape(-1, x.shape[-1])
         signals = flat.shape[0]

@@ -6,15 +6,15 @@ import numpy as np
 from scipy.special import stdtrit
 
 from agents.thread_limits import single_thread
-from agents.twin.data import GreyData
 from agents.twin.least_squares import jacobian, make_problem
 from agents.twin.model import GreyFit
+from agents.twin.records import Batch
 
 __all__ = ["parameter_intervals"]
 
 
 @single_thread()
-def parameter_intervals(data: GreyData, fit: GreyFit, level: float = 0.95) -> dict[str, dict]:
+def parameter_intervals(data: Batch, fit: GreyFit, level: float = 0.95) -> dict[str, dict]:
     """Standard error and confidence interval of each global parameter the fit moved.
 
     The covariance is the Gauss-Newton one, ``s^2 (J^T J)^{-1}`` with ``J`` the
@@ -27,7 +27,7 @@ def parameter_intervals(data: GreyData, fit: GreyFit, level: float = 0.95) -> di
 
     Parameters
     ----------
-    data : GreyData
+    data : Batch
         The data ``fit`` was fitted to.
     fit : GreyFit
     level : float, default 0.95

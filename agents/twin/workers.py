@@ -70,7 +70,8 @@ class _Pool:
         """``fn(*a)`` for each ``a`` of ``args`` in the workers, in order, one piece per dispatch (batches of
         pieces left a worker idle at a map's end: Coulomb case, 0.99 / 0.62 s of busy time on the two)."""
         if self._processes is None:
-            from gbo_envs.physics.kernels import warm_up  # imports numba: not at import time
+            # heavy dependency kept off the diagnose start-up path: numba
+            from gbo_envs.physics.kernels import warm_up
 
             warm_up(("open_loop",))  # loaded once here, inherited by the workers
             # left by terminating the workers: every map has returned by then, or is abandoned by an error

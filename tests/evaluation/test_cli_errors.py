@@ -17,7 +17,7 @@ import pytest
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.csvio import read_csv, write_csv
-from agents.twin.data import GreyData
+from agents.twin.records import Batch
 from agents.twin.workbench import diagnose
 from evaluation.cli import main
 from evaluation.study import StudySpecError, parse_study
@@ -56,7 +56,7 @@ def test_folds_below_two_are_refused(capsys, csv_path, folds):
 
 def test_folds_above_the_number_of_experiments_are_refused(capsys, csv_path):
     refused(capsys, ["twin", "diagnose", str(csv_path), "--folds", "4"], "--folds", "number of experiments (3)")
-    data = GreyData.from_records(read_csv(csv_path))
+    data = Batch.from_records(read_csv(csv_path))
     with pytest.raises(ValueError, match=r"n_folds.*from 2 to the number of experiments \(3\), got 0"):
         diagnose(data, n_folds=0)
 

@@ -14,8 +14,7 @@ from hypothesis.extra.numpy import arrays
 import agents
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.csvio import read_csv, write_csv
-from agents.twin.data import GreyData
-from agents.twin.records import as_records
+from agents.twin.records import Batch, as_records
 from gbo_envs.experiment import SIGNALS, Experiment, RecordError, validate_signals
 
 FINITE = st.floats(min_value=-1e9, max_value=1e9, allow_nan=False, allow_infinity=False)
@@ -163,7 +162,7 @@ def test_twin_accepts_records_mappings_arrays_and_frames_alike():
         out = as_records(given_records)
         assert [r.index for r in out] == [0, 1]
         np.testing.assert_array_equal(out[1].y, infos[1]["y"])
-    data = GreyData.from_records(records)
+    data = Batch.from_records(records)
     np.testing.assert_array_equal(data.index, [0, 1])
     np.testing.assert_array_equal(data.u[1], records[1].u)
 

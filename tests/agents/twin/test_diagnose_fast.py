@@ -13,10 +13,10 @@ from joblib import effective_n_jobs
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.candidates import candidate_problems
-from agents.twin.data import GreyData
 from agents.twin.least_squares import fit_problems
 from agents.twin.linear_fit import linear_fit
 from agents.twin.open_loop import _transfer_functions
+from agents.twin.records import Batch
 from agents.twin.workbench import diagnose
 from agents.twin.workers import map_independent, worker_processes
 from gbo_envs.physics import ContinuousPlant
@@ -25,8 +25,8 @@ from tests.support import loop_records
 GAINS = np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2], [1.05, 2.0]])
 
 
-def _data(effects=None, noise=0.1, n=4) -> GreyData:
-    return GreyData.from_records(loop_records(effects, gains=GAINS[:n], step=(245.0, 306.0), noise=noise, seed=0))
+def _data(effects=None, noise=0.1, n=4) -> Batch:
+    return Batch.from_records(loop_records(effects, gains=GAINS[:n], step=(245.0, 306.0), noise=noise, seed=0))
 
 
 @pytest.mark.parametrize("plant", [ContinuousPlant(num=(9.544,), den=(1.0, 4.145, 4.199), delay=0.0031),
@@ -64,7 +64,7 @@ def test_fits_in_worker_processes_equal_one_at_a_time():
         assert a.cost == b.cost and a.n_iter == b.n_iter > 0
 
 
-def _where_and_what(data: GreyData, other: np.ndarray) -> tuple[int, int, int]:
+def _where_and_what(data: Batch, other: np.ndarray) -> tuple[int, int, int]:
     return os.getpid(), id(data), id(other)
 
 
@@ -179,7 +179,7 @@ def test_an_effect_shown_by_one_record_is_credited_by_cross_validation():
     env.reset(seed=0)
     records = [env.step(np.array(g))[4] for g in ([0.1665, 1.6972], [0.52, 1.2244])]
     assert np.max(records[0]["u"]) < 138.0 < np.max(records[1]["u"])
-    data = GreyData.from_records([decimate(r, 100, mean_input=True) for r in as_records(records)])
+    data = Batch.from_records([decimate(r, 100, mean_input=True) for r in as_records(records)])
     result = diagnose(data, candidates=["saturation", "backlash"])
     assert result.best == "saturation"
     heldout = {c["effect"]: c["rmse"] for c in result.candidates}
@@ -218,7 +218,7 @@ def test_the_saturation_scan_finds_a_limit_whose_profile_is_a_narrow_v():
     env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 138.0}})
     env.reset(seed=8)
     records = [env.unwrapped.step(np.array(g))[4]["experiment"] for g in gains]
-    data = GreyData.decimated(records, 100)  # as guided BO's twin takes them
+    data = Batch.from_records(records, n_samples=100)  # as guided BO's twin takes them
     base = GreyBoxTwin(max_iter=20).fit(data).greybox_
     problems = fit_problems(data, candidate_problems(data, base, "saturation"), max_iter=20)
     best = min(problems, key=lambda p: p.cost)

@@ -40,17 +40,17 @@ def test_backlash_is_excited_by_an_input_that_turns_back_without_a_speed_reversa
     import numpy as np
 
     import gbo_envs  # noqa: F401  (registers the envs)
-    from agents.twin.data import GreyData
     from agents.twin.evidence import excitation_notes
+    from agents.twin.records import Batch
 
     env = gym.make("gbo_envs/DCMotor-v0", noise=False)
     env.reset(seed=0)
     record = env.step(np.array([0.5, 1.2]))[4]
-    notes = excitation_notes(GreyData.from_records([record]), "speed")
+    notes = excitation_notes(Batch.from_records([record]), "speed")
     assert "backlash" not in notes
     assert {"coulomb_friction", "stiction"} <= set(notes)
     flat = {**{k: record[k] for k in ("t", "r", "y")}, "u": np.linspace(100.0, 130.0, len(record["t"]))}
-    assert "never turns back" in excitation_notes(GreyData.from_records([flat]), "speed")["backlash"]
+    assert "never turns back" in excitation_notes(Batch.from_records([flat]), "speed")["backlash"]
 
 
 def test_a_saturation_that_clips_nothing_says_so_without_a_nan_ratio():
@@ -58,12 +58,12 @@ def test_a_saturation_that_clips_nothing_says_so_without_a_nan_ratio():
     evidence printed "(nanx the rms elsewhere" on a flexible-coupling rig)."""
     import numpy as np
 
-    from agents.twin.data import GreyData
     from agents.twin.evidence import effect_evidence
     from agents.twin.fits import fit_model
+    from agents.twin.records import Batch
     from tests.support import loop_records
 
-    data = GreyData.from_records(loop_records({}, gains=np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2]]), noise=0.1,
+    data = Batch.from_records(loop_records({}, gains=np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2]]), noise=0.1,
                                               seed=0))
     current = fit_model(data)
     fit = fit_model(data, {"saturation": {"limit": 1e5}})

@@ -16,18 +16,18 @@ from scipy.optimize import least_squares
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin import least_squares as greybox
 from agents.twin import simulation
-from agents.twin.data import GreyData
 from agents.twin.jacobian import RecordQR, dense_jacobian
 from agents.twin.least_squares import fit_problems, jacobian, make_problem, residual
 from agents.twin.linear_fit import linear_fit
+from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
 from tests.support import loop_records
 
 GAINS = np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2], [1.05, 2.0], [0.5, 1.9], [0.7, 1.1]])
 
 
-def _data(n=4) -> GreyData:
-    return GreyData.from_records(loop_records(None, gains=GAINS[:n], step=(245.0, 306.0), noise=0.1, seed=0))
+def _data(n=4) -> Batch:
+    return Batch.from_records(loop_records(None, gains=GAINS[:n], step=(245.0, 306.0), noise=0.1, seed=0))
 
 
 def _random_blocks(rng, n_records=5, n_steps=7):
@@ -170,7 +170,7 @@ def test_compressed_fit_holds_a_few_signals_not_a_jacobian(monkeypatch):
     """Peak memory of a large fit: a few arrays of the size of one signal (main's LSMR path: 47 of them)."""
     rng = np.random.default_rng(0)
     gains = np.column_stack([rng.uniform(0.3, 1.0, 24), rng.uniform(1.0, 2.0, 24)])
-    data = GreyData.from_records(loop_records(None, gains=gains, duration=1.0, noise=0.1, seed=0))
+    data = Batch.from_records(loop_records(None, gains=gains, duration=1.0, noise=0.1, seed=0))
     base = linear_fit(data, refine=False)
     problem = make_problem(data, base.spec, base.theta, base.y0, base.bias, np.arange(data.n_records))
     monkeypatch.setattr(greybox, "DENSE_JACOBIAN_MAX_BYTES", 0)

@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from agents.twin.data import GreyData
 from agents.twin.least_squares import residual
+from agents.twin.records import Batch
 
 
 def _data(n_records=2, n=50, mask=None):
     t = np.tile(np.arange(n) * 0.01, (n_records, 1))
     y = np.sin(t) + 5.0
     mask = np.ones_like(t, dtype=bool) if mask is None else mask
-    return GreyData(t=t, r=np.full_like(t, 6.0), u=np.ones_like(t), y=y, mask=mask, dt=0.01, index=np.arange(n_records))
+    return Batch(t=t, r=np.full_like(t, 6.0), u=np.ones_like(t), y=y, mask=mask, dt=0.01, index=np.arange(n_records))
 
 
 def test_a_diverged_simulation_gives_a_bounded_residual_whose_squares_do_not_overflow():

@@ -12,16 +12,16 @@ import numpy as np
 
 from agents.twin import ranking as diagnose_module
 from agents.twin.candidates import refit_problem
-from agents.twin.data import GreyData
 from agents.twin.fits import fit_model
 from agents.twin.least_squares import fit_problems
+from agents.twin.records import Batch
 from tests.support import loop_records
 
 GAINS = np.array([[0.3, 1.0], [0.6, 1.5], [0.9, 1.2], [1.05, 2.0], [0.5, 1.9]])
 
 
 def test_a_width_the_biases_absorb_is_put_back():
-    data = GreyData.from_records(loop_records({"dead_zone": {"width": 20.0}}, gains=GAINS, step=(-30.0, 30.0),
+    data = Batch.from_records(loop_records({"dead_zone": {"width": 20.0}}, gains=GAINS, step=(-30.0, 30.0),
                                               noise=0.1, seed=0))
     fit = fit_model(data, ["dead_zone"])
     width = fit.theta[-1]

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from agents.twin.csvio import read_csv, write_csv
-from agents.twin.data import GreyData
 from agents.twin.ladder_text import advice, format_interval, rung_text, unit_text
 from agents.twin.noise_floor import NOISE_FLOOR_LABELS, noise_floor, noise_floor_method
+from agents.twin.records import Batch
 from agents.twin.uncertainty import parameter_intervals
 from agents.twin.workbench import GreyBoxTwin, diagnose, error_ladder
 from tests.support import loop_records
@@ -24,7 +24,7 @@ NO_REVERSAL = ["saturation", "coulomb_friction", "stiction"]
 
 @pytest.fixture(scope="module")
 def saturated():
-    return GreyData.from_records(loop_records({"saturation": {"limit": LIMIT}}, gains=GAINS, duration=1.5,
+    return Batch.from_records(loop_records({"saturation": {"limit": LIMIT}}, gains=GAINS, duration=1.5,
                                               start_index=4))
 
 
@@ -34,7 +34,7 @@ def test_experiment_numbers_count_from_one_in_the_csv_and_the_data(saturated, tm
     assert sorted(set(path.read_text().splitlines()[1:][i].split(",")[0] for i in (0, -1))) == ["1", "2"]
     back = read_csv(path)
     assert [r.index for r in back] == [0, 1]  # the 0-based index of the env survives the round trip
-    assert GreyData.from_records(back).numbers.tolist() == [1, 2]
+    assert Batch.from_records(back).numbers.tolist() == [1, 2]
     assert saturated.numbers.tolist() == [5, 6, 7] and saturated.index.tolist() == [0, 1, 2]
     assert saturated.subset([2]).numbers.tolist() == [7]
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin import GreyData, diagnose
+from agents.twin import Batch, diagnose
 from agents.twin.candidates import ORDER_CANDIDATES
 from agents.twin.csvio import records_from_loop
 from gbo_envs.physics import Compliance, ContinuousPlant, build_effect, describe_effect
@@ -69,7 +69,7 @@ def test_an_env_with_a_coupling_rings():
 
 @pytest.mark.slow
 def test_diagnose_names_the_coupling_and_says_where_the_residual_rings():
-    data = GreyData.from_records(_coupled_records())
+    data = Batch.from_records(_coupled_records())
     result = diagnose(data)
     assert result.best in ("compliance", "pole_pair")
     ranked = {c["effect"]: c for c in result.candidates}
@@ -90,10 +90,10 @@ def test_one_record_grows_no_order_but_two_do():
     """One experiment holds nothing out, and its training error favours the more flexible structure: the
     order candidates are ranked but none is the best; a second experiment cross-validates the pole pair (the
     one effect offered, an offset, cannot show in records that start with their excitation)."""
-    one = diagnose(GreyData.from_records(_coupled_records(n=1)), candidates=["offset"])
+    one = diagnose(Batch.from_records(_coupled_records(n=1)), candidates=["offset"])
     assert one.best is None and one.validation.startswith("training error")
     assert one.candidates[0]["kind"] == "order" and one.candidates[0]["rmse"] < 0.5 * one.current.rmse
-    two = diagnose(GreyData.from_records(_coupled_records(n=2)), candidates=["offset"])
+    two = diagnose(Batch.from_records(_coupled_records(n=2)), candidates=["offset"])
     assert two.best == "pole_pair"
 
 
@@ -102,7 +102,7 @@ def test_order_candidates_stop_at_six_poles():
     from agents.twin.fits import fit_model
     from agents.twin.model import ModelSpec
 
-    data = GreyData.from_records(_coupled_records(n=2))
+    data = Batch.from_records(_coupled_records(n=2))
     current = fit_model(data, spec=ModelSpec(n_poles=5))
     grown = [c.name for c in candidate_plan(data, current).candidates if isinstance(c, OrderCandidate)]
     assert MAX_POLES == 6 and set(grown) == {"pole", "zero"}  # a pole pair would make 7

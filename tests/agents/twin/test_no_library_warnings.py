@@ -16,11 +16,11 @@ import pytest
 import agents
 import agents.twin.candidates as candidates
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin.data import GreyData
 from agents.twin.fits import fit_model
 from agents.twin.guesses import effect_starts
 from agents.twin.linear_fit import PROFILE_EFFECTS
 from agents.twin.model import ModelSpec
+from agents.twin.records import Batch
 from gbo_envs.physics import ContinuousPlant
 
 #: The README's effect plant: a 150-unit drive limit and Coulomb friction of 20.
@@ -45,7 +45,7 @@ def test_a_zero_gain_model_is_realised_without_a_warning():
 
 
 def test_the_effect_profiles_of_a_saturated_record_emit_no_warning():
-    data = GreyData.decimated([_saturated_record()], 100)
+    data = Batch.from_records([_saturated_record()], n_samples=100)
     base = fit_model(data, spec=ModelSpec(n_poles=2))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -58,7 +58,7 @@ def test_brent_gets_no_inf_from_a_profile_that_fails_on_part_of_its_interval(mon
     than every fitted one; two of them made its parabolic step ``inf - inf`` ("invalid value in scalar subtract")."""
     records = [gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 138.0}}).unwrapped
                .step(np.array(gains))[4]["experiment"] for gains in ([0.9, 1.5], [0.4, 1.9])]
-    data = GreyData.decimated(records, 100)
+    data = Batch.from_records(records, n_samples=100)
     base = fit_model(data, spec=ModelSpec(n_poles=2))
     n_starts = len(effect_starts("saturation", data, base)[0])
     real, starts, searched = candidates.profile, [], []

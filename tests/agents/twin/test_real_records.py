@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agents.twin import GreyData, diagnose, read_csv, write_csv
+from agents.twin import Batch, diagnose, read_csv, write_csv
 from agents.twin.evidence import excitation_notes
 from agents.twin.noise_floor import noise_floor, quantization_step
 from gbo_envs import Experiment
@@ -46,11 +46,11 @@ def test_a_fast_closed_loop_step_from_steady_state_is_not_taken_for_motion(env_i
     env.reset(seed=0)
     space = env.unwrapped.action_space
     records = [env.step(space.low + share * (space.high - space.low))[4]["experiment"] for share in (0.2, 0.5, 0.9)]
-    assert list(GreyData.from_records(records).initial.mode) == ["steady"] * 3
+    assert list(Batch.from_records(records).initial.mode) == ["steady"] * 3
 
 
 def test_records_that_show_their_rest_are_pinned_there():
-    data = GreyData.from_records(real_like_records(ASYMMETRIC))
+    data = Batch.from_records(real_like_records(ASYMMETRIC))
     start = data.initial
     assert list(start.mode) == ["rest"] * 6 and not start.assumed.any()
     assert np.all(start.y0 == 0.0) and np.all(start.u0 == 0.0)
@@ -67,18 +67,18 @@ def test_each_kind_of_start_is_told_from_the_data():
     moving = _open_loop(np.full(n, 0.4), y, index=2)
     closed = Experiment(gains=(), t=np.arange(n) * 1e-3, r=np.full(n, 50.0), u=0.5 + np.sin(np.arange(n) / 50.0),
                         y=20.0 + 2.0 * (1.0 - np.cos(np.arange(n) / 400.0)), index=3)  # the step came with sample 0
-    data = GreyData.from_records([rest, on_at_once, moving, closed])
+    data = Batch.from_records([rest, on_at_once, moving, closed])
     assert list(data.initial.mode) == ["rest", "rest", "moving", "steady"]
     assert list(data.initial.assumed) == [False, True, False, False]
     assert data.initial.u0[1] == 0.0 and data.initial.u0[0] == 0.0
-    assert list(GreyData.from_records([rest, closed], initial="steady").initial.mode) == ["steady", "steady"]
+    assert list(Batch.from_records([rest, closed], initial="steady").initial.mode) == ["steady", "steady"]
 
 
 def test_a_linear_fit_from_rest_starts_where_the_motor_stands():
     """Today's free rest levels put the simulation at -80 rad/s while the motor stood still; pinned, it starts at 0."""
     from agents.twin.greybox_twin import GreyBoxTwin
 
-    data = GreyData.from_records(real_like_records(ASYMMETRIC))
+    data = Batch.from_records(real_like_records(ASYMMETRIC))
     fit = GreyBoxTwin(n_poles=1).fit(data).greybox_
     assert np.all(fit.y0 == 0.0) and np.all(fit.bias == 0.0)
     assert np.all(np.abs(fit.y_sim[:, :100]) < 1e-9)  # at rest until the first step
@@ -94,16 +94,16 @@ def _steady_records(sign_pattern, crossing=False):
         u = sign * (0.5 + 0.1 * np.sin(t * 7.0)) - (0.8 * sign if crossing else 0.0) * (t > 0.5)
         y = sign * (40.0 + 5.0 * np.sin(t * 3.0))
         out.append(Experiment(gains=(), t=t, r=np.full(n, 45.0 * sign), u=u, y=y, index=k))
-    return GreyData.from_records(out)
+    return Batch.from_records(out)
 
 
 def test_friction_dead_zone_and_offset_are_absorbed_only_by_rests_the_data_do_not_show():
     hidden = excitation_notes(_steady_records([1, 1, -1]), "speed")  # directions differ, each absorbed by its rest
     assert {"coulomb_friction", "stiction", "dead_zone", "offset"} <= set(hidden)
-    shown = excitation_notes(GreyData.from_records(real_like_records(ASYMMETRIC, n_records=2)), "speed")
+    shown = excitation_notes(Batch.from_records(real_like_records(ASYMMETRIC, n_records=2)), "speed")
     assert not {"coulomb_friction", "stiction", "dead_zone", "offset"} & set(shown)
     one_way = real_like_records(ASYMMETRIC, n_records=3)[::2]  # from rest, one direction only: still a load to explain
-    assert "coulomb_friction" not in excitation_notes(GreyData.from_records(one_way), "speed")
+    assert "coulomb_friction" not in excitation_notes(Batch.from_records(one_way), "speed")
 
 
 def test_a_reversal_within_a_record_shows_friction_and_a_zero_crossing_shows_the_dead_zone():
@@ -112,15 +112,15 @@ def test_a_reversal_within_a_record_shows_friction_and_a_zero_crossing_shows_the
 
 
 def test_drift_needs_five_experiments_in_time_order():
-    few = excitation_notes(GreyData.from_records(real_like_records(None, n_records=4)), "speed")
+    few = excitation_notes(Batch.from_records(real_like_records(None, n_records=4)), "speed")
     assert "at least 5 experiments" in few["drift"]
-    assert "drift" not in excitation_notes(GreyData.from_records(real_like_records(None, n_records=5)), "speed")
+    assert "drift" not in excitation_notes(Batch.from_records(real_like_records(None, n_records=5)), "speed")
 
 
 # -- the noise floor of real sensors -------------------------------------------------------------------------------
 
 def test_the_floor_finds_an_encoders_quantum_and_never_falls_below_it():
-    data = GreyData.from_records(real_like_records(ASYMMETRIC))
+    data = Batch.from_records(real_like_records(ASYMMETRIC))
     step, share = quantization_step(data.y, data.mask)
     assert step == pytest.approx(QUANTUM, rel=1e-6) and share > 0.95
     assert noise_floor(data) >= (1.0 - 1e-6) * QUANTUM / np.sqrt(12.0)
@@ -138,7 +138,7 @@ def test_a_quantum_blurred_by_the_windows_timing_jitter_is_still_a_quantum(tmp_p
     counts = np.round(speed / 60.0 * 12.0 * dt)  # whole counts per window
     rpm = np.round(counts * 60.0 / (12.0 * window), 2)
     path = write_csv([_open_loop(u, rpm, dt=dt)], tmp_path / "rig.csv")
-    data = GreyData.from_records(read_csv(path))
+    data = Batch.from_records(read_csv(path))
     assert quantization_step(data.y, data.mask)[0] == pytest.approx(100.0, rel=0.01)
     assert noise_floor(data) >= 0.99 * 100.0 / np.sqrt(12.0)
 
@@ -157,7 +157,7 @@ def test_coloured_and_filtered_noise_are_not_underestimated(colour):
     else:  # a speed averaged over a moving window of 8 samples, as drive firmware filters it
         noise = np.convolve(white, np.full(8, 1.0 / np.sqrt(8.0)), mode="valid")[:n]
     sigma = 0.1
-    data = GreyData.from_records([_open_loop(u, _servo(u) + sigma * noise)])
+    data = Batch.from_records([_open_loop(u, _servo(u) + sigma * noise)])
     assert noise_floor(data) == pytest.approx(sigma * np.std(noise), rel=0.2)
 
 
@@ -179,7 +179,7 @@ def test_an_open_loop_csv_may_leave_out_r(tmp_path):
 
 @pytest.mark.slow
 def test_direction_dependent_friction_from_rest_is_found_and_the_error_falls_to_the_noise():
-    data = GreyData.from_records(real_like_records(ASYMMETRIC))
+    data = Batch.from_records(real_like_records(ASYMMETRIC))
     result = diagnose(data, spec=__import__("agents.twin.model", fromlist=["ModelSpec"]).ModelSpec(n_poles=1))
     assert result.best == "coulomb_friction"
     fit = result.fits["coulomb_friction"]
@@ -198,7 +198,7 @@ def test_direction_dependent_friction_from_rest_is_found_and_the_error_falls_to_
     ("time_delay", {"time_delay": {"delay": 0.03}}, (0.3, 0.6)),
 ])
 def test_each_real_like_set_names_its_effect_and_reaches_the_noise_floor(name, effects, levels):
-    data = GreyData.from_records(real_like_records(effects, levels=levels))
+    data = Batch.from_records(real_like_records(effects, levels=levels))
     result = diagnose(data, spec=__import__("agents.twin.model", fromlist=["ModelSpec"]).ModelSpec(n_poles=1))
     assert result.best == name
     assert result.fits[name].rmse <= 1.5 * result.noise_rmse
@@ -255,7 +255,7 @@ def test_sample_times_from_a_tenth_of_a_millisecond_to_fifty(dt):
     from agents.twin.open_loop import simulate_open_loop
 
     y = simulate_open_loop(plant, u[None], dt).y_true[0]
-    fit = linear_fit(GreyData.from_records([_open_loop(u, y, dt=dt)]), ModelSpec(n_poles=1))
+    fit = linear_fit(Batch.from_records([_open_loop(u, y, dt=dt)]), ModelSpec(n_poles=1))
     assert fit.rmse <= 1e-3 * np.ptp(y)
     assert fit.plant.dc_gain == pytest.approx(plant.dc_gain, rel=1e-3)
 
@@ -274,11 +274,11 @@ def test_a_record_cut_from_a_long_log_gets_its_moving_state_estimated():
     y = simulate_open_loop(plant, u[None], dt).y_true[0]
     records = [_open_loop(u[n // 3 : n // 3 + n], y[n // 3 : n // 3 + n], dt=dt, index=0),
                _open_loop(u[n + n // 2 : n + n // 2 + n], y[n + n // 2 : n + n // 2 + n], dt=dt, index=1)]
-    data = GreyData.from_records(records)
+    data = Batch.from_records(records)
     assert list(data.initial.mode) == ["moving", "moving"]
     fit = linear_fit(data, ModelSpec())
     assert fit.start.shape == (2, 1) and abs(fit.start[0, 0]) > 10.0  # rad/s per s: the first accelerates
     assert fit.rmse < 1e-3
     assert fit.plant.dc_gain == pytest.approx(plant.dc_gain, rel=1e-3)
-    rested = linear_fit(GreyData.from_records(records, initial="steady"), ModelSpec())
+    rested = linear_fit(Batch.from_records(records, initial="steady"), ModelSpec())
     assert rested.rmse > 100.0 * fit.rmse

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from agents.html_page import image_tag, page
-from agents.twin.data import GreyData
+from agents.twin.records import Batch
 from agents.twin.report import compare_figure, ladder_figure
 from agents.twin.workbench import GreyBoxTwin
 from gbo_envs.lazy_pyplot import pyplot
@@ -18,7 +18,7 @@ from tests.support import loop_records
 @pytest.fixture(scope="module")
 def data_and_fit():
     records = loop_records(gains=np.array([[0.4, 1.0], [0.9, 1.5]]), duration=0.5, start_index=1)
-    data = GreyData.from_records(records)
+    data = Batch.from_records(records)
     return data, GreyBoxTwin().fit(data).greybox_
 
 

@@ -13,11 +13,11 @@ from sklearn.exceptions import NotFittedError
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin import GreyBoxTwin, LinearTwin, TwinEnv, identify_linear
 from agents.twin.csvio import records_from_loop
-from agents.twin.data import GreyData
 from agents.twin.fidelity import rmse
 from agents.twin.least_squares import fit_problems, make_problem, residual
 from agents.twin.linear_fit import linear_fit
 from agents.twin.model import ModelSpec
+from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
 
 TRUE = np.array([9.544, 4.145, 4.199])
@@ -109,7 +109,7 @@ def test_greybox_twin_follows_sklearn_conventions(saturating):
     with pytest.raises(ValueError, match=r"'max_iter' parameter of GreyBoxTwin .* range \[0, inf\)"):
         GreyBoxTwin(max_iter=-1).fit(records)
     with pytest.raises(ValueError, match="n_samples: must be None"):
-        GreyBoxTwin(n_samples=100).fit(GreyData.from_records(records))
+        GreyBoxTwin(n_samples=100).fit(Batch.from_records(records))
 
 
 def test_rmse_masks_normalises_and_flags_divergence():
@@ -127,7 +127,7 @@ def test_fit_problems_matches_a_plain_least_squares_call():
     env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 150.0}}, output_noise_std=0.05)
     loop = env.unwrapped.loop.replace(duration=1.5)
     gains = np.array([[0.3, 1.0], [0.9, 1.2], [1.05, 2.0]])
-    data = GreyData.from_records(records_from_loop(loop, gains, rng=np.random.default_rng(1)))
+    data = Batch.from_records(records_from_loop(loop, gains, rng=np.random.default_rng(1)))
     base = linear_fit(data, refine=False)
     spec = ModelSpec().with_effect("saturation")
     rows = np.arange(data.n_records)
@@ -221,7 +221,7 @@ def test_a_position_outputs_error_is_taken_on_its_increments():
 
     t = np.arange(6) * 0.01
     y = np.array([0, 1, 2, 3, 3, 3.0])
-    data = GreyData.from_records([{"t": t, "r": np.full(6, 3.0), "u": np.ones(6), "y": y}])  # a closed loop
+    data = Batch.from_records([{"t": t, "r": np.full(6, 3.0), "u": np.ones(6), "y": y}])  # a closed loop
     y_sim = np.array([[0, 1, 2, 2.5, 2.5, 2.5]])  # stuck 0.5 short: an offset that persists
     e = data.y - y_sim
     np.testing.assert_allclose(output_error(data.y, y_sim, data.mask, ModelSpec(output="speed")), e)
@@ -229,7 +229,7 @@ def test_a_position_outputs_error_is_taken_on_its_increments():
     np.testing.assert_allclose(increments, [[0, 0, 0, 0.5, 0, 0]])  # counted once
     np.testing.assert_allclose(residual(data, np.array([0]), y_sim, increments=True), -increments)
     # an open-loop record (no controller to take the offset out): its position error is the error
-    open_loop = GreyData.from_records([{"t": t, "r": np.ones(6), "u": np.ones(6), "y": y}])
+    open_loop = Batch.from_records([{"t": t, "r": np.ones(6), "u": np.ones(6), "y": y}])
     assert not open_loop.closed_loop[0]
     np.testing.assert_allclose(output_error(open_loop.y, y_sim, open_loop.mask, ModelSpec(output="position"),
                                             open_loop.closed_loop), e)

@@ -17,8 +17,8 @@ import pytest
 
 import gbo_envs
 from agents.twin.candidates import ORDER_CANDIDATES  # noqa: F401  (registers the envs)
-from agents.twin.data import GreyData
 from agents.twin.open_loop import simulate_open_loop
+from agents.twin.records import Batch
 from agents.twin.workbench import compare, diagnose, fit_model, noise_floor, quantization_step, residuals
 from gbo_envs.physics import build_effects
 from tests.support import loop_records
@@ -39,8 +39,8 @@ HIDDEN = {
 }
 
 
-def _data(effects, step=(245.0, 306.0), n=4, noise=NOISE, seed=0) -> GreyData:
-    return GreyData.from_records(loop_records(effects, gains=GAINS[:n], step=step, noise=noise, seed=seed))
+def _data(effects, step=(245.0, 306.0), n=4, noise=NOISE, seed=0) -> Batch:
+    return Batch.from_records(loop_records(effects, gains=GAINS[:n], step=step, noise=noise, seed=seed))
 
 
 @pytest.fixture(scope="module", params=list(HIDDEN))
