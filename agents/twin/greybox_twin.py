@@ -195,7 +195,7 @@ class GreyBoxTwin(BaseEstimator):
         """The records stacked (decimated to ``n_samples``; their :attr:`~gbo_envs.Experiment.index` kept)."""
         if isinstance(records, Batch):
             if self.n_samples is not None:
-                raise ValueError("n_samples: must be None when the records are given as Batch (already stacked)")
+                raise ValueError("n_samples: must be None when the records are given as a Batch (already stacked)")
             return records
         return Batch.from_records(records, n_samples=self.n_samples)
 

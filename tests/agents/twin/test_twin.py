@@ -191,13 +191,15 @@ def test_simulation_error_over_several_batches_is_that_of_all_samples():
     from agents.twin import srivc
     from agents.twin.fidelity import rmse
     from agents.twin.identify import check_orders, simulation_error
-    from agents.twin.records import as_records, make_batches
+    from agents.twin.records import Batch
     from tests.support import loop_records
 
-    records = as_records(loop_records(None, gains=[[0.3, 1.0], [0.6, 1.5], [0.9, 1.2]], duration=0.5))
+    batch = Batch.from_records(loop_records(None, gains=[[0.3, 1.0], [0.6, 1.5], [0.9, 1.2]], duration=0.5))
     orders, theta = check_orders(2, 0, 0), np.array([4.0, 4.0, 9.5])
-    signals = [srivc.prepare(b.dt, b.u, b.y, b.r2, True, "zoh") for b in make_batches(records, max_samples=260)]
-    assert len(signals) == 3  # one record per batch
+    groups = batch.groups(max_samples=260)
+    assert [rows.tolist() for rows in groups] == [[0], [1], [2]]  # one record per group
+    signals = [srivc.prepare(batch.dt, batch.u[rows], batch.y[rows], batch.r[rows, -1], True, "zoh")
+               for rows in groups]
     score, score_abs, levels = simulation_error(orders, theta, 0.002, signals)
     y_sim = [srivc.simulate(orders, theta, 0.002, sig, True) for sig in signals]
     errors = np.concatenate([(sig.y + sig.y_ref[:, None]) - out[0] for sig, out in zip(signals, y_sim)])
