@@ -38,13 +38,12 @@ def graph(import_graph):
     return import_graph.build_graph(exclude_type_checking_imports=False)
 
 
-RECORDS = pytest.mark.xfail(strict=True, reason="agents/twin's cycle and local imports: being fixed in w/records")
 KEEPER = pytest.mark.xfail(strict=True, reason="guided_bo.py's local imports of agents.twin: being fixed in w/keeper")
 #: The files of ``agents`` that w/keeper rewrites.
 KEEPER_FILES = ("guided_bo.py", "guidance.py", "mf_bo.py")
 
 
-@pytest.mark.parametrize("package", ["gbo_envs", "agents", pytest.param("agents.twin", marks=RECORDS), "evaluation"])
+@pytest.mark.parametrize("package", ["gbo_envs", "agents", "agents.twin", "evaluation"])
 def test_no_import_cycle_among_the_modules_of(package, graph, import_graph):
     assert import_graph.sibling_cycles(graph, package) == []
 
@@ -59,7 +58,7 @@ def _files(import_graph, part: str):
 
 
 @pytest.mark.parametrize("part", ["gbo_envs", "agents", pytest.param("agents (w/keeper's files)", marks=KEEPER),
-                                  pytest.param("agents.twin", marks=RECORDS), "evaluation"])
+                                  "agents.twin", "evaluation"])
 def test_every_function_local_import_of_a_project_module_names_its_heavy_dependency(part, import_graph):
     unexplained = [f"{imp.path.relative_to(REPO_ROOT)}:{imp.line}: {imp.statement}"
                    for path in _files(import_graph, part) for imp in import_graph.function_local_imports(path)

@@ -105,7 +105,7 @@ def linear_constraints() -> dict[str, list]:
     Built on first use, so that the workbench's pipeline, which calls no estimator, does not import
     scikit-learn (0.4 s of every ``gbo twin`` command on the project machine).
     """
-    # heavy dependency kept off the diagnose start-up path: scikit-learn
+    # heavy dependency: scikit-learn (kept off the diagnose start-up path)
     from sklearn.utils._param_validation import Interval, StrOptions
 
     return {
@@ -465,7 +465,7 @@ def checked_options(settings: dict, caller: str) -> IdentifyOptions:
     """``settings`` as :class:`IdentifyOptions`, each checked against :func:`linear_constraints` (a setting out of
     range raises ``ValueError`` naming it and ``caller``); ``start`` (a tuple) and ``rest_levels`` (array-like)
     are checked too and left out of the options."""
-    # heavy dependency kept off the diagnose start-up path: scikit-learn
+    # heavy dependency: scikit-learn (kept off the diagnose start-up path)
     from sklearn.utils._param_validation import validate_parameter_constraints
 
     fields = {f.name for f in dataclasses.fields(IdentifyOptions)}

@@ -121,7 +121,7 @@ def _records_through(data: Batch, blocks: Sequence, output: str) -> Batch:
     for block in actuators:
         block.reset(data.n_records, None, data.dt)
     if any(b.name in STATEFUL_ACTUATORS for b in actuators):
-        # heavy dependency kept off the diagnose start-up path: numba
+        # heavy dependency: numba (kept off the diagnose start-up path)
         from gbo_envs.physics import kernels
 
         stepped = kernels.step_actuators(actuators, u, speed, data.dt)  # compiled: the same numbers

@@ -390,8 +390,7 @@ def _free_response(d: DiscretePlant, dx: np.ndarray, n: int) -> np.ndarray:
         mk = d.phi @ mk + den[k - 1] * np.eye(order)
         den[k] = -np.trace(d.phi @ mk) / k
         num[:, k] = dx[:, :order] @ (mk.T @ d.c)  # c M_k dx, per row
-    # heavy dependency kept off the diagnose start-up path: numba
-    # heavy dependency kept off the diagnose start-up path: numba
+    # heavy dependency: numba (kept off the diagnose start-up path)
     from gbo_envs.physics import kernels
 
     impulse = np.zeros((1, n + 1))
@@ -419,8 +418,7 @@ def _direct(continuous, discrete, chains, u, commands, rows, dt, y0, bias, out, 
     when it knows every block of the rows, else in :func:`_direct_numpy`: the same numbers. The results
     go into the rows ``rows`` of the outputs ``out``.
     """
-    # heavy dependency kept off the diagnose start-up path: numba
-    # heavy dependency kept off the diagnose start-up path: numba
+    # heavy dependency: numba (kept off the diagnose start-up path)
     from gbo_envs.physics import kernels
 
     compiled = all(kernels.known(b) for chain in chains for b in chain if b.side != "plant")
@@ -452,7 +450,7 @@ def _direct(continuous, discrete, chains, u, commands, rows, dt, y0, bias, out, 
 def _direct_numpy(rest: _Rest, u: np.ndarray, out: dict) -> None:
     """:func:`_direct` in numpy (blocks the kernel does not know): the maps act on whole records at once,
     their parameters as column vectors, one per row."""
-    # heavy dependency kept off the diagnose start-up path: numba
+    # heavy dependency: numba (kept off the diagnose start-up path)
     from gbo_envs.physics import kernels
 
     n = u.shape[1]
@@ -508,7 +506,7 @@ def _kernel_input(u: np.ndarray) -> np.ndarray:
 def _packed(groups, batch: int, dt: float):
     """``(sensors, actuators)``: the rows' blocks packed for the kernels (:func:`gbo_envs.physics.kernels.pack_blocks`),
     each ``None`` when a block of its side is unknown to them."""
-    # heavy dependency kept off the diagnose start-up path: numba
+    # heavy dependency: numba (kept off the diagnose start-up path)
     from gbo_envs.physics import kernels
 
     sides = {}
@@ -751,8 +749,7 @@ def _stepping(continuous, discrete, chains, u, commands, rows, dt, y0, bias, out
         c_rows[row, :m] = d.c
         speed_rows[row, :m] = d.c if p.output != "position" else d.velocity_row()
 
-    # heavy dependency kept off the diagnose start-up path: numba
-    # heavy dependency kept off the diagnose start-up path: numba
+    # heavy dependency: numba (kept off the diagnose start-up path)
     from gbo_envs.physics import kernels
 
     sensors, actuators = _packed(groups, batch, dt)

@@ -200,8 +200,7 @@ class _Prefilter:
         Every state of every row in one compiled pass (:func:`gbo_envs.physics.kernels.lfilter_rows`, the
         numbers of ``scipy.signal.lfilter``), zero until the input arrives (the shift).
         """
-        # heavy dependency kept off the diagnose start-up path: numba
-        # heavy dependency kept off the diagnose start-up path: numba
+        # heavy dependency: numba (kept off the diagnose start-up path)
         from gbo_envs.physics import kernels
 
         flat = x.reshape(-1, x.shape[-1])

@@ -70,7 +70,7 @@ class _Pool:
         """``fn(*a)`` for each ``a`` of ``args`` in the workers, in order, one piece per dispatch (batches of
         pieces left a worker idle at a map's end: Coulomb case, 0.99 / 0.62 s of busy time on the two)."""
         if self._processes is None:
-            # heavy dependency kept off the diagnose start-up path: numba
+            # heavy dependency: numba (kept off the diagnose start-up path)
             from gbo_envs.physics.kernels import warm_up
 
             warm_up(("open_loop",))  # loaded once here, inherited by the workers

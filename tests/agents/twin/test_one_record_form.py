@@ -19,7 +19,7 @@ from agents.twin.records import Batch
 from gbo_envs.experiment import Experiment, RecordError
 
 TWIN = Path(agents.twin.__file__).parent
-HEAVY = "# heavy dependency kept off the diagnose start-up path: "
+HEAVY = "# heavy dependency: "
 
 
 @pytest.fixture(scope="module")
