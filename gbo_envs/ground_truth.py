@@ -7,6 +7,7 @@ search, a second independent search that must agree within a stated tolerance).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import gymnasium as gym
@@ -16,7 +17,7 @@ from tqdm.auto import tqdm
 
 from gbo_envs.gain_grid import grid_axes, grid_points
 from gbo_envs.ground_truth_tables import load_search_table, load_table
-from gbo_envs.optimum_search import certified_minimum, default_points
+from gbo_envs.optimum_search import SearchDisagreement, certified_minimum, default_points
 from gbo_envs.plotting import cost_surface
 
 __all__ = ["GRID_MAX_GAINS", "GroundTruth", "METHODS", "ground_truth", "search_settings"]
@@ -142,7 +143,7 @@ class GroundTruth:
 
 
 def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: int = -1, progress: bool = False,
-                 use_table: bool = True, method: str = "auto", n_points: int | None = None, n_starts: int = 8,
+                 use_table: bool = True, method: str = "auto", n_points: int | None = None, n_starts: int = 16,
                  tolerance: float = 1e-3, seeds: tuple[int, int] = (0, 1), **make_kwargs) -> GroundTruth:
     """Ground-truth minimum of the cost ``J(theta)`` over the feasible set: a grid (two gains) or a search.
 
@@ -151,7 +152,8 @@ def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: in
     :func:`gbo_envs.optimum_search.certified_minimum` on ``J``: ``n_points``
     scrambled Sobol points and L-BFGS-B from the best ``n_starts`` (seed
     ``seeds[0]``), and an independent second search (seed ``seeds[1]``,
-    Nelder-Mead) whose minimum must lie within ``tolerance`` (relative cost);
+    Nelder-Mead), every start ending with Nelder-Mead restarts, whose minimum
+    must lie within ``tolerance`` (relative cost);
     the result carries both answers and their disagreement, and a
     :class:`~gbo_envs.optimum_search.SearchDisagreement` warning says when they
     do not agree.
@@ -196,7 +198,7 @@ def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: in
     n_points : int, optional
         Search: Sobol points per search (default
         :func:`~gbo_envs.optimum_search.default_points`, ``2 ** (10 + n_gains)`` up to ``2 ** 16``).
-    n_starts : int, default 8
+    n_starts : int, default 16
         Search: local searches per search, ``>= 1``.
     tolerance : float, default 1e-3
         Search: largest admitted relative difference of the two searches' minima, ``> 0``.
@@ -238,7 +240,7 @@ def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: in
                        gain_units=plant_env.gain_units)
 
 
-def search_settings(dim: int, n_points: int | None = None, n_starts: int = 8, tolerance: float = 1e-3,
+def search_settings(dim: int, n_points: int | None = None, n_starts: int = 16, tolerance: float = 1e-3,
                     seeds: tuple[int, int] = (0, 1)) -> dict:
     """The settings of a ground-truth search of ``dim`` gains, as its table's fingerprint holds them.
 
@@ -257,6 +259,10 @@ def _search(env, search: dict, chunk: int, progress: bool, use_table: bool) -> G
     """The certified search of ``env`` with the settings ``search`` (from its shipped table where one fits)."""
     plant = env.unwrapped
     stored = load_search_table(env, search) if use_table else None
+    if stored is not None and not stored["disagreement"] <= stored["tolerance"]:
+        warnings.warn(f"ground_truth: the shipped search of this env is not certified: its two searches disagree "
+                      f"by {stored['disagreement']:.3g} (relative cost), above the tolerance {stored['tolerance']:g}",
+                      SearchDisagreement, stacklevel=3)
     if stored is None:
         box = plant.action_space
         best, other, disagreement = certified_minimum(

@@ -112,3 +112,18 @@ def bo_ei(bo):
     from agents.acquisition import ExpectedImprovement
 
     return ExpectedImprovement(bo.fit_surrogate(), bo.incumbent())
+
+
+def test_the_initial_design_is_a_latin_hypercube_in_4_gains():
+    s = space(4)
+    bo = agents.BayesianOptimization(n_initial=6, model="cost")
+    bo.setup(s, seed=2)
+    design = []
+    for _ in range(6):
+        gains = np.asarray(bo.ask())
+        design.append(s.to_unit(gains))
+        bo.tell(gains, bowl(gains, s))
+    strata = np.floor(np.asarray(design) * 6).astype(int)
+    for column in strata.T:  # one point in each sixth of every gain's range
+        assert sorted(column) == list(range(6))
+    assert np.isnan(bo.last_ei_)

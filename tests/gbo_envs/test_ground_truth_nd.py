@@ -90,7 +90,7 @@ def test_a_disagreement_above_the_tolerance_warns_and_is_reported():
 @pytest.mark.parametrize(("kwargs", "message"), [
     ({"method": "exhaustive"}, r"method: must be one of \('auto', 'grid', 'search'\)"),
     ({"n_starts": 0}, "n_starts: must be an integer >= 1"),
-    ({"n_points": 4}, "n_points: must be an integer >= 8"),
+    ({"n_points": 4}, "n_points: must be an integer >= 16"),
     ({"tolerance": 0.0}, "tolerance: must be > 0"),
 ])
 def test_bad_search_settings_name_the_parameter(kwargs, message):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -13,6 +14,7 @@ import gbo_envs
 from gbo_envs import ground_truth, ground_truth_tables
 from gbo_envs.envs.rigs import DC_RIG
 from gbo_envs.ground_truth_tables import TABLE_DIR, fingerprint, load_table, save_table, table_path
+from gbo_envs.optimum_search import SearchDisagreement
 
 SHIPPED = sorted(f"gbo_envs/{path.stem}" for path in TABLE_DIR.glob("*.npz"))
 
@@ -33,8 +35,11 @@ def test_the_dc_rig_table_is_shipped():
 
 
 def test_the_envs_with_more_gains_ship_their_search():
-    assert "gbo_envs/DCMotorPID-v0" in SEARCHES
+    assert {"gbo_envs/DCMotorPID-v0", "gbo_envs/LinearMotorCascade-v0"} <= set(SEARCHES)
     assert all(gym.make(env_id).unwrapped.action_space.shape[0] >= 3 for env_id in SEARCHES)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the PID's two searches agree within the tolerance: no warning
+        assert ground_truth("gbo_envs/DCMotorPID-v0").certified
 
 
 @pytest.mark.parametrize("env_id", SEARCHES)
@@ -48,12 +53,17 @@ def test_a_shipped_search_equals_the_live_expectation_and_is_certified(env_id, m
                                "benchmarks/ground_truth_tables.py"
     live = env.unwrapped.evaluate(np.vstack([stored["gains"], stored["check_gains"]]), experiment_index=0)[1]
     np.testing.assert_allclose(live, [stored["cost"], stored["check_cost"]], rtol=1e-12, atol=0.0)
-    assert stored["disagreement"] <= stored["tolerance"] == 1e-3
-    # the default request reads it: no search runs
+    assert stored["tolerance"] == 1e-3 and stored["check_cost"] >= stored["cost"]
+    assert stored["disagreement"] == pytest.approx((stored["check_cost"] - stored["cost"]) / stored["cost"])
+    # the default request reads it (no search runs) and warns when the two searches disagree
     monkeypatch.setattr(sys.modules["gbo_envs.ground_truth"], "certified_minimum",
                         lambda *a, **k: pytest.fail("searched live"))
-    truth = ground_truth(env_id)
-    assert truth.method == "search" and truth.certified and truth.cost == stored["cost"]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        truth = ground_truth(env_id)
+    disagree = [w for w in caught if issubclass(w.category, SearchDisagreement)]
+    assert len(disagree) == (0 if stored["disagreement"] <= stored["tolerance"] else 1)
+    assert truth.method == "search" and truth.cost == stored["cost"] and truth.disagreement == stored["disagreement"]
     box = env.unwrapped.action_space
     assert np.all((box.low <= truth.gains) & (truth.gains <= box.high))
     noise_free = gym.make(env_id, noise=False)
