@@ -13,15 +13,16 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from scipy.optimize import minimize
 
 from agents.base import Tuner
 from agents.bo import BayesianOptimization
-from agents.guided_bo import RMSE_FLOOR, TWIN_CHOICES, GuidedBO
 from agents.mf_correction import TwinCorrection
 from agents.parameters import HasMethods, Interval, Options, validate_params
 from agents.peers.base import latin_hypercube, require
+from agents.twin_keeper import RMSE_FLOOR, TWIN_CHOICES, TwinKeeper
 
-__all__ = ["MultiFidelityBO", "NUM_RESTARTS", "RAW_SAMPLES"]
+__all__ = ["MultiFidelityBO", "NUM_RESTARTS", "RAW_SAMPLES", "robust_minimum"]
 
 #: ``optimize_acqf_mixed``: L-BFGS-B starts per fidelity, and the random points they are picked from.
 NUM_RESTARTS, RAW_SAMPLES = 2, 32
@@ -45,11 +46,11 @@ TWIN_LOG_NOISE = 1e-3
 class MultiFidelityBO(Tuner):
     r"""Multi-fidelity BO: the twin at fidelity ``s_twin``, the plant at ``s = 1``, in one BoTorch GP.
 
-    **The twin.** Guided BO's twin (:meth:`agents.guided_bo.GuidedBO.twin_env`, with
-    ``twin="auto"`` the diagnosed grey-box twin, refitted when it mispredicts a new
-    record): every plant experiment is told to a :class:`~agents.guided_bo.GuidedBO`
-    that keeps the twin records ``D~`` and fits the twin; its :class:`~agents.twin.TwinEnv`
-    gives the twin's expected cost at any gains.
+    **The twin.** Guided BO's twin (with ``twin="auto"`` the diagnosed grey-box twin,
+    refitted when it mispredicts a new record): every plant experiment is told to a
+    :class:`~agents.twin_keeper.TwinKeeper` (with the cost rule of guided BO's default
+    guidance, ``refit_on_cost_miss``) that keeps the twin records ``D~`` and fits the twin;
+    its :class:`~agents.twin.TwinEnv` gives the twin's expected cost at any gains.
 
     **The correction and the fidelity** (:class:`~agents.mf_correction.TwinCorrection`).
     Before every proposal the current twin is simulated at the gains of every plant
@@ -87,7 +88,7 @@ class MultiFidelityBO(Tuner):
     (``s_twin >= min_fidelity``), it is evaluated at ``twin_design`` Latin hypercube
     points of the gain box (twin rows with ``design=True``): the twin is cheap, and the
     GP then knows its shape over the whole box. Each new twin's robust optimum
-    (:meth:`_twin_optimum`: Nelder-Mead on the worst twin cost within 1 % of each gain's
+    (:func:`robust_minimum`: Nelder-Mead on the worst twin cost within 1 % of each gain's
     range) and its neighbours ``+- 1 %`` along each gain are twin rows too
     (``twin_optimum=True``): the cost's optimum can sit in a thin valley or on the edge
     of a cliff (DCMotor-v0's cost jumps from 1.0 to 1.4 times the optimum across a line
@@ -150,6 +151,8 @@ class MultiFidelityBO(Tuner):
 
     Attributes
     ----------
+    keeper_ : TwinKeeper
+        The twin of the run: its records ``D~``, fits and changes.
     fidelity_ : float
         The current ``s_twin``.
     correction_ : TwinCorrection or None
@@ -199,8 +202,8 @@ class MultiFidelityBO(Tuner):
         # the default BO, seeded as agents.make("bo"): the initial design, and every proposal without a twin
         self._bo = BayesianOptimization(n_initial=self.n_initial)
         self._bo.setup(self.space, seed=self.seed, env=self.env)
-        self._keeper = GuidedBO(n_initial=self.n_initial, twin=self.twin)  # keeps D~ and fits the twin
-        self._keeper.setup(self.space, seed=self.seed, env=self.env)
+        self.keeper_ = TwinKeeper(self.twin, refit_on_cost_miss=True)  # keeps D~ and fits the twin
+        self.keeper_.setup(self.space, self.env.unwrapped)
         self._torch_seeds = np.random.default_rng(self.rng.integers(2**31))
         self._design = latin_hypercube(np.random.default_rng(self.rng.integers(2**31)), self.space.dim,
                                        self.twin_design) if self.twin_design else np.empty((0, self.space.dim))
@@ -243,16 +246,16 @@ class MultiFidelityBO(Tuner):
         self._plant_X.append(self.space.to_unit(gains))
         self._plant_y.append(cost)
         self._bo.tell(gains, cost, record)
-        self._keeper.tell(gains, cost, record)
-        for text in self._keeper.drain_events():
+        self.keeper_.tell(gains, cost, record)
+        for text in self.keeper_.drain_events():
             self.log_event(text)
 
     def run_summary(self) -> dict[str, Any]:
-        twin = self._keeper.twin_
+        twin = self.keeper_.twin_
         return {"fidelity": self.fidelity_, "fidelity_trace": list(self.fidelity_trace_),
                 "twin_evaluations": self.twin_evaluations_, "twin_simulations": self.twin_simulations_,
                 "twin_rmse": None if twin is None else float(twin.rmse_),
-                "twin_changes": [{k: v for k, v in c.items() if k != "text"} for c in self._keeper.twin_changes_]}
+                "twin_changes": [{k: v for k, v in c.items() if k != "text"} for c in self.keeper_.changes_]}
 
     # -- the twin, its correction and fidelity -------------------------------------------------------
     def _twin_costs(self, twin_env, unit: np.ndarray) -> np.ndarray:
@@ -271,14 +274,14 @@ class MultiFidelityBO(Tuner):
 
     def _estimate_fidelity(self):
         """Refit the correction on the plant records; returns the twin env (``None`` without a twin)."""
-        twin_env = self._keeper.twin_env()
-        for text in self._keeper.drain_events():
+        twin_env = self.keeper_.twin_env()
+        for text in self.keeper_.drain_events():
             self.log_event(text)
         if twin_env is None:
             self.fidelity_, self.correction_ = 0.0, None
             return None
         twin = self._twin_costs(twin_env, np.asarray(self._plant_X))
-        keeper = self._keeper
+        keeper = self.keeper_
         self.correction_ = TwinCorrection(min_records=self.min_records, max_fidelity=MAX_FIDELITY).fit(
             twin, self._plant_y, response_rmse=float(keeper.twin_.rmse_),
             noise_floor=max(keeper.noise_floor_, RMSE_FLOOR), cost_noise=keeper.sigma_eps)
@@ -286,32 +289,20 @@ class MultiFidelityBO(Tuner):
         return twin_env
 
     def _twin_optimum(self, twin_env) -> np.ndarray:
-        """The twin's robust minimiser (unit box): the gains whose worst twin cost within ``ROBUST_RADIUS`` is lowest.
+        """The twin's robust minimiser (unit box), searched from the lowest twin row or experiment.
 
-        Nelder-Mead on ``max_{v in N(u)} log J_twin(v)`` (``N(u)``: ``u`` and ``u +- r e_i``,
-        :func:`_neighbourhood`), from the lowest twin row or experiment. A simulation costs
-        well under a millisecond, a GP fit tens, so each new twin's optimum is searched
-        directly; it enters the GP with its neighbourhood as twin rows, where a thin
-        optimal valley between the design points would otherwise stay unseen. Robust,
-        because an optimum can sit on a cliff of the cost (DCMotor-v0's jumps from ratio 1.0
-        to 1.4 across a line through its optimum): the twin's plain minimiser lies on the
-        edge, and the plant's edge, a little off the twin's, puts it on the high side.
+        A simulation costs well under a millisecond, a GP fit tens, so each new twin's optimum is
+        searched directly (:func:`robust_minimum`); it enters the GP with its neighbourhood as twin
+        rows, where a thin optimal valley between the design points would otherwise stay unseen.
         """
-        from scipy.optimize import minimize
-
         known = np.vstack([np.asarray(self._twin_X).reshape(-1, self.space.dim), np.asarray(self._plant_X)])
         start = known[int(np.argmin(self._twin_costs(twin_env, known)))]
-
-        def worst_log_cost(unit: np.ndarray) -> float:
-            return float(np.log(np.max(self._twin_costs(twin_env, _neighbourhood(unit)))))
-
-        found = minimize(worst_log_cost, start, method="Nelder-Mead", bounds=[(0.0, 1.0)] * self.space.dim,
-                         options={"maxfev": OPTIMUM_STEPS, "xatol": OPTIMUM_TOLERANCE, "fatol": 1e-6})
-        return np.clip(found.x, 0.0, 1.0)
+        return robust_minimum(lambda unit: self._twin_costs(twin_env, unit), start)
 
     # -- multi-fidelity proposals --------------------------------------------------------------------
     def _ask_multi_fidelity(self, twin_env) -> np.ndarray:
         """Twin evaluations while the cost-weighted acquisition prefers them, then the real experiment."""
+        # torch, botorch: optional (the mf extra), imported where used
         import torch
 
         threads = torch.get_num_threads()
@@ -344,13 +335,14 @@ class MultiFidelityBO(Tuner):
         order); a twin row is a deterministic simulation, noise-free but for the jitter
         ``TWIN_LOG_NOISE``.
         """
+        # torch, botorch: optional (the mf extra), imported where used
         import torch
 
         twin_env = self._twin_cache[0]
         costs = np.maximum(self._plant_y, 1e-300)
         X = [np.column_stack([np.asarray(self._plant_X), np.ones(len(self._plant_X))])]
         y = [-np.log(costs)]
-        variance = [np.maximum(self._keeper.sigma_eps / costs, TWIN_LOG_NOISE) ** 2]
+        variance = [np.maximum(self.keeper_.sigma_eps / costs, TWIN_LOG_NOISE) ** 2]
         if self._twin_X:
             unit = np.asarray(self._twin_X)
             X.append(np.column_stack([unit, np.full(len(unit), self.fidelity_)]))
@@ -366,6 +358,7 @@ class MultiFidelityBO(Tuner):
         decides the fidelity (only 1 if ``last``); a real experiment goes to the maximiser
         of log EI at ``s = 1`` (see "The acquisition" in the class doc).
         """
+        # torch, botorch: optional (the mf extra), imported where used
         from botorch.optim import optimize_acqf_mixed
 
         dim = self.space.dim
@@ -382,6 +375,7 @@ class MultiFidelityBO(Tuner):
 
     def _fit_model(self):
         """The ``SingleTaskMultiFidelityGP`` on the plant and twin rows, warm-started from the last fit."""
+        # torch, botorch: optional (the mf extra), imported where used
         from botorch.fit import fit_gpytorch_mll
         from botorch.models import SingleTaskMultiFidelityGP
         from botorch.models.transforms.outcome import Standardize
@@ -401,6 +395,7 @@ class MultiFidelityBO(Tuner):
 
     def _information_per_cost(self, model):
         """``qMultiFidelityMaxValueEntropy`` weighted by the inverse affine cost through ``c(s_twin)``, ``c(1)``."""
+        # torch, botorch: optional (the mf extra), imported where used
         import torch
         from botorch.acquisition.cost_aware import InverseCostWeightedUtility
         from botorch.acquisition.max_value_entropy_search import qMultiFidelityMaxValueEntropy
@@ -417,6 +412,7 @@ class MultiFidelityBO(Tuner):
 
     def _plant_point(self, model) -> np.ndarray:
         """The real experiment: the posterior mean's maximiser at ``s = 1``, or log EI's where that repeats."""
+        # torch, botorch: optional (the mf extra), imported where used
         from botorch.acquisition import FixedFeatureAcquisitionFunction, LogExpectedImprovement, PosteriorMean
         from botorch.optim import optimize_acqf
 
@@ -435,6 +431,37 @@ class MultiFidelityBO(Tuner):
         return np.clip(candidate.detach().numpy().reshape(dim), 0.0, 1.0)
 
 
+def robust_minimum(cost, start) -> np.ndarray:
+    """The gains (unit box) whose worst cost within :data:`ROBUST_RADIUS` of each gain's range is lowest.
+
+    Nelder-Mead on ``max_{v in N(u)} log J(v)`` (``N(u)``: ``u`` and ``u +- r e_i``,
+    :func:`_neighbourhood`) from ``start``, at most :data:`OPTIMUM_STEPS` steps to
+    :data:`OPTIMUM_TOLERANCE`. Robust, because an optimum can sit on a cliff of the cost
+    (DCMotor-v0's jumps from ratio 1.0 to 1.4 across a line through its optimum): the plain
+    minimiser lies on the edge, and the plant's edge, a little off the twin's, puts it on the high side.
+
+    Parameters
+    ----------
+    cost : callable
+        ``cost(unit)``: positive costs (m,) at unit-box gains (m, n_gains).
+    start : array_like of shape (n_gains,)
+        Unit-box gains the search starts from.
+
+    Returns
+    -------
+    ndarray of shape (n_gains,)
+        In the unit box.
+    """
+    start = np.asarray(start, dtype=float)
+
+    def worst_log_cost(unit: np.ndarray) -> float:
+        return float(np.log(np.max(cost(_neighbourhood(unit)))))
+
+    found = minimize(worst_log_cost, start, method="Nelder-Mead", bounds=[(0.0, 1.0)] * start.size,
+                     options={"maxfev": OPTIMUM_STEPS, "xatol": OPTIMUM_TOLERANCE, "fatol": 1e-6})
+    return np.clip(found.x, 0.0, 1.0)
+
+
 def _neighbourhood(unit: np.ndarray) -> np.ndarray:
     """``u`` and ``u +- ROBUST_RADIUS e_i`` in the unit box, shape (2 n_gains + 1, n_gains)."""
     unit = np.clip(np.asarray(unit, dtype=float), 0.0, 1.0)
@@ -444,6 +471,7 @@ def _neighbourhood(unit: np.ndarray) -> np.ndarray:
 
 def _unit_box(dim: int):
     """The bounds ``[0, 1]^dim`` of ``optimize_acqf``, a float64 tensor of shape (2, dim)."""
+    # torch, botorch: optional (the mf extra), imported where used
     import torch
 
     bounds = torch.zeros(2, dim, dtype=torch.float64)

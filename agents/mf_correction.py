@@ -46,6 +46,10 @@ loop's cost is large), and the line then corrects a relative bias of the twin.
 from __future__ import annotations
 
 import numpy as np
+from scipy.stats import pearsonr
+from sklearn.linear_model import LinearRegression
+from sklearn.metrics import r2_score
+from sklearn.model_selection import LeaveOneOut, cross_val_predict
 
 from agents.parameters import Interval, validate_params
 
@@ -137,11 +141,6 @@ class TwinCorrection:
         self.estimate_ = "costs"
         if np.ptp(x) == 0.0 or np.ptp(y) == 0.0:
             return self
-        from scipy.stats import pearsonr
-        from sklearn.linear_model import LinearRegression
-        from sklearn.metrics import r2_score
-        from sklearn.model_selection import LeaveOneOut, cross_val_predict
-
         line = LinearRegression().fit(x[:, None], y)
         self.intercept_, self.slope_ = float(line.intercept_), float(line.coef_[0])
         held_out = cross_val_predict(LinearRegression(), x[:, None], y, cv=LeaveOneOut())

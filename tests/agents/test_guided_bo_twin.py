@@ -10,9 +10,11 @@ import pytest
 
 import agents
 import gbo_envs  # noqa: F401
+from agents import twin_keeper
 from agents.guidance import TwinIterations
 from agents.guided_bo import GuidedBO
 from agents.twin import LinearTwin, make_twin_env
+from agents.twin_keeper import TwinKeeper
 
 FAST = {"grid_points": 40}
 
@@ -26,6 +28,17 @@ def _setup(tuner, env, seed=0):
     tuner.setup(agents.GainSpace.from_env(env), seed=seed, env=env)
     env.reset(seed=seed)
     return tuner
+
+
+def _keeper(env, **params):
+    keeper = TwinKeeper(**params)
+    keeper.setup(agents.GainSpace.from_env(env), env.unwrapped)
+    return keeper
+
+
+def _tell(keeper, records):
+    for info in records:
+        keeper.tell(info["gains"], info["cost"], info)
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +89,7 @@ def test_linear_twin_is_the_papers_algorithm():
     assert isinstance(tuner.twin_, LinearTwin)
     assert tuner.noise_floor_ == 0.0  # the paper's twin simulates no measurement noise
     assert tuner.eta2_value == pytest.approx(3.0 * tuner.sigma_eps)
-    assert tuner._current_twin_env().loop.output_noise_std == 0.0
+    assert tuner.twin_env().loop.output_noise_std == 0.0
 
 
 def test_eta2_is_relative_to_the_noise_floor():
@@ -128,39 +141,55 @@ def test_twin_env_averages_its_measurement_noise_deterministically():
 
 
 # -- trust -----------------------------------------------------------------------------------------------
+#: DCMotor-v0 gains far from its optimum, and near it (0.52, 1.16).
+FAR, NEAR = [0.9, 1.0], [0.52, 1.16]
+
+
 def test_a_broken_promise_stops_the_twin_until_a_refit_no_longer_makes_it():
     env = gym.make("gbo_envs/DCMotor-v0")
-    tuner = _setup(GuidedBO(guidance="iterations", **FAST), env)  # trust guards the twin iterations
-    info = _records(gym.make("gbo_envs/DCMotor-v0"), [[0.5, 1.2]])[0]
-    tuner.tell(info["gains"], info["cost"], info)
-    assert tuner._current_twin() is not None and tuner._activate(std=np.inf)
-    twin_gains, incumbent = np.array([0.9, 1.5]), np.asarray(info["gains"])
-    # the twin promised an improvement of 0.2 over the incumbent's 0.3; the plant measured 0.4 (worse)
-    tuner._promise = (twin_gains, incumbent, 0.3, 0.2)
-    tuner.tell(twin_gains, 0.4, None)
-    assert not tuner.trusted and tuner.distrusts_ == 1
-    assert not tuner._activate(std=np.inf)
-    # a refitted twin that still promises more than was delivered stays distrusted ...
-    twin_env = tuner._current_twin_env()
-    honest = tuner._twin_cost(twin_env, incumbent) - tuner._twin_cost(twin_env, twin_gains)
-    tuner._broken = (twin_gains, incumbent, honest - 10 * tuner.sigma_eps, 1)
-    tuner._restore_trust()
-    assert not tuner.trusted
-    # ... unless it was refitted on twice the records it had when it lost trust ...
-    tuner._twin_records.append(tuner._twin_records[0])
-    tuner._restore_trust()
-    assert tuner.trusted
-    tuner._twin_records.pop()
-    # ... and one whose promise matches what the plant delivered is trusted again
-    tuner._broken = (twin_gains, incumbent, honest, 1)
-    tuner._restore_trust()
-    assert tuner.trusted
+    records = _records(gym.make("gbo_envs/DCMotor-v0"), [FAR, [0.3, 1.2], [0.6, 1.6]] + [[0.4, 1.9]] * 5)
+    keeper = _keeper(env)
+    _tell(keeper, records[:1])
+    assert keeper.can_guide() and keeper.trusted
+    _tell(keeper, records[1:3])
+    assert keeper.can_guide() and len(keeper.changes_) == 1  # the twin of one record predicts the next two
+    sigma = keeper.sigma_eps
+    incumbent, twin_gains = np.asarray(FAR), np.asarray(NEAR)
+    honest = keeper.twin_cost(incumbent) - keeper.twin_cost(twin_gains)
+    assert honest > 0.1  # the twin rates its point far better than the incumbent
+    # the twin promised that over the incumbent's GP mean 0.3; the plant measured 0.4 (worse)
+    keeper.promise(twin_gains, keeper.twin_cost(twin_gains), incumbent, 0.3)
+    keeper.tell(twin_gains, 0.4, None)
+    assert not keeper.trusted and keeper.distrusts_ == 1 and not keeper.can_guide()
+    # a twin refitted on fewer than twice the records it had then still promises that: it stays distrusted ...
+    _tell(keeper, records[3:4])
+    assert not keeper.can_guide() and len(keeper.changes_) == 2
+    # ... until it is refitted on at least twice those records (more excitation)
+    _tell(keeper, records[4:8])
+    assert keeper.can_guide() and len(keeper.changes_) == 3 and keeper.distrusts_ == 1
     # a promise kept within the noise does not cost trust, nor does a smaller improvement than promised
-    tuner._promise = (twin_gains, incumbent, 0.3, 0.05)
-    tuner.tell(twin_gains, 0.3 - 0.05 + tuner.sigma_eps, None)
-    tuner._promise = (twin_gains, incumbent, 0.3, 0.2)
-    tuner.tell(twin_gains, 0.29, None)
-    assert tuner.trusted and tuner.distrusts_ == 1
+    keeper.promise(twin_gains, keeper.twin_cost(incumbent) - 0.05, incumbent, 0.3)
+    keeper.tell(twin_gains, 0.3 - 0.05 + sigma, None)
+    keeper.promise(twin_gains, keeper.twin_cost(incumbent) - 0.2, incumbent, 0.3)
+    keeper.tell(twin_gains, 0.29, None)
+    assert keeper.trusted and keeper.distrusts_ == 1
+
+
+def test_a_refit_that_no_longer_makes_the_broken_promise_restores_trust():
+    env = gym.make("gbo_envs/DCMotor-v0")
+    records = _records(gym.make("gbo_envs/DCMotor-v0"), [NEAR, [0.3, 1.2], [0.6, 1.6], [0.4, 1.9]])
+    keeper = _keeper(env)
+    _tell(keeper, records[:3])
+    assert keeper.can_guide() and len(keeper.changes_) == 1
+    incumbent, twin_gains = np.asarray(NEAR), np.asarray(FAR)
+    honest = keeper.twin_cost(incumbent) - keeper.twin_cost(twin_gains)
+    assert honest < -3 * keeper.sigma_eps  # this twin rates the point worse than the incumbent
+    # an improvement of 0.2 promised; the plant delivered what this twin predicts, a loss
+    keeper.promise(twin_gains, keeper.twin_cost(incumbent) - 0.2, incumbent, keeper.twin_cost(incumbent))
+    keeper.tell(twin_gains, keeper.twin_cost(twin_gains), None)
+    assert not keeper.trusted and keeper.distrusts_ == 1
+    _tell(keeper, records[3:])  # 4 records, fewer than twice the 3 it had: restored by the refit's promise
+    assert keeper.can_guide() and len(keeper.changes_) == 2
 
 
 def _wrong_twin():
@@ -193,7 +222,7 @@ def test_an_unstable_or_non_finite_record_is_not_identified_from():
     bad_y = np.asarray(info["y"], dtype=float).copy()
     bad_y[10] = np.inf
     tuner.tell(info["gains"], info["cost"], {**info, "y": bad_y})
-    assert tuner._twin_records == [] and tuner._noise_floors == []
+    assert tuner.keeper_.records_ == () and tuner.noise_floor_ == 0.0
     assert tuner.n_observations == 2  # the costs still reach the GP
 
 
@@ -207,23 +236,23 @@ def test_a_twin_that_fails_to_fit_leaves_plain_bo():
     assert np.all(np.isfinite(result.to_pandas()["cost"]))
 
 
-def test_a_non_finite_twin_cost_enters_the_gp_as_the_unstable_cost():
-    env = gym.make("gbo_envs/DCMotor-v0")
-    tuner = _setup(GuidedBO(**FAST), env)
-    info = _records(gym.make("gbo_envs/DCMotor-v0"), [[0.5, 1.2]])[0]
-    tuner.tell(info["gains"], info["cost"], info)
+class _NaNTwinEnv:
+    """A twin env whose every simulation diverges to NaN."""
 
-    class NaNTwin:
-        unstable_cost = 10.0
+    unstable_cost = 10.0
 
-        def evaluate(self, gains):
-            return np.full((1, 4), np.nan), np.array([np.nan])
+    def evaluate(self, gains):
+        n = len(np.atleast_2d(gains))
+        return np.full((n, 4), np.nan), np.full(n, np.nan)
 
-    tuner.twin_ = tuner._current_twin()
-    gains, cost = tuner._twin_iterations(NaNTwin(), np.array([0.5, 1.2]), 1.0, cap=2, periodic=True)
-    assert cost == 10.0
-    X, y = tuner.training_set()
-    assert np.all(np.isfinite(y)) and np.all(y[1:] == 10.0)
+
+def test_a_non_finite_twin_cost_enters_the_gp_as_the_unstable_cost(monkeypatch):
+    monkeypatch.setattr(twin_keeper, "make_twin_env", lambda *args, **kwargs: _NaNTwinEnv())
+    periodic = TwinIterations(activation="periodic", n_ei=2, eta3=np.inf)
+    result = GuidedBO(eta2=1.0, guidance=periodic, **FAST).run(gym.make("gbo_envs/DCMotor-v0"), budget=2, seed=0)
+    twin = result.to_pandas(include_twin=True).query("source == 'twin'")
+    assert len(twin) == 2 and np.all(twin["cost"] == 10.0)  # add_data takes finite costs only
+    assert result.info["activations"] == 1
 
 
 # -- the twin as prior mean (guidance="prior") -----------------------------------------------------------
@@ -253,64 +282,102 @@ def test_a_diverging_experiment_keeps_the_twin_prior_and_the_metric_gps():
     assert tuner.metric_surrogate.reconstruct(unstable[None, :])[0] == pytest.approx(env.unwrapped.unstable_cost)
 
 
+#: DCMotor-v0 behind a 138-unit drive limit, which clips every transient.
+SATURATED = {"effects": {"saturation": {"limit": 138.0}}}
+
+
 @pytest.mark.slow
-def test_a_diagnosis_drops_a_wrong_effect_that_fewer_records_evidenced():
+def test_a_diagnosis_drops_a_wrong_effect_that_fewer_records_evidenced(monkeypatch):
     """The ladder only adds effects: a re-diagnosis that started from the current twin's effects kept a wrong one
     (backlash, when the 138-unit drive limit showed in one record of two) forever."""
     from agents.twin import GreyBoxTwin
 
-    env = gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 138.0}})
-    tuner = _setup(GuidedBO(**FAST), env)
-    records = _records(gym.make("gbo_envs/DCMotor-v0", effects={"saturation": {"limit": 138.0}}),
-                       [[0.17, 1.7], [0.52, 1.22], [0.4, 1.5], [0.9, 2.0]])
-    for info in records:
-        tuner.tell(info["gains"], info["cost"], info)
-    wrong = GreyBoxTwin(effects={"backlash": {"width": 9.3}}, n_samples=tuner.n_samples).fit(records[:2])
-    tuner._diagnosed_on = 2  # diagnosed on two records; four are a doubling, so the next fit diagnoses again
-    twin = tuner._fit_twin(wrong)
-    assert set(twin.effect_params_) == {"saturation"}, twin.effect_params_
-    assert twin.effect_params_["saturation"]["limit"] == pytest.approx(138.0, abs=0.1)
+    keeper = _keeper(gym.make("gbo_envs/DCMotor-v0", **SATURATED))
+    records = _records(gym.make("gbo_envs/DCMotor-v0", **SATURATED), [[0.17, 1.7], [0.52, 1.22], [0.4, 1.5],
+                                                                      [0.9, 2.0]])
+    wrong = GreyBoxTwin(effects={"backlash": {"width": 9.3}}, n_samples=keeper.n_samples).fit(records[:2])
+    diagnosed, calls = twin_keeper.diagnosed_twin, []
+
+    def wrong_at_first(records, *args, **kwargs):  # the first diagnosis, on two records, names backlash
+        calls.append(len(records))
+        return (wrong, []) if len(calls) == 1 else diagnosed(records, *args, **kwargs)
+
+    monkeypatch.setattr(twin_keeper, "diagnosed_twin", wrong_at_first)
+    _tell(keeper, records[:2])
+    assert keeper.twin_env() is not None and set(keeper.twin_.effect_params_) == {"backlash"}
+    _tell(keeper, records[2:])  # four records are a doubling: the next fit diagnoses again, from the linear model
+    keeper.twin_env()
+    assert calls == [2, 4]
+    assert set(keeper.twin_.effect_params_) == {"saturation"}, keeper.twin_.effect_params_
+    assert keeper.twin_.effect_params_["saturation"]["limit"] == pytest.approx(138.0, abs=0.1)
+
+
+def _cost_error(twin_env, records) -> float:
+    """RMS relative error of a twin's costs at the records' gains."""
+    measured = np.array([info["cost"] for info in records])
+    predicted = twin_env.evaluate(np.array([info["gains"] for info in records]))[1]
+    return float(np.sqrt(np.mean(((predicted - measured) / measured) ** 2)))
 
 
 def test_effects_that_mispredict_the_recorded_costs_give_way_to_the_linear_twin(monkeypatch):
     """A diagnosed twin whose replay error is lowest but whose closed loop mispredicts the measured costs
     (the stiction twin of LinearMotorRig-v0) must not guide BO: the linear twin predicts them better."""
-    import agents.twin.selection as selection
-
-    env = gym.make("gbo_envs/DCMotor-v0")
-    tuner = _setup(GuidedBO(**FAST), env)
-    for info in _records(gym.make("gbo_envs/DCMotor-v0"), [[0.3, 1.2], [0.6, 1.6], [0.9, 1.0]]):
-        tuner.tell(info["gains"], info["cost"], info)
+    env = gym.make("gbo_envs/DCMotor-v0", **SATURATED)
+    keeper = _keeper(env)
+    records = _records(gym.make("gbo_envs/DCMotor-v0", **SATURATED), [[0.3, 1.2], [0.6, 1.6], [0.9, 1.0]])
+    _tell(keeper, records)
     wrong = _wrong_twin()  # another plant's model, dressed as a diagnosed twin that replays the records exactly
     wrong.effect_params_, wrong.rmse_ = {"time_delay": {"delay": 0.06}}, 0.0
-    monkeypatch.setattr(selection, "diagnosed_twin", lambda *args, **kwargs: (wrong, []))
-    assert tuner._cost_error(wrong) > 0.2 > tuner._cost_error(tuner._linear_twin())
-    twin = tuner._fit_twin(None)
-    assert twin is not wrong and not getattr(twin, "effect_params_", None)
+    calls = []
+    monkeypatch.setattr(twin_keeper, "diagnosed_twin", lambda *args, **kwargs: calls.append(1) or (wrong, []))
+    twin_env = keeper.twin_env()
+    assert calls, "the linear twin explained the records: no diagnosis"
+    assert keeper.twin_ is not wrong and not getattr(keeper.twin_, "effect_params_", None)
+    assert _cost_error(make_twin_env(env, wrong), records) > 0.2 > _cost_error(twin_env, records)
 
 
-def test_a_cost_miss_resets_the_twin_data_only_if_the_twin_had_replayed_its_records():
+class _StubTwin:
+    """A twin whose fit "replays" its records with the RMSE it is given; its env is monkeypatched."""
+
+    def __init__(self, rmse=0.0):
+        self.rmse = rmse
+
+    def get_params(self, deep=True):
+        return {"rmse": self.rmse}
+
+    def set_params(self, **params):
+        self.rmse = params.get("rmse", self.rmse)
+        return self
+
+    def fit(self, records, y=None):
+        self.rmse_, self.params_, self.den_, self.num_ = self.rmse, np.ones(2), np.ones(3), np.ones(1)
+        return self
+
+    def score(self, records, y=None):
+        return -self.rmse
+
+
+@pytest.mark.parametrize("rmse, before, reset", [
+    (0.05, 1, False),  # a twin that replayed its records 25x worse than the noise: wrong before the plant moved
+    (0.0, 1, False),  # one record it replayed: one record fits any structure, no change is read
+    (0.0, 2, True),  # right on two records: the plant changed
+])
+def test_a_cost_miss_resets_the_twin_data_only_if_the_twin_had_replayed_its_records(monkeypatch, rmse, before,
+                                                                                     reset):
     """eq. (reinit_DTdataset) reads a cost miss as a plant change; with twin="auto" only when the twin was right
     before on at least two records (a wrong twin's miss says nothing about the plant, and the reset threw its
     records away; a twin of one record fits it whatever the plant)."""
     from types import SimpleNamespace
 
-    env = gym.make("gbo_envs/DCMotor-v0")
-    tuner = _setup(GuidedBO(**FAST), env)
     records = _records(gym.make("gbo_envs/DCMotor-v0"), [[0.3, 1.2], [0.6, 1.6], [0.9, 1.0]])
-    tuner.tell(records[0]["gains"], records[0]["cost"], records[0])
     far = SimpleNamespace(evaluate=lambda gains: (None, np.full(len(gains), 10.0 * records[0]["cost"])))
-    tuner._twin_env, tuner.twin_ = far, SimpleNamespace(rmse_=0.05)  # replayed its records 25x worse than the noise
-    tuner.tell(records[1]["gains"], records[1]["cost"], records[1])
-    assert tuner.reinitializations_ == 0 and len(tuner._twin_records) == 2
-    # a twin that replayed the one record it was fitted on: one record fits any structure, no change is read
-    tuner._twin_env, tuner.twin_, tuner._twin_fitted_on = far, SimpleNamespace(rmse_=0.0), 1
-    tuner.tell(records[2]["gains"], records[2]["cost"], records[2])
-    assert tuner.reinitializations_ == 0 and len(tuner._twin_records) == 3
-    # a twin that was right on two records: the plant changed
-    tuner._twin_env, tuner.twin_, tuner._twin_fitted_on = far, SimpleNamespace(rmse_=0.0), 2
-    tuner.tell(records[1]["gains"], records[1]["cost"], records[1])
-    assert tuner.reinitializations_ == 1 and len(tuner._twin_records) == 1
+    monkeypatch.setattr(twin_keeper, "make_twin_env", lambda *args, **kwargs: far)  # misses every cost 10-fold
+    keeper = _keeper(gym.make("gbo_envs/DCMotor-v0"), twin=_StubTwin(rmse))
+    _tell(keeper, records[:before])
+    keeper.twin_env()  # fitted on `before` records
+    _tell(keeper, records[before:before + 1])
+    assert keeper.reinitializations_ == int(reset)
+    assert len(keeper.records_) == (1 if reset else before + 1)
 
 
 def test_a_load_change_is_read_on_the_responses_and_the_twin_follows_the_new_plant():
@@ -322,10 +389,10 @@ def test_a_load_change_is_read_on_the_responses_and_the_twin_follows_the_new_pla
     tuner = GuidedBO(**FAST)
     tuner.run(env, budget=change_at + 4, seed=0)
     assert tuner.reinitializations_ == 1
-    assert len(tuner._twin_records) <= 4  # the records since the change only
+    assert len(tuner.keeper_.records_) <= 4  # the records since the change only
     gain = tuner.twin_.params_[0]
     assert abs(gain - 7.635) < 0.05 * 7.635, tuner.twin_.params_
-    assert tuner.twin_.rmse_ <= tuner._explained_rmse()
+    assert tuner.twin_.rmse_ <= tuner.keeper_.explained_rmse_
 
 
 @pytest.mark.slow
@@ -334,7 +401,7 @@ def test_a_time_invariant_plant_with_an_effect_is_not_read_as_a_change(saturated
     diagnosis, not for a reset: on DCMotor-v0 with a hidden saturation the linear twin's refits stay on every
     record and the twin gains the effect."""
     tuner = saturated_run
-    assert tuner.reinitializations_ == 0 and len(tuner._twin_records) == 10
+    assert tuner.reinitializations_ == 0 and len(tuner.keeper_.records_) == 10
     assert "saturation" in _effect_names(tuner)
 
 

@@ -10,6 +10,8 @@ import pytest
 
 import agents
 import gbo_envs  # noqa: F401
+from agents import twin_keeper
+from agents.mf_bo import ROBUST_RADIUS, robust_minimum
 from agents.mf_correction import TwinCorrection
 from agents.result import TuningResult
 from gbo_envs.experiment import Experiment
@@ -88,28 +90,13 @@ def test_correction_needs_min_records_and_positive_costs():
         TwinCorrection(min_records=2).fit([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
 
 
-class _CliffTwinEnv:
-    """A twin whose cost is lowest at (0.5, 0.5) in the unit box, on the edge of a cliff at Kp = 0.5."""
-
-    unstable_cost = 100.0
-
-    def __init__(self, space):
-        self.space = space
-
-    def evaluate(self, gains):
-        unit = self.space.to_unit(np.asarray(gains))
-        cost = np.where(unit[:, 0] >= 0.5, 1.0 + np.sum((unit - 0.5) ** 2, axis=1), 2.0)
-        return np.zeros((len(unit), 4)), cost
+def _cliff(unit):
+    """A cost lowest at (0.5, 0.5) in the unit box, on the edge of a cliff at Kp = 0.5."""
+    return np.where(unit[:, 0] >= 0.5, 1.0 + np.sum((unit - 0.5) ** 2, axis=1), 2.0)
 
 
 def test_the_twin_optimum_row_keeps_off_a_cliff_of_the_cost():
-    from agents.mf_bo import ROBUST_RADIUS
-
-    env = gym.make("gbo_envs/DCMotor-v0")
-    tuner = agents.make("mf-bo")
-    tuner.setup(agents.GainSpace.from_env(env), seed=0, env=env)
-    tuner._plant_X = [np.array([0.8, 0.8])]
-    optimum = tuner._twin_optimum(_CliffTwinEnv(tuner.space))
+    optimum = robust_minimum(_cliff, start=[0.8, 0.8])
     # the plain minimiser is the edge (0.5, 0.5); a plant's edge a little off the twin's would put it on the cliff
     assert optimum[0] >= 0.5 + 0.9 * ROBUST_RADIUS and optimum[0] <= 0.5 + 2 * ROBUST_RADIUS
     assert optimum[1] == pytest.approx(0.5, abs=ROBUST_RADIUS)
@@ -177,21 +164,28 @@ def test_a_wrong_twin_is_refitted_as_records_arrive(monkeypatch, study_tuners):
     assert tuner.fidelity_ > 0.5
 
 
-class _NoiseTwinMFBO(agents.MultiFidelityBO):
-    """mf-bo whose twin cost is pure noise around the median measured cost (independent of the gains)."""
+class _NoiseTwinEnv:
+    """A twin env whose cost is pure noise, log-normal around DCMotor-v0's typical cost (independent of the gains)."""
 
-    def _twin_costs(self, twin_env, unit):
-        noise = np.random.default_rng(len(self._plant_y))
-        return float(np.median(self._plant_y)) * np.exp(noise.standard_normal(len(unit)))
+    unstable_cost = 100.0
+
+    def __init__(self, seed):
+        self.rng = np.random.default_rng(seed)
+
+    def evaluate(self, gains):
+        n = len(np.atleast_2d(gains))
+        return np.full((n, 4), np.nan), 0.5 * np.exp(self.rng.standard_normal(n))
 
 
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::UserWarning")
-def test_a_useless_twin_is_switched_off_and_mf_bo_stays_within_1_2_times_bo():
+def test_a_useless_twin_is_switched_off_and_mf_bo_stays_within_1_2_times_bo(monkeypatch):
+    envs = iter(range(10**6))
+    monkeypatch.setattr(twin_keeper, "make_twin_env", lambda *args, **kwargs: _NoiseTwinEnv(next(envs)))
     budget, finals = 12, {"mf-bo": [], "bo": []}
     for seed in range(3):
         env = gym.make("gbo_envs/DCMotor-v0")
-        noisy = _NoiseTwinMFBO().run(env, budget=budget, seed=seed)
+        noisy = agents.make("mf-bo").run(env, budget=budget, seed=seed)
         trace = noisy.info["fidelity_trace"]
         assert max(step["fidelity"] for step in trace) < 0.5 and noisy.info["twin_evaluations"] == 0
         finals["mf-bo"].append(noisy.min_true_cost_curve()[-1])

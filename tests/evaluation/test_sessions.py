@@ -253,20 +253,20 @@ def test_a_snapshot_that_does_not_load_is_replaced_by_a_replay(tmp_path, caplog)
 
 def test_a_snapshot_of_an_older_tuner_version_is_replaced_by_a_replay(tmp_path, caplog):
     """A snapshot pickled before the class gained an attribute loads, but the state lacks it (guided BO's
-    ``_explained_upto`` raised AttributeError on resume): it must be replayed instead."""
+    ``keeper_`` raised AttributeError on resume): it must be replayed instead."""
     from evaluation.sessions.snapshot import restore_tuner, tuner_snapshot
 
     env = gym.make(ENV)
     older = agents.make("guided-bo", grid_points=30)
     older.setup(agents.GainSpace.from_env(env), seed=0, env=env)
-    del older.__dict__["_explained_upto"]  # as an older GuidedBO would have pickled itself
+    del older.__dict__["keeper_"]  # as an older GuidedBO would have pickled itself
     tuner = agents.make("guided-bo", grid_points=30)
     tuner.setup(agents.GainSpace.from_env(env), seed=0, env=env)
     state = tuner_snapshot(older, env)
     assert state is not None
     with caplog.at_level(logging.WARNING):
         assert not restore_tuner(tuner, state, env)
-    assert "lacks _explained_upto" in caplog.text and "_explained_upto" in tuner.__dict__
+    assert "lacks keeper_" in caplog.text and "keeper_" in tuner.__dict__
 
 
 def _drop_snapshots(db) -> None:

@@ -1,0 +1,564 @@
+r"""The digital twin's life cycle in a tuning run: its data set, noise floor, fits, refit rules and trust.
+
+A tuner that uses a twin (:class:`agents.guided_bo.GuidedBO`, :class:`agents.mf_bo.MultiFidelityBO`)
+tells every plant experiment to one :class:`TwinKeeper` and asks it for the twin
+(:meth:`TwinKeeper.twin_env`: the plant's closed loop around the twin, evaluated at any
+gains). The keeper's rules, with ``s`` the median noise floor of the records over the step
+height ``|r2 - r1|`` and ``e = 2 max(s, 10^-3)`` the RMSE the noise explains:
+
+* **Data set** (eq. (Ds)). Every stable, finite record ``(u, y)`` enters ``D~``; ``D~``
+  restarts from the new record when ``|J - J~| / J > delta`` (eq. (reinit_DTdataset)). With
+  ``twin="auto"`` or a given twin the miss reads as a plant change only if the twin simulated
+  at least :data:`PLANT_CHANGE_RECORDS` records within ``e``; otherwise it calls for a refit on
+  every record. With ``refit_on_cost_miss``, a cost ``> 3 sigma_eps`` off the twin's calls for
+  a refit once the records have doubled since the fit.
+* **Fits.** The twin is fitted when first asked for, and refitted when its RMSE on the records
+  added since the fit exceeds ``max(1.5 rmse_, e)`` (the linear twin:
+  ``max(1.5 rmse_, eta2 / 4)``), warm-started. ``twin="auto"`` starts from the paper's SRIVC
+  twin; a refitted twin whose ``rmse_ > e`` is diagnosed
+  (:func:`agents.twin.selection.diagnosed_twin`, at most :data:`MAX_TWIN_EFFECTS` effects) at
+  1, 2, 4 and 8 records (:data:`MAX_DIAGNOSED_RECORDS`), each time from the linear model; a twin
+  with effects is kept only while its closed loop predicts the measured costs better than the
+  linear twin's (RMS relative error ``sqrt(mean_i ((J~(theta_i) - J_i) / J_i)^2)``).
+* **Plant changes.** Let ``m`` be the records of ``D~`` a twin simulated within ``e``. When the
+  twin refitted on all of ``D~`` no longer does, but one of its structure fitted on the records
+  after the ``m``-th (at least :data:`PLANT_CHANGE_RECORDS`) does, ``D~`` keeps those records only.
+* **Noise.** Beyond the paper's linear twin the twin env adds white output noise of std
+  ``s |r2 - r1|`` (above :data:`SIMULATED_NOISE_FLOOR`), its cost the mean over
+  :data:`TWIN_NOISE_DRAWS` fixed draws; eq. (DT_rmse1)'s threshold is ``eta2 = 3 max(s, 10^-3)``
+  (the linear twin: ``3 sigma_eps``).
+* **Trust.** A twin-proposed ``theta_T`` that promised ``J~(theta_I) - J~(theta_T)`` over the
+  incumbent ``theta_I`` loses trust when the plant delivers ``mu(theta_I) - J(theta_T) <
+  min(promised, 0) - 2 sqrt(2) sigma_eps``; a refit restores it when the refitted twin no longer
+  promises that much, or was fitted on twice the records it had when it lost trust.
+
+docs/design.md ("Which twin drives guided BO") gives the reasons and the measured cases.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+from sklearn.base import clone
+
+from agents.parameters import HasMethods, Interval, Options, validate_params
+from agents.twin import make_twin_env
+from agents.twin.linear_twin import LinearTwin
+from agents.twin.model import ModelSpec
+from agents.twin.prior import TwinMetrics
+from agents.twin.selection import diagnosed_twin, measurement_noise
+from gbo_envs.experiment import SIGNALS
+
+__all__ = ["MAX_DIAGNOSED_RECORDS", "MAX_TWIN_EFFECTS", "PLANT_CHANGE_RECORDS", "RMSE_FLOOR", "SIMULATED_NOISE_FLOOR",
+           "TWIN_CHOICES", "TWIN_NOISE_DRAWS", "TwinKeeper"]
+
+#: ``twin`` by name: the workbench-diagnosed grey-box twin, or the paper's linear SRIVC twin.
+TWIN_CHOICES = ("auto", "linear")
+
+#: Effects at most in a diagnosed twin (the workbench's ladder, two rungs).
+MAX_TWIN_EFFECTS = 2
+
+#: Records in ``D~`` beyond which the effects are settled: no further diagnosis, only warm refits.
+MAX_DIAGNOSED_RECORDS = 8
+
+#: Records a twin must have simulated within the noise before a cost miss, or a later twin, reads as a plant change.
+PLANT_CHANGE_RECORDS = 2
+
+#: Noise draws ``K`` of the twin's expected cost (:class:`agents.twin.TwinEnv`).
+TWIN_NOISE_DRAWS = 8
+
+#: The twin reproduces the measurement noise when its floor exceeds this fraction of the step height.
+SIMULATED_NOISE_FLOOR = 1e-4
+
+#: Lower bound of the noise floor in eq. (DT_rmse1), a fraction of the step height: with ``eta2 = 3``
+#: a plant quieter than this gets the paper's absolute threshold 0.003.
+RMSE_FLOOR = 1e-3
+
+#: What a failed identification or simulation raises: no twin this time.
+_FIT_ERRORS = (ValueError, FloatingPointError, np.linalg.LinAlgError)
+
+
+class TwinKeeper:
+    r"""The twin of a tuning run: ``tell`` it every plant experiment, ask it for :meth:`twin_env`.
+
+    Parameters
+    ----------
+    twin : {"auto", "linear"} or estimator, default "auto"
+        ``"auto"``: the SRIVC twin plus the effects the records evidence; ``"linear"``: the
+        paper's SRIVC twin, noise-free, always trusted; or an estimator with ``fit`` and
+        ``get_params`` (:class:`~agents.twin.LinearTwin`, :class:`~agents.twin.GreyBoxTwin`),
+        fitted on the records, or, if fitted (it has ``plant_``), used as given until it mispredicts.
+    twin_poles : int, default 2
+        Poles of the twin's transfer function (>= 1; no zeros).
+    n_samples : int or None, default 100
+        Samples per record kept for identification, eq. (Ds)'s ``n~`` (>= 10; ``None``: all).
+    delta : float, default 2.0
+        Relative cost miss of eq. (reinit_DTdataset) that restarts ``D~`` (dimensionless, >= 0).
+    eta2 : float, optional
+        Threshold of eq. (DT_rmse1) on the twin's normalised ``rmse_`` (> 0). Default: see :attr:`eta2_`.
+    noise_std : float, optional
+        ``sigma_eps``, cost units (> 0). Default: see :attr:`sigma_eps`.
+    refit_on_cost_miss : bool, default False
+        Whether a cost ``> 3 sigma_eps`` off the twin's calls for a refit once the records have doubled.
+
+    Attributes
+    ----------
+    twin_ : estimator or None
+        The current fitted twin.
+    changes_ : list of dict
+        One entry per twin fit: ``experiment`` (plant experiments told), ``model``, ``effects``,
+        ``params``, ``rmse`` (on ``D~``), ``previous_rmse`` (the former twin on the new records,
+        ``None`` for the first) and ``text`` (one line, as ``gbo tune`` prints it).
+    reinitializations_ : int
+        Restarts of ``D~``: by eq. (reinit_DTdataset), or on a plant change read on the responses.
+    distrusts_ : int
+        Twin promises the plant broke.
+
+    Examples
+    --------
+    >>> import gymnasium as gym, numpy as np, gbo_envs, agents
+    >>> from agents.twin_keeper import TwinKeeper
+    >>> env = gym.make("gbo_envs/DCMotor-v0")
+    >>> keeper = TwinKeeper(twin="linear")
+    >>> keeper.setup(agents.GainSpace.from_env(env), env.unwrapped)
+    >>> _ = env.reset(seed=0)
+    >>> info = env.step(np.array([0.5, 1.2]))[4]
+    >>> keeper.tell(info["gains"], info["cost"], info)
+    >>> keeper.twin_env().evaluate(np.array([[0.5, 1.2], [0.9, 1.6]]))[1].shape
+    (2,)
+    """
+
+    _parameter_constraints: dict[str, list] = {
+        "twin": [Options(TWIN_CHOICES), HasMethods(("fit", "get_params"))],
+        "twin_poles": [Interval(int, 1, None)],
+        "n_samples": [None, Interval(int, 10, None)],
+        "delta": [Interval(float, 0.0, None)],
+        "eta2": [None, Interval(float, 0.0, None, closed="neither")],
+        "noise_std": [None, Interval(float, 0.0, None, closed="neither")],
+    }
+
+    def __init__(self, twin="auto", *, twin_poles: int = 2, n_samples: int | None = 100, delta: float = 2.0,
+                 eta2: float | None = None, noise_std: float | None = None, refit_on_cost_miss: bool = False) -> None:
+        params = validate_params(self._parameter_constraints, {
+            "twin": twin, "twin_poles": twin_poles, "n_samples": n_samples, "delta": delta, "eta2": eta2,
+            "noise_std": noise_std})
+        if not isinstance(refit_on_cost_miss, bool):
+            raise ValueError(f"refit_on_cost_miss: must be a bool, got {refit_on_cost_miss!r}")
+        self.twin = twin
+        self.twin_poles, self.n_samples, self.delta = params["twin_poles"], params["n_samples"], params["delta"]
+        self.eta2, self.noise_std = params["eta2"], params["noise_std"]
+        self.refit_on_cost_miss = refit_on_cost_miss
+
+    def setup(self, space, env) -> None:
+        """Start a run (forgets every record) on the feasible set ``space`` of the plant env ``env``.
+
+        Parameters
+        ----------
+        space : agents.GainSpace
+        env : gbo_envs.ControllerTuningEnv
+            The unwrapped plant env: its closed loop is the twin's (``env.loop``).
+        """
+        if not hasattr(env, "loop"):
+            raise ValueError("env: the twin keeper needs the unwrapped plant env, with its closed loop (env.loop)")
+        self.space, self._env = space, env
+        self._step_height = abs(float(env.loop.r2) - float(env.loop.r1)) or 1.0
+        self._records: list[dict] = []  # D~: the records' t, r, u, y
+        self._measured: list[tuple[np.ndarray, float]] = []  # (gains, measured cost) of each record in D~
+        self._costs: list[float] = []  # every cost told
+        self._noise_floors: list[float] = []
+        self._fitted_on = 0  # records in D~ when the twin was last fitted
+        self._diagnosed_on = 0  # records in D~ at the last diagnosis (twin="auto")
+        self._explained_upto = 0  # the first records of D~ that a twin simulated within the noise
+        self._dirty = self._cost_missed = False
+        self._promise = None  # (theta_T, theta_I, mu(theta_I), promised improvement) of the last twin proposal
+        self._broken = None  # (theta_T, theta_I, delivered improvement, records) of the promise that failed
+        self._linear = None  # the SRIVC twin of twin="auto", refitted in place (warm start)
+        self._twin_env = None
+        self._metrics = None  # the current twin's TwinMetrics
+        self._retired_simulations = 0  # simulations of the TwinMetrics of former twins
+        self._events: list[str] = []
+        self.twin_ = None
+        self.changes_: list[dict] = []
+        self.reinitializations_ = 0
+        self.distrusts_ = 0
+        if not isinstance(self.twin, str) and hasattr(self.twin, "plant_"):
+            self.twin_ = self.twin  # a fitted twin: used as given until it mispredicts
+            self._record_change(None)
+
+    # -- what the tuner tells and asks ---------------------------------------------------------------
+    def tell(self, gains, cost: float, record: dict | None) -> None:
+        """A plant experiment: its gains (physical units), measured cost and record (an env ``info``, or ``None``).
+
+        Checks the last promise (see "Trust" in the module doc), then adds the record's ``t, r, u, y``
+        to ``D~`` (eq. (Ds)) unless it diverged, lacks a signal or is not finite.
+        """
+        gains = np.asarray(gains, dtype=float)
+        self._costs.append(float(cost))
+        self._check_promise(gains, cost)
+        if record is None or record.get("unstable", False) or not all(key in record for key in SIGNALS):
+            return  # nothing to identify from (or a diverging response)
+        new = {key: np.asarray(record[key], dtype=float) for key in SIGNALS}
+        if not all(np.all(np.isfinite(v)) for v in new.values()):
+            return
+        if self.twin != "linear":
+            self._noise_floors.append(measurement_noise(new) / self._step_height)
+        if self._twin_env is not None:
+            # eq. (reinit_DTdataset): the last fitted twin's estimate of this experiment against the measurement
+            predicted = float(self._twin_env.evaluate(gains[None, :])[1][0])
+            missed = not np.isfinite(predicted) or abs(cost - predicted) / max(abs(cost), 1e-12) > self.delta
+            if missed and not self._explained_its_records():
+                self._cost_missed = True  # the twin was wrong, not the plant changed: refit on every record
+            elif missed:
+                self._reinitialise(len(self._records))
+            elif self.refit_on_cost_miss and abs(cost - predicted) > 3.0 * self.sigma_eps:
+                self._cost_missed = True  # the twin's cost is off by more than the cost noise explains
+        self._records.append(new)  # eq. (Ds): D~ <- D~ u {(u_i, y_i)}
+        self._measured.append((gains, float(cost)))
+        self._dirty = True
+
+    def twin_env(self):
+        """The plant's closed loop around the current twin (:class:`agents.twin.TwinEnv`), refitted on ``D~`` if due.
+
+        ``evaluate(gains)`` gives the twin's expected metrics and cost at any gains of shape
+        (m, n_gains). ``None`` before the first record, or while the records identify no twin.
+        """
+        self._current_twin()
+        if self._twin_env is None and self.twin_ is not None:
+            self._twin_env = self._env_for(self.twin_)
+        return self._twin_env
+
+    def can_guide(self) -> bool:
+        """Whether the twin may guide: fitted (refitted if due), ``rmse_ < eta2`` (eq. (DT_rmse1)) and trusted."""
+        twin = self._current_twin()
+        if twin is None or not np.isfinite(twin.rmse_) or twin.rmse_ >= self.eta2_:
+            return False
+        return self.trusted
+
+    def twin_metrics(self) -> TwinMetrics | None:
+        """The current twin's raw metrics ``f~(X)`` at unit-box gains ``X`` of shape (m, n_gains), cached per twin.
+
+        A :class:`~agents.twin.prior.TwinMetrics`: any ``X`` (the acquisition grid or any other
+        points), each row simulated once per twin; ``None`` without a twin.
+        """
+        twin_env = self.twin_env()
+        if twin_env is None:
+            return None
+        if self._metrics is None or self._metrics.twin_env is not twin_env:
+            if self._metrics is not None:
+                self._retired_simulations += self._metrics.simulations_
+            self._metrics = TwinMetrics(twin_env, self.space)
+        return self._metrics
+
+    def twin_cost(self, gains) -> float:
+        """The current twin's expected cost at one gain vector (physical units); ``unstable_cost`` where it diverges."""
+        return _expected_cost(self._twin_env, gains)
+
+    @property
+    def metric_simulations_(self) -> int:
+        """Twin simulations made by :meth:`twin_metrics` so far, over every twin of the run."""
+        return self._retired_simulations + (0 if self._metrics is None else self._metrics.simulations_)
+
+    @property
+    def records_(self) -> tuple[dict, ...]:
+        """``D~``: the records ``{"t", "r", "u", "y"}`` the twin is fitted on, oldest first."""
+        return tuple(self._records)
+
+    @property
+    def n_told_(self) -> int:
+        """Plant experiments told."""
+        return len(self._costs)
+
+    @property
+    def sigma_eps(self) -> float:
+        """``sigma_eps``: ``noise_std``, else the env's ``cost_noise_std``, else 1 % of the mean cost told."""
+        if self.noise_std is not None:
+            return float(self.noise_std)
+        declared = float(getattr(self._env, "cost_noise_std", 0.0) or 0.0)
+        if declared > 0.0:
+            return declared
+        y = np.asarray(self._costs, dtype=float)
+        return 0.01 * float(np.mean(np.abs(y))) if y.size else 0.01
+
+    @property
+    def noise_floor_(self) -> float:
+        """``s``: median noise floor of the records over the step height (0 before any, and for the linear twin)."""
+        return float(np.median(self._noise_floors)) if self._noise_floors else 0.0
+
+    @property
+    def explained_rmse_(self) -> float:
+        """The normalised RMSE that measurement noise explains: ``2 max(s, 10^-3)``."""
+        return 2.0 * max(self.noise_floor_, RMSE_FLOOR)
+
+    @property
+    def eta2_(self) -> float:
+        """Threshold of eq. (DT_rmse1): ``eta2``, else ``3 max(s, 10^-3)`` (the linear twin: ``3 sigma_eps``)."""
+        if self.eta2 is not None:
+            return float(self.eta2)
+        if self.twin == "linear":
+            return 3.0 * self.sigma_eps
+        return 3.0 * max(self.noise_floor_, RMSE_FLOOR)
+
+    # -- trust ------------------------------------------------------------------------------------------
+    @property
+    def judges_trust(self) -> bool:
+        """Whether the twin's promises are checked (not the paper's linear twin, which is always trusted)."""
+        return self.twin != "linear"
+
+    @property
+    def trusted(self) -> bool:
+        """Whether the twin may propose plant experiments (see "Trust" in the module doc)."""
+        return self._broken is None
+
+    def promise(self, gains, cost: float, incumbent, incumbent_mean: float) -> None:
+        """The twin proposes ``gains``, its cost ``cost``, over the incumbent ``theta_I`` (GP mean ``incumbent_mean``).
+
+        The next :meth:`tell` at ``gains`` compares the promised improvement ``J~(theta_I) - cost``
+        with the delivered one, ``incumbent_mean - J`` (see "Trust" in the module doc).
+        """
+        incumbent = np.asarray(incumbent, dtype=float)
+        promised = self.twin_cost(incumbent) - cost
+        self._promise = (np.array(gains, dtype=float), incumbent, float(incumbent_mean), promised)
+
+    def _check_promise(self, gains: np.ndarray, cost: float) -> None:
+        promise, self._promise = self._promise, None
+        if promise is None or not np.allclose(gains, promise[0]):
+            return
+        _, incumbent, incumbent_mean, promised = promise
+        delivered = incumbent_mean - float(cost)
+        # worse than promised and worse than the incumbent, each beyond the noise of a difference
+        if delivered < min(promised, 0.0) - self._difference_noise:
+            self._broken = (promise[0], incumbent, delivered, max(len(self._records), 1))
+            self.distrusts_ += 1
+
+    def _restore_trust(self) -> None:
+        """After a refit: trusted again if the twin no longer promises the improvement that failed, or if it was
+        refitted on at least twice the records it had when it lost trust."""
+        if self._broken is None or self._twin_env is None:
+            return
+        failed, incumbent, delivered, records = self._broken
+        if len(self._records) >= 2 * records:
+            self._broken = None
+            return
+        promised = self.twin_cost(incumbent) - self.twin_cost(failed)
+        if promised <= delivered + self._difference_noise:
+            self._broken = None
+
+    @property
+    def _difference_noise(self) -> float:
+        """Two standard deviations of a difference of two cost measurements, ``2 sqrt(2) sigma_eps``."""
+        return 2.0 * np.sqrt(2.0) * self.sigma_eps
+
+    # -- fits -------------------------------------------------------------------------------------------
+    def _current_twin(self):
+        """The twin fitted on ``D~``, refitted only when it mispredicts records added since its last fit."""
+        new = self._records[self._fitted_on:]
+        previous_rmse = None  # the current twin's error on the records added since its fit
+        scored = False
+        if self._dirty and self.twin_ is not None:
+            if not new:
+                self._dirty = False
+            elif self.trusted:
+                previous_rmse, scored = self._error_on(new), True
+                # with the cost rule, also when its cost missed and the records have doubled since its fit
+                doubled = len(self._records) >= 2 * self._fitted_on
+                self._dirty = self._mispredicts(previous_rmse) or (self._cost_missed and doubled)
+                if not self._dirty:
+                    self._note_explained()
+            else:  # a distrusted twin is refitted when the records have doubled since its fit (more excitation)
+                self._dirty = len(self._records) >= 2 * self._fitted_on
+        if self._dirty and self._records:
+            previous = self.twin_
+            if previous is not None and new and not scored:
+                previous_rmse = self._error_on(new)
+            try:
+                twin = self._fit(previous)
+                twin = self._twin_of_a_changed_plant(twin) or twin
+                self.twin_ = twin if np.isfinite(twin.rmse_) else None
+            except _FIT_ERRORS:
+                self.twin_ = None  # too little excitation to identify: no twin this time
+            self._note_explained()
+            self._twin_env = None
+            self._dirty = self._cost_missed = False
+            self._fitted_on = len(self._records)
+            if self.twin_ is not None:
+                self._record_change(previous_rmse)
+                self._twin_env = self._env_for(self.twin_)
+                self._restore_trust()
+        return self.twin_
+
+    def _error_on(self, new: list[dict]) -> float | None:
+        """The current twin's normalised RMSE on new records; ``None`` if it cannot simulate them."""
+        try:
+            return float(-self.twin_.score(new))
+        except _FIT_ERRORS:
+            return None
+
+    def _mispredicts(self, error: float | None) -> bool:
+        """Whether the twin's RMSE on new records exceeds what noise and its own fit error explain."""
+        if error is None:
+            return True
+        if self.twin == "linear":
+            return not error <= max(1.5 * self.twin_.rmse_, 0.25 * self.eta2_)
+        return not error <= max(1.5 * self.twin_.rmse_, self.explained_rmse_)
+
+    def _explained_its_records(self) -> bool:
+        """Whether the twin simulated at least :data:`PLANT_CHANGE_RECORDS` records it was fitted on within the noise
+        (the paper's linear twin always counts as having done so: eq. (reinit_DTdataset) unchanged)."""
+        if self.twin == "linear" or self.twin_ is None:
+            return True
+        return self._fitted_on >= PLANT_CHANGE_RECORDS and self.twin_.rmse_ <= self.explained_rmse_
+
+    def _twin_of_a_changed_plant(self, twin):
+        """``D~`` re-initialised with the records after the explained ones and their twin, if they show a plant
+        change (see "Plant changes" in the module doc); otherwise ``None``."""
+        start = self._explained_upto
+        later = self._records[start:]
+        explained = self.explained_rmse_
+        if self.twin == "linear" or start == 0 or len(later) < PLANT_CHANGE_RECORDS or twin.rmse_ <= explained:
+            return None
+        try:
+            candidate = clone(twin).fit(later)
+        except _FIT_ERRORS:
+            return None  # the later records identify no twin: keep the one of all records
+        if not candidate.rmse_ <= explained:
+            return None  # no single plant explains the later records either: a missing effect, not a change
+        self._reinitialise(start)
+        return candidate
+
+    def _reinitialise(self, start: int) -> None:
+        """``D~`` restarts from its records after the first ``start`` (eq. (reinit_DTdataset), or a plant change)."""
+        self._records, self._measured = self._records[start:], self._measured[start:]
+        self._fitted_on = self._diagnosed_on = self._explained_upto = 0
+        self.reinitializations_ += 1
+
+    def _note_explained(self) -> None:
+        """Record that the current twin simulates every record of ``D~`` within the noise, if it does."""
+        if self.twin != "linear" and self.twin_ is not None and self.twin_.rmse_ <= self.explained_rmse_:
+            self._explained_upto = len(self._records)
+
+    def _fit(self, previous):
+        """A twin fitted on ``D~``: diagnosed (``"auto"``), the paper's linear one, or the given estimator."""
+        if self.twin == "auto":
+            effects = getattr(previous, "effect_params_", None) or {}
+            # the current structure first: the paper's SRIVC twin, or the diagnosed effects from their last values
+            twin = clone(previous).fit(self._records) if effects else self._linear_twin()
+            n = len(self._records)
+            doubled = n >= 2 * self._diagnosed_on and self._diagnosed_on < MAX_DIAGNOSED_RECORDS
+            due = self._diagnosed_on == 0 or doubled
+            if due and not twin.rmse_ <= self.explained_rmse_:  # an error the noise does not explain
+                spec = ModelSpec(n_poles=self.twin_poles, n_integrators=self._integrators(),
+                                 output=self._env.loop.plant.output)
+                self._diagnosed_on = n
+                # from the linear model, not from the current effects: the ladder only adds effects, and one that
+                # fewer records evidenced (a wrong one, when the true effect showed in only one of them) is dropped
+                diagnosed = diagnosed_twin(self._records, spec, max_effects=MAX_TWIN_EFFECTS,
+                                           n_samples=self.n_samples)[0]
+                if diagnosed.rmse_ < twin.rmse_:
+                    twin = diagnosed
+            if getattr(twin, "effect_params_", None):
+                linear = self._linear_twin()
+                if self._cost_error(linear) < self._cost_error(twin):
+                    twin = linear  # the effects replay the records but mispredict the experiments' costs
+            return twin
+        template = self._default_twin() if self.twin == "linear" else self.twin
+        twin = previous if previous is not None and previous is not self.twin else clone(template)
+        return twin.fit(self._records)  # warm start from the last fit
+
+    def _linear_twin(self):
+        """The paper's SRIVC twin fitted on ``D~``, warm-started from its previous fit in this run."""
+        if self._linear is None:
+            self._linear = self._default_twin()
+        return self._linear.fit(self._records)
+
+    def _cost_error(self, twin) -> float:
+        """RMS relative error of ``twin``'s expected cost at the gains of ``D~`` against the measured costs
+        (``inf`` if the twin diverges where the plant did not)."""
+        gains = np.array([g for g, _ in self._measured])
+        measured = np.array([c for _, c in self._measured])
+        try:
+            predicted = self._env_for(twin).evaluate(gains)[1]
+        except _FIT_ERRORS:
+            return np.inf
+        error = float(np.sqrt(np.mean(((predicted - measured) / np.maximum(np.abs(measured), 1e-12)) ** 2)))
+        return error if np.isfinite(error) else np.inf
+
+    def _env_for(self, twin):
+        """The plant env's loop around ``twin``, with the records' noise floor unless the twin is the paper's."""
+        floor = self.noise_floor_
+        noise = floor * self._step_height if self.twin != "linear" and floor > SIMULATED_NOISE_FLOOR else 0.0
+        return make_twin_env(self._env, twin, measurement_noise_std=noise, draws=TWIN_NOISE_DRAWS)
+
+    def _integrators(self) -> int:
+        plant = self._env.loop.plant
+        integrators = len(plant.den) - len(np.trim_zeros(np.asarray(plant.den), "b"))
+        return min(integrators, self.twin_poles - 1)
+
+    def _default_twin(self) -> LinearTwin:
+        return LinearTwin(n_poles=self.twin_poles, n_zeros=0, n_integrators=self._integrators(),
+                          n_samples=self.n_samples, output=self._env.loop.plant.output, warm_start=True)
+
+    # -- what the run shows -----------------------------------------------------------------------------
+    def drain_events(self) -> list[str]:
+        """The twin changes announced since the last call (one line each, as ``gbo tune`` prints them)."""
+        events, self._events = self._events, []
+        return events
+
+    def describe(self) -> dict[str, Any]:
+        """The current twin's effects, parameters and RMSE, as a twin row logs them."""
+        twin = self.twin_
+        return {"twin_effects": ",".join(_effect_values(twin)) or "linear",
+                "twin_params": json.dumps({"linear": [float(p) for p in twin.params_], **_effect_values(twin)}),
+                "twin_rmse": float(twin.rmse_)}
+
+    def summary(self) -> dict[str, Any]:
+        """The keeper's figures for ``TuningResult.info``: restarts, distrusts, the twin, its fits, the noise floor."""
+        twin = self.twin_
+        return {"reinitializations": self.reinitializations_, "distrusts": self.distrusts_,
+                "twin_rmse": twin.rmse_ if twin is not None else None,
+                "twin_params": None if twin is None else [float(p) for p in twin.params_],
+                "twin_effects": None if twin is None else _effect_values(twin),
+                "twin_changes": [{k: v for k, v in c.items() if k != "text"} for c in self.changes_],
+                "noise_floor": self.noise_floor_}
+
+    def _record_change(self, previous_rmse: float | None) -> None:
+        twin, told = self.twin_, self.n_told_
+        effects = _effect_values(twin)
+        change = {"experiment": told, "model": _model_label(twin), "effects": effects,
+                  "params": [float(p) for p in twin.params_], "rmse": float(twin.rmse_), "previous_rmse": previous_rmse}
+        named = ", ".join(f"+ {name} ({_format_values(values)})" for name, values in effects.items()) or "linear"
+        spec = getattr(getattr(twin, "greybox_", None), "spec", None)
+        if spec is not None and (spec.n_poles > self.twin_poles or spec.n_zeros > 0):  # the linear part grew
+            named = f"{spec.n_poles} poles, {spec.n_zeros} zero{'s' if spec.n_zeros != 1 else ''}" + \
+                (f", {named}" if effects else "")
+        before = f"{previous_rmse:.3g} -> " if previous_rmse is not None else ""
+        after = f"{told} experiment" + ("" if told == 1 else "s")
+        change["text"] = f"twin: {named}, RMSE {before}{twin.rmse_:.3g} (after {after})"
+        self.changes_.append(change)
+        self._events.append(change["text"])
+
+
+def _expected_cost(twin_env, gains) -> float:
+    cost = float(twin_env.evaluate(np.asarray(gains, dtype=float)[None, :])[1][0])
+    return cost if np.isfinite(cost) else float(twin_env.unstable_cost)
+
+
+def _model_label(twin) -> str:
+    """The twin's structure, e.g. ``"linear(4p0z)+compliance"`` (a linear twin: its orders)."""
+    fit = getattr(twin, "greybox_", None)
+    if fit is not None:
+        return fit.spec.label
+    den, num = np.asarray(twin.den_), np.asarray(twin.num_)
+    return f"linear({den.size - 1}p{num.size - 1}z)"
+
+
+def _effect_values(twin) -> dict[str, dict[str, float]]:
+    """``{effect: {parameter: value}}`` of a twin (empty for a linear one), finite values only."""
+    params = getattr(twin, "effect_params_", None) or {}
+    return {name: {k: float(v) for k, v in values.items() if isinstance(v, (int, float)) and np.isfinite(v)}
+            for name, values in params.items()}
+
+
+def _format_values(values: dict[str, float]) -> str:
+    return ", ".join(f"{k} {v:.4g}" for k, v in values.items())
