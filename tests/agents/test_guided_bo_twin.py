@@ -291,22 +291,23 @@ SATURATED = {"effects": {"saturation": {"limit": 138.0}}}
 @pytest.mark.slow
 def test_a_diagnosis_drops_a_wrong_effect_that_fewer_records_evidenced(monkeypatch):
     """The ladder only adds effects: a re-diagnosis that started from the current twin's effects kept a wrong one
-    (backlash, when the 138-unit drive limit showed in one record of two) forever."""
+    (when the 138-unit drive limit showed in one record of two) forever. Here the first diagnosis names Coulomb
+    friction, which replays the two records and predicts their costs a little better than the linear twin."""
     from agents.twin import GreyBoxTwin
 
     keeper = _keeper(gym.make("gbo_envs/DCMotor-v0", **SATURATED))
     records = _records(gym.make("gbo_envs/DCMotor-v0", **SATURATED), [[0.17, 1.7], [0.52, 1.22], [0.4, 1.5],
                                                                       [0.9, 2.0]])
-    wrong = GreyBoxTwin(effects={"backlash": {"width": 9.3}}, n_samples=keeper.n_samples).fit(records[:2])
+    wrong = GreyBoxTwin(effects=["coulomb_friction"], n_samples=keeper.n_samples).fit(records[:2])
     diagnosed, calls = twin_keeper.diagnosed_twin, []
 
-    def wrong_at_first(records, *args, **kwargs):  # the first diagnosis, on two records, names backlash
+    def wrong_at_first(records, *args, **kwargs):
         calls.append(len(records))
         return (wrong, []) if len(calls) == 1 else diagnosed(records, *args, **kwargs)
 
     monkeypatch.setattr(twin_keeper, "diagnosed_twin", wrong_at_first)
     _tell(keeper, records[:2])
-    assert keeper.twin_env() is not None and set(keeper.twin_.effect_params_) == {"backlash"}
+    assert keeper.twin_env() is not None and set(keeper.twin_.effect_params_) == {"coulomb_friction"}
     _tell(keeper, records[2:])  # four records are a doubling: the next fit diagnoses again, from the linear model
     keeper.twin_env()
     assert calls == [2, 4]
