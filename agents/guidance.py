@@ -61,9 +61,9 @@ class TwinPrior:
 
     While the twin may guide (eq. (DT_rmse1) and trust), the prior mean of metric ``i``'s GP is
     the twin's metric ``f~_i(theta)`` (:meth:`~agents.twin_keeper.TwinKeeper.twin_metrics`), so the
-    GP models the discrepancy ``T_i(f_i) - T_i(f~_i)`` (``T_i``: ``f / n_i``, or its log) and the
-    posterior mean of ``J_hat = sum_i w_i f_i / n_i`` (eq. (J_used)) is the twin's corrected
-    where the plant was measured. Every ``ask`` queries the maximiser of EI (eq. (EI)) on that
+    GP models the discrepancy ``T_i(f_i) - T_i(f~_i)`` (``T_i``: ``f / n_i``, or its log): the
+    posterior of ``J_hat = sum_i w_i f_i / n_i`` (eq. (J_used)) follows the twin, corrected where
+    the plant was measured. Every ``ask`` queries the maximiser of EI (eq. (EI)) on that
     posterior; where it proposes gains already measured, the experiment is the default BO's
     proposal (EI without the prior). A plant cost more than ``3 sigma_eps`` off the twin's refits
     the twin once the records have doubled since its fit (``refit_on_cost_miss``). The guidance
@@ -80,8 +80,8 @@ class TwinPrior:
     name: ClassVar[str] = "prior"
     #: ``GuidedBO``'s surrogate under this guidance: one GP per performance metric.
     model: ClassVar[str] = "metrics"
-    #: The twin is refitted when a plant cost misses its cost by more than the cost noise (the discrepancy
-    #: GPs would otherwise keep correcting a twin whose optimum is off).
+    #: The twin is refitted when a plant cost misses its cost by more than the cost noise: the refit rule on
+    #: the responses misses a twin whose response is close but whose thin optimal valley sits a grid cell away.
     refit_on_cost_miss: ClassVar[bool] = True
 
     def propose(self, bo: BayesianOptimization, keeper: TwinKeeper) -> np.ndarray:

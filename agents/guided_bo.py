@@ -146,6 +146,7 @@ class GuidedBO(BayesianOptimization):
         self.keeper_.tell(gains, cost, record)
 
     def drain_events(self) -> list[str]:
+        """The events logged since the last call: the tuner's, then its keeper's twin changes."""
         return super().drain_events() + self.keeper_.drain_events()
 
     def run_summary(self) -> dict[str, Any]:

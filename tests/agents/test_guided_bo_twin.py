@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from types import SimpleNamespace
 
 import gymnasium as gym
 import numpy as np
@@ -13,8 +14,9 @@ import gbo_envs  # noqa: F401
 from agents import twin_keeper
 from agents.guidance import TwinIterations
 from agents.guided_bo import GuidedBO
-from agents.twin import LinearTwin, make_twin_env
+from agents.twin import GreyBoxTwin, LinearTwin, make_twin_env
 from agents.twin_keeper import TwinKeeper
+from tests.support import flexible_coupling_env
 
 FAST = {"grid_points": 40}
 
@@ -138,6 +140,37 @@ def test_twin_env_averages_its_measurement_noise_deterministically():
     np.testing.assert_array_equal(noisy.noise_free().evaluate(gains)[1], quiet)
     quiet_env = make_twin_env(env, plant)
     assert quiet_env.noise_free() is quiet_env
+
+
+# -- the keeper's API ---------------------------------------------------------------------------------
+def test_the_keepers_twin_is_evaluated_at_any_gains_each_once():
+    """The twin's metrics at arbitrary unit-box points, off the acquisition grid: the prior wherever an
+    acquisition looks (each point simulated once per twin)."""
+    env = gym.make("gbo_envs/DCMotor-v0")
+    keeper = _keeper(env)
+    assert keeper.twin_env() is None and keeper.twin_metrics() is None  # no record, no twin
+    _tell(keeper, _records(gym.make("gbo_envs/DCMotor-v0"), [[0.5, 1.2]]))
+    prior = keeper.twin_metrics()
+    unit = np.random.default_rng(0).random((7, 2))
+    np.testing.assert_array_equal(prior(unit), keeper.twin_env().evaluate(keeper.space.from_unit(unit))[0])
+    prior(unit[:3])
+    assert prior.simulations_ == keeper.metric_simulations_ == 7
+    assert keeper.twin_metrics() is prior and keeper.n_told_ == 1 and len(keeper.records_) == 1
+
+
+@pytest.mark.parametrize("params, match", [
+    ({"delta": -1.0}, r"delta: must be a float in \[0, inf\)"), ({"eta2": 0.0}, "eta2"),
+    ({"refit_on_cost_miss": 1}, "refit_on_cost_miss: must be a bool, got 1"), ({"twin": "exact"}, "twin"),
+])
+def test_the_keepers_bad_settings_are_named(params, match):
+    with pytest.raises(ValueError, match=match):
+        TwinKeeper(**params)
+
+
+def test_the_keeper_needs_the_unwrapped_plant_env():
+    env = gym.make("gbo_envs/DCMotor-v0")
+    with pytest.raises(ValueError, match="env: the twin keeper needs the unwrapped plant env"):
+        TwinKeeper().setup(agents.GainSpace.from_env(env), SimpleNamespace())
 
 
 # -- trust -----------------------------------------------------------------------------------------------
@@ -293,8 +326,6 @@ def test_a_diagnosis_drops_a_wrong_effect_that_fewer_records_evidenced(monkeypat
     """The ladder only adds effects: a re-diagnosis that started from the current twin's effects kept a wrong one
     (when the 138-unit drive limit showed in one record of two) forever. Here the first diagnosis names Coulomb
     friction, which replays the two records and predicts their costs a little better than the linear twin."""
-    from agents.twin import GreyBoxTwin
-
     keeper = _keeper(gym.make("gbo_envs/DCMotor-v0", **SATURATED))
     records = _records(gym.make("gbo_envs/DCMotor-v0", **SATURATED), [[0.17, 1.7], [0.52, 1.22], [0.4, 1.5],
                                                                       [0.9, 2.0]])
@@ -370,8 +401,6 @@ def test_a_cost_miss_resets_the_twin_data_only_if_the_twin_had_replayed_its_reco
     """eq. (reinit_DTdataset) reads a cost miss as a plant change; with twin="auto" only when the twin was right
     before on at least two records (a wrong twin's miss says nothing about the plant, and the reset threw its
     records away; a twin of one record fits it whatever the plant)."""
-    from types import SimpleNamespace
-
     records = _records(gym.make("gbo_envs/DCMotor-v0"), [[0.3, 1.2], [0.6, 1.6], [0.9, 1.0]])
     far = SimpleNamespace(evaluate=lambda gains: (None, np.full(len(gains), 10.0 * records[0]["cost"])))
     monkeypatch.setattr(twin_keeper, "make_twin_env", lambda *args, **kwargs: far)  # misses every cost 10-fold
@@ -415,8 +444,6 @@ def _effect_names(tuner):
 def test_guided_bo_identifies_a_twin_of_a_resonant_external_plant(capfd):
     """The DC motor behind a flexible coupling, wrapped as a user wraps a rig (ExternalPlantEnv): SRIVC's iterates
     ran a pole off to -infinity on this first record, NaN reached LAPACK and guided BO was left without a twin."""
-    from tests.support import flexible_coupling_env
-
     env = flexible_coupling_env(omega=15.0, zeta=0.06, noise_std=0.05, seed=2)
     env.reset(seed=2)
     info = env.step(np.array([0.5, 1.8]))[4]
