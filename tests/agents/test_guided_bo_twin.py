@@ -143,15 +143,16 @@ def test_twin_env_averages_its_measurement_noise_deterministically():
 
 
 # -- the keeper's API ---------------------------------------------------------------------------------
-def test_the_keepers_twin_is_evaluated_at_any_gains_each_once():
-    """The twin's metrics at arbitrary unit-box points, off the acquisition grid: the prior wherever an
-    acquisition looks (each point simulated once per twin)."""
-    env = gym.make("gbo_envs/DCMotor-v0")
+@pytest.mark.parametrize("env_id", ["gbo_envs/DCMotor-v0", "gbo_envs/DCMotorPID-v0"])
+def test_the_keepers_twin_is_evaluated_at_any_gains_each_once(env_id):
+    """The twin's metrics at arbitrary unit-box points, off the acquisition grid and for any number of gains: the
+    prior wherever an acquisition looks (each point simulated once per twin)."""
+    env = gym.make(env_id)
     keeper = _keeper(env)
     assert keeper.twin_env() is None and keeper.twin_metrics() is None  # no record, no twin
-    _tell(keeper, _records(gym.make("gbo_envs/DCMotor-v0"), [[0.5, 1.2]]))
+    _tell(keeper, _records(gym.make(env_id), [keeper.space.from_unit(np.full(keeper.space.dim, 0.5))]))
     prior = keeper.twin_metrics()
-    unit = np.random.default_rng(0).random((7, 2))
+    unit = np.random.default_rng(0).random((7, keeper.space.dim))
     np.testing.assert_array_equal(prior(unit), keeper.twin_env().evaluate(keeper.space.from_unit(unit))[0])
     prior(unit[:3])
     assert prior.simulations_ == keeper.metric_simulations_ == 7
