@@ -252,7 +252,15 @@ class TwinKeeper:
         return self._metrics
 
     def twin_cost(self, gains) -> float:
-        """The current twin's expected cost at one gain vector (physical units); ``unstable_cost`` where it diverges."""
+        """The last fitted twin's expected cost at one gain vector (physical units), ``unstable_cost`` if it diverges.
+
+        Raises
+        ------
+        ValueError
+            Before a twin was fitted (see :meth:`twin_env`).
+        """
+        if self._twin_env is None:
+            raise ValueError("twin_cost: no twin fitted yet; tell() a record and call twin_env() first")
         return _expected_cost(self._twin_env, gains)
 
     @property

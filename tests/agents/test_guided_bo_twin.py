@@ -150,6 +150,8 @@ def test_the_keepers_twin_is_evaluated_at_any_gains_each_once(env_id):
     env = gym.make(env_id)
     keeper = _keeper(env)
     assert keeper.twin_env() is None and keeper.twin_metrics() is None  # no record, no twin
+    with pytest.raises(ValueError, match="twin_cost: no twin fitted yet"):
+        keeper.twin_cost(keeper.space.from_unit(np.full(keeper.space.dim, 0.5)))
     _tell(keeper, _records(gym.make(env_id), [keeper.space.from_unit(np.full(keeper.space.dim, 0.5))]))
     prior = keeper.twin_metrics()
     unit = np.random.default_rng(0).random((7, keeper.space.dim))
