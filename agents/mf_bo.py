@@ -302,7 +302,7 @@ class MultiFidelityBO(Tuner):
     # -- multi-fidelity proposals --------------------------------------------------------------------
     def _ask_multi_fidelity(self, twin_env) -> np.ndarray:
         """Twin evaluations while the cost-weighted acquisition prefers them, then the real experiment."""
-        # torch, botorch: optional (the mf extra), imported where used
+        # heavy optional dependency: torch, botorch (the mf extra)
         import torch
 
         threads = torch.get_num_threads()
@@ -335,7 +335,7 @@ class MultiFidelityBO(Tuner):
         order); a twin row is a deterministic simulation, noise-free but for the jitter
         ``TWIN_LOG_NOISE``.
         """
-        # torch, botorch: optional (the mf extra), imported where used
+        # heavy optional dependency: torch, botorch (the mf extra)
         import torch
 
         twin_env = self._twin_cache[0]
@@ -358,7 +358,7 @@ class MultiFidelityBO(Tuner):
         decides the fidelity (only 1 if ``last``); a real experiment goes to the maximiser
         of log EI at ``s = 1`` (see "The acquisition" in the class doc).
         """
-        # torch, botorch: optional (the mf extra), imported where used
+        # heavy optional dependency: torch, botorch (the mf extra)
         from botorch.optim import optimize_acqf_mixed
 
         dim = self.space.dim
@@ -375,7 +375,7 @@ class MultiFidelityBO(Tuner):
 
     def _fit_model(self):
         """The ``SingleTaskMultiFidelityGP`` on the plant and twin rows, warm-started from the last fit."""
-        # torch, botorch: optional (the mf extra), imported where used
+        # heavy optional dependency: torch, botorch (the mf extra)
         from botorch.fit import fit_gpytorch_mll
         from botorch.models import SingleTaskMultiFidelityGP
         from botorch.models.transforms.outcome import Standardize
@@ -395,7 +395,7 @@ class MultiFidelityBO(Tuner):
 
     def _information_per_cost(self, model):
         """``qMultiFidelityMaxValueEntropy`` weighted by the inverse affine cost through ``c(s_twin)``, ``c(1)``."""
-        # torch, botorch: optional (the mf extra), imported where used
+        # heavy optional dependency: torch, botorch (the mf extra)
         import torch
         from botorch.acquisition.cost_aware import InverseCostWeightedUtility
         from botorch.acquisition.max_value_entropy_search import qMultiFidelityMaxValueEntropy
@@ -412,7 +412,7 @@ class MultiFidelityBO(Tuner):
 
     def _plant_point(self, model) -> np.ndarray:
         """The real experiment: the posterior mean's maximiser at ``s = 1``, or log EI's where that repeats."""
-        # torch, botorch: optional (the mf extra), imported where used
+        # heavy optional dependency: torch, botorch (the mf extra)
         from botorch.acquisition import FixedFeatureAcquisitionFunction, LogExpectedImprovement, PosteriorMean
         from botorch.optim import optimize_acqf
 
@@ -471,7 +471,7 @@ def _neighbourhood(unit: np.ndarray) -> np.ndarray:
 
 def _unit_box(dim: int):
     """The bounds ``[0, 1]^dim`` of ``optimize_acqf``, a float64 tensor of shape (2, dim)."""
-    # torch, botorch: optional (the mf extra), imported where used
+    # heavy optional dependency: torch, botorch (the mf extra)
     import torch
 
     bounds = torch.zeros(2, dim, dtype=torch.float64)

@@ -5,9 +5,6 @@ and those under ``if TYPE_CHECKING:`` (a cycle hidden by either is still a cycle
 function body naming ``gbo_envs``, ``agents`` or ``evaluation`` allowed only with a comment
 ``# heavy dependency: <name>`` (or ``# heavy optional dependency: <name>``): it keeps that third-party library
 from loading at every start.
-
-The parameters whose code other branches are changing are marked ``xfail(strict=True)``: they flip to a
-failure (to be unmarked) as soon as that code holds.
 """
 
 from __future__ import annotations
@@ -38,30 +35,15 @@ def graph(import_graph):
     return import_graph.build_graph(exclude_type_checking_imports=False)
 
 
-KEEPER = pytest.mark.xfail(strict=True, reason="guided_bo.py's local imports of agents.twin: being fixed in w/keeper")
-#: The files of ``agents`` that w/keeper rewrites.
-KEEPER_FILES = ("guided_bo.py", "guidance.py", "mf_bo.py")
-
-
 @pytest.mark.parametrize("package", ["gbo_envs", "agents", "agents.twin", "evaluation"])
 def test_no_import_cycle_among_the_modules_of(package, graph, import_graph):
     assert import_graph.sibling_cycles(graph, package) == []
 
 
-def _files(import_graph, part: str):
-    if part == "agents (w/keeper's files)":
-        return [REPO_ROOT / "agents" / name for name in KEEPER_FILES]
-    if part == "agents":
-        return [f for f in import_graph.package_files("agents")
-                if f.parent != REPO_ROOT / "agents" or f.name not in KEEPER_FILES]
-    return import_graph.package_files(part)
-
-
-@pytest.mark.parametrize("part", ["gbo_envs", "agents", pytest.param("agents (w/keeper's files)", marks=KEEPER),
-                                  "agents.twin", "evaluation"])
+@pytest.mark.parametrize("part", ["gbo_envs", "agents", "agents.twin", "evaluation"])
 def test_every_function_local_import_of_a_project_module_names_its_heavy_dependency(part, import_graph):
     unexplained = [f"{imp.path.relative_to(REPO_ROOT)}:{imp.line}: {imp.statement}"
-                   for path in _files(import_graph, part) for imp in import_graph.function_local_imports(path)
+                   for path in import_graph.package_files(part) for imp in import_graph.function_local_imports(path)
                    if imp.project and not imp.heavy_comment]
     assert unexplained == []
 
