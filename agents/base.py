@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import abc
 import logging
+import numbers
 import time
 from typing import Any
 
@@ -22,9 +23,33 @@ from agents.space import GainSpace
 from gbo_envs.envs.external import ExperimentFailed
 from gbo_envs.experiment import Experiment
 
-__all__ = ["Tuner", "TuningInterrupted", "TuningStopped"]
+__all__ = ["MAX_BUDGET", "MAX_SEED", "Tuner", "TuningInterrupted", "TuningStopped", "checked_budget", "checked_seed"]
 
 _log = logging.getLogger(__name__)
+
+#: Most plant experiments of one run (a budget beyond it is a typo, and some tuners size arrays to it).
+MAX_BUDGET = 10**6
+#: Largest seed: what every seeded library accepts (numpy's legacy ``RandomState``, scikit-learn, torch).
+MAX_SEED = 2**32 - 1
+
+
+def _is_integer(value) -> bool:
+    """Whether ``value`` is an integer and not a bool (``2.5`` and ``True`` are not budgets or seeds)."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
+
+
+def checked_budget(budget, name: str = "budget") -> int:
+    """``budget`` as an int from 1 to :data:`MAX_BUDGET` plant experiments, else ``ValueError`` naming ``name``."""
+    if not _is_integer(budget) or not 1 <= budget <= MAX_BUDGET:
+        raise ValueError(f"{name}: must be an integer from 1 to {MAX_BUDGET} (plant experiments), got {budget!r}")
+    return int(budget)
+
+
+def checked_seed(seed, name: str = "seed") -> int | None:
+    """``seed`` as None or an int from 0 to :data:`MAX_SEED`, else ``ValueError`` naming ``name``."""
+    if seed is not None and (not _is_integer(seed) or not 0 <= seed <= MAX_SEED):
+        raise ValueError(f"{name}: must be None or an integer from 0 to {MAX_SEED}, got {seed!r}")
+    return None if seed is None else int(seed)
 
 
 class TuningInterrupted(KeyboardInterrupt):
@@ -83,6 +108,7 @@ class Tuner(abc.ABC):
         env : gymnasium.Env, optional
             The plant env, for tuners that use more than the cost (e.g. a twin).
         """
+        seed = checked_seed(seed)
         self.space = space
         self.seed = seed
         self.rng = np.random.default_rng(seed)
@@ -115,6 +141,9 @@ class Tuner(abc.ABC):
             or ``cost`` is not a finite number.
         """
         self._require_setup()
+        if isinstance(gains, (bool, np.bool_)) or np.asarray(gains).dtype == np.bool_ or (
+                isinstance(gains, (list, tuple)) and any(isinstance(g, (bool, np.bool_)) for g in gains)):
+            raise TypeError(f"tell(gains): must be real numbers, got the boolean value(s) {gains!r}")
         checked = self.space.check(gains, name="tell(gains)")
         try:
             cost = float(cost)
@@ -180,10 +209,10 @@ class Tuner(abc.ABC):
             A plant env (``gym.make("gbo_envs/DCMotor-v0")`` or any env whose
             ``step`` takes gains and returns the experiment record in ``info``).
         budget : int
-            Plant experiments the tuner learns from, ``>= 1`` (initial
+            Plant experiments the tuner learns from, 1 to :data:`MAX_BUDGET` (initial
             experiments included; skipped failures do not count).
         seed : int, optional
-            Seeds both the env (``reset(seed=seed)``) and the tuner.
+            Seeds both the env (``reset(seed=seed)``) and the tuner; 0 to :data:`MAX_SEED`.
         progress : bool or None, default False
             Show a progress bar on stderr; ``None``: only when stderr is a terminal.
         callback : callable, optional
@@ -208,8 +237,9 @@ class Tuner(abc.ABC):
         TuningStopped
             When the failure policy stops the loop (see Notes), carrying the result so far.
         ValueError
-            If ``budget`` or ``max_consecutive_skips`` is below 1, or ``env.step``
-            reports a non-finite cost.
+            If ``budget`` is not an integer from 1 to :data:`MAX_BUDGET`, ``seed`` not
+            None or an integer from 0 to :data:`MAX_SEED`, ``max_consecutive_skips`` not
+            an integer ``>= 1``, or ``env.step`` reports a non-finite cost.
 
         Notes
         -----
@@ -234,11 +264,10 @@ class Tuner(abc.ABC):
         it like any other cost. Ctrl-C during ``env.step`` abandons that
         experiment (a resumed session runs it again).
         """
-        if int(budget) < 1:
-            raise ValueError(f"budget: must be an integer >= 1, got {budget}")
-        if int(max_consecutive_skips) < 1:
-            raise ValueError(f"max_consecutive_skips: must be an integer >= 1, got {max_consecutive_skips}")
-        budget, max_consecutive_skips = int(budget), int(max_consecutive_skips)
+        budget, seed = checked_budget(budget), checked_seed(seed)
+        if not _is_integer(max_consecutive_skips) or max_consecutive_skips < 1:
+            raise ValueError(f"max_consecutive_skips: must be an integer >= 1, got {max_consecutive_skips!r}")
+        max_consecutive_skips = int(max_consecutive_skips)
         space = GainSpace.from_env(env)
         self._run_progress = progress  # inner loops of a tuner (e.g. RL pre-training) draw their bars alike
         self.setup(space, seed=seed, env=env)

@@ -1,7 +1,9 @@
 """Attack the ``gbo`` command line and the Python API with bad input and faults; tally the outcomes.
 
 Each case of :data:`CASES` is one bad input or one fault from issue 19 (its
-``item`` is the issue's numbered finding, 1-10). A CLI case runs
+``item`` is the issue's numbered finding, 1-10) or issue 57 (items 11-15: runaway
+workers and hangs, data changed by a refusal, input accepted silently and wrong,
+unclear errors, the newcomer's path). A CLI case runs
 ``python -m evaluation.cli ARGS`` in a fresh interpreter; an API case runs one
 function of this file in a fresh interpreter (``--child``), which prints
 ``ValueError``/``TypeError`` as one line and exits 2. Each child runs under a
@@ -18,8 +20,12 @@ Outcomes (:data:`OUTCOMES`):
 * ``unclear message``: refused, but not in one line or without the needles;
 * ``wrongly refused``: a case that must succeed failed with a clean message;
 * ``silently wrong``: bad input accepted (exit 0), or a wrong result;
-* ``runaway``: over the time or memory limit;
+* ``runaway``: over the time limit while computing, over the memory limit, more
+  processes at once than the case allows (``max_processes``), or processes that
+  outlive a killed command;
+* ``hang``: over the time limit while blocked (under a quarter of the time on a CPU);
 * ``lost data``: a file truncated, a foreign file modified, experiments lost;
+* ``data changed``: a refusal (or a reading command) that changed the file it refused or read;
 * ``not run``: the case's setup failed (the note says why).
 
 Usage::
@@ -51,6 +57,7 @@ import sqlite3
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -62,9 +69,13 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 ENV = "gbo_envs/DCMotor-v0"
 OUTCOMES = ("clear error", "correct result", "raw traceback", "unclear message", "wrongly refused",
-            "silently wrong", "runaway", "lost data", "not run")
-#: The outcomes the issue asks to bring to zero.
-FAILURES = ("raw traceback", "silently wrong", "runaway", "lost data")
+            "silently wrong", "runaway", "hang", "lost data", "data changed", "not run")
+#: The outcomes the issues ask to bring to zero.
+FAILURES = ("raw traceback", "unclear message", "silently wrong", "runaway", "hang", "lost data", "data changed")
+#: Processes at once (the command and its workers) that a case with a ``--jobs`` limit may use.
+MAX_PROCESSES = 2 * (os.cpu_count() or 1) + 4
+#: Seconds a killed command's processes have to end (its workers die with it) before they count as a runaway.
+SURVIVOR_SECONDS = 5.0
 
 
 # -- cases ------------------------------------------------------------------------------------------------
@@ -75,7 +86,11 @@ class Case:
     ``argv`` items are formatted with the fixture paths and ``dir`` (the case's
     own folder, also the working directory). ``check(folder, fixtures, run)``
     may return an outcome that overrides the exit-status rule (e.g. ``"lost
-    data"``) or None.
+    data"``) or None. ``kill_when(folder, pid, stdout)``, polled while the command runs,
+    sends ``kill_signal`` to its process group (or with ``kill_group=False`` to the
+    command alone, as a crash would end it). ``max_processes`` bounds the processes
+    of the command's session at any time; ``close_stdout`` closes the reading end
+    of its standard output at once (``gbo ... | head``).
     """
 
     id: str
@@ -92,6 +107,10 @@ class Case:
     memory_mb: int = 3000
     kill_when: Callable | None = None
     fast: bool = False
+    max_processes: int | None = None
+    kill_signal: int = signal.SIGKILL
+    kill_group: bool = True
+    close_stdout: bool = False
 
 
 @dataclass
@@ -105,6 +124,11 @@ class Run:
     timed_out: bool = False
     killed: bool = False
     notes: list[str] = field(default_factory=list)
+    cpu_seconds: float = math.nan
+    peak_processes: int = 0
+    too_many_processes: bool = False
+    survivors: int = 0
+    pipes_held: bool = False
 
 
 # -- fixtures ---------------------------------------------------------------------------------------------
@@ -113,6 +137,8 @@ FIXTURE_FILES = {
     "binary": "binary.csv", "empty": "empty.csv", "header": "header.csv", "nan": "nan.csv",
     "nonuniform": "nonuniform.csv", "db": "runs.sqlite", "foreign": "foreign.sqlite", "textdb": "text.db",
     "local_env": "my_attack_env.py", "raising_module": "raising_module.py",
+    "noncausal": "noncausal.csv", "causal": "causal.csv", "huge": "huge.csv", "short3": "short3.csv",
+    "bigid": "bigid.csv", "damaged": "damaged.sqlite",
 }
 FIXTURE_TUNE = ("tune", "--env", ENV, "--tuner", "random", "--budget", "3", "--seed", "0",
                 "--env-kwargs", '{"noise": false}', "--no-progress")
@@ -185,6 +211,44 @@ class Fixtures:
     def _make_raising_module(self, path):
         path.write_text("raise RuntimeError('this module fails on import')\n")
 
+    def _make_noncausal(self, path):
+        write_open_loop_csv(path, same_sample=True)
+
+    def _make_causal(self, path):
+        write_open_loop_csv(path, same_sample=False)
+
+    def _make_huge(self, path):
+        self._rewrite_csv3(path, lambda row: row[:4] + [repr(float(row[4]) * 1e305)])
+
+    def _make_short3(self, path):
+        self.build(["csv3"])
+        lines = self.paths["csv3"].read_text().splitlines()
+        seen: Counter = Counter()
+        keep = []
+        for line in lines[1:]:  # the first 3 samples of each experiment
+            seen[line.split(",")[0]] += 1
+            if seen[line.split(",")[0]] <= 3:
+                keep.append(line)
+        path.write_text("\n".join([lines[0], *keep]) + "\n")
+
+    def _make_bigid(self, path):
+        """The first experiment (id 0) renumbered 99999999999999999999."""
+        self._rewrite_csv3(path, lambda row: ["99999999999999999999" if row[0] == "0" else row[0], *row[1:]])
+
+    def _rewrite_csv3(self, path, change):
+        self.build(["csv3"])
+        lines = self.paths["csv3"].read_text().splitlines()
+        path.write_text("\n".join([lines[0], *(",".join(change(line.split(","))) for line in lines[1:])]) + "\n")
+
+    def _make_damaged(self, path):
+        """The fixture database with its pages 2-4 (tables' b-trees) overwritten: ``PRAGMA quick_check`` fails."""
+        self.build(["db"])
+        data = bytearray(self.paths["db"].read_bytes())
+        size = int.from_bytes(data[16:18], "big") or 65536
+        for page in (2, 3, 4):
+            data[size * (page - 1) : size * (page - 1) + 100] = b"\xff" * 100
+        path.write_bytes(bytes(data))
+
 
 def simulate(n: int):
     """``n`` closed-loop experiments of DCMotor-v0 with sensor noise (t, r, u, y of shape (n, 2501))."""
@@ -196,6 +260,21 @@ def simulate(n: int):
     rng = np.random.default_rng(0)
     gains = np.column_stack([rng.uniform(0.3, 1.0, n), rng.uniform(1.0, 2.0, n)])
     return loop.simulate(gains, rng=rng)
+
+
+def write_open_loop_csv(path: Path, same_sample: bool) -> None:
+    """Three open-loop experiments (``r = u``, a random +-1 input held for 10 samples) of a first-order plant
+    ``y[k] = 0.8 y[k-1] + 0.2 u[k-1]``, or, with ``same_sample``, ``0.2 u[k]``: a log whose output answers its
+    input in the same sample (read after the input was applied)."""
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(0)
+    rows = []
+    for experiment in (1, 2, 3):
+        u = np.repeat(rng.choice([-1.0, 1.0], 50), 10)
+        y = lfilter([0.2] if same_sample else [0.0, 0.2], [1.0, -0.8], u) + 0.001 * rng.standard_normal(u.size)
+        rows += [f"{experiment},{k * 0.01:.2f},{u[k]:g},{u[k]:g},{y[k]:.10g}\n" for k in range(u.size)]
+    path.write_text("experiment,t,r,u,y\n" + "".join(rows))
 
 
 def write_workbench_csv(path: Path, response) -> None:
@@ -260,7 +339,7 @@ def export_kill_setup(folder: Path, fx: Fixtures) -> None:
         raise RuntimeError(f"export reference failed: {run.stderr[-1000:]}")
 
 
-def export_started(folder: Path) -> bool:
+def export_started(folder: Path, pid: int, stdout: str) -> bool:
     """Kill as soon as the export touches its output: data.csv changed, or a new file next to it (not the db's)."""
     old_size, known = _before_export(folder)
     try:
@@ -313,7 +392,7 @@ KILL_TUNE = ("tune", "--env", ENV, "--tuner", "random", "--budget", "30", "--db"
              '{"noise": false}', "--no-progress")
 
 
-def some_experiments_stored(folder: Path) -> bool:
+def some_experiments_stored(folder: Path, pid: int, stdout: str) -> bool:
     """True once the session's write-ahead log holds about 5 experiments (t, r, u, y of 2501 samples each)."""
     wal = folder / "runs.sqlite-wal"
     return wal.exists() and wal.stat().st_size > 5 * 4 * 2501 * 8
@@ -449,6 +528,272 @@ def api_build_effect(name, params) -> Callable:
 
         return {"block": repr(build_effect(name, params))}
     return run
+
+
+# -- issue 57: helpers of its setups, checks and API cases ----------------------------------------------------
+BENCH_SPEC = ('[study]\nname = "kill"\nbatches = 2\nbudget = 3\n[env]\nid = "gbo_envs/DCMotor-v0"\n'
+              '[[tuners]]\nname = "random"\n[[tuners]]\nname = "grid"\n')
+BENCH = ("bench", "spec.toml", "--workers", "2", "--out", "o", "--quiet")
+
+
+def bench_spec(folder: Path, fx: Fixtures) -> None:
+    (folder / "spec.toml").write_text(BENCH_SPEC)
+
+
+def workers_started(folder: Path, pid: int, stdout: str) -> bool:
+    """True once the command's two loky worker processes run and one batch is saved: the workers are past their
+    start-up (a fresh interpreter's imports, seconds on a loaded machine), as in a study killed in the middle."""
+    if not any((folder / "o" / "results").glob("*.parquet")):
+        return False
+    workers = 0
+    for child in session_processes(pid):
+        with contextlib.suppress(OSError):
+            workers += b"LokyProcess" in Path(f"/proc/{child}/cmdline").read_bytes()
+    return workers >= 2
+
+
+def nobody_left(folder: Path, fx: Fixtures, run: Run) -> str:
+    """The killed command's processes all ended with it (survivors are a runaway before any check)."""
+    run.notes.append("killed; no process outlived it" if run.killed else "finished before the kill")
+    return "correct result"
+
+
+def report_printed(folder: Path, pid: int, stdout: str) -> bool:
+    """True once the command printed its last line (``report: PATH``) and shuts its workers down."""
+    return "report:" in stdout
+
+
+def clean_interrupt(folder: Path, fx: Fixtures, run: Run) -> str | None:
+    """A Ctrl-C after the work: exit status 0 or 130, at most one line on stderr, no traceback of any process."""
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    if not run.killed:
+        run.notes.append("finished before the interrupt")
+    if "Traceback" in run.stderr or "Exception ignored" in run.stderr:
+        return "raw traceback"
+    if run.returncode not in (0, 130) or len(lines) > 1:
+        run.notes.append(f"exit status {run.returncode}, {len(lines)} lines on stderr")
+        return "unclear message"
+    run.notes.append(f"exit status {run.returncode}")
+    return "correct result"
+
+
+def make_fifo(folder: Path, fx: Fixtures) -> None:
+    os.mkfifo(folder / "fifo.csv")
+
+
+def jobs_capped(folder: Path, fx: Fixtures, run: Run) -> str | None:
+    """A ``--jobs`` above the cores: the note on stderr, and the result (processes are bounded by ``max_processes``)."""
+    if run.returncode == 0 and "usable cores" not in run.stderr:
+        run.notes.append("no note of the cap on stderr")
+        return "silently wrong"
+    run.notes.append(f"at most {run.peak_processes} processes")
+    return None
+
+
+def damaged_db(folder: Path, fx: Fixtures) -> None:
+    shutil.copy(fx.paths["damaged"], folder / "runs.sqlite")
+    (folder / "before.sha").write_text(digest(folder / "runs.sqlite"))
+
+
+def damaged_untouched(folder: Path, fx: Fixtures, run: Run) -> str | None:
+    """The refused damaged database keeps its bytes and gets no -wal/-shm companions."""
+    extra = sorted(p.name for p in folder.glob("runs.sqlite-*"))
+    if digest(folder / "runs.sqlite") != (folder / "before.sha").read_text():
+        run.notes.append("the refused database changed")
+        return "data changed"
+    if extra:
+        run.notes.append(f"left {extra} behind")
+        return "data changed"
+    return None
+
+
+def no_companions(folder: Path, fx: Fixtures, run: Run) -> str | None:
+    """A reading command leaves the folder as it found it: no runs.sqlite-wal or -shm."""
+    extra = sorted(p.name for p in folder.glob("runs.sqlite-*"))
+    if extra:
+        run.notes.append(f"left {extra} behind")
+        return "data changed"
+    return None
+
+
+def quiet_epipe(session: bool) -> Callable:
+    """A reader that went away (``| head``): no traceback or error line; with ``session``, the session not failed."""
+    def check(folder: Path, fx: Fixtures, run: Run) -> str | None:
+        if "BrokenPipe" in run.stderr or "internal error" in run.stderr or "Traceback" in run.stderr:
+            run.notes.append("a broken pipe reported as an error")
+            return "unclear message"
+        if session:
+            with contextlib.closing(sqlite3.connect(folder / "runs.sqlite")) as conn:
+                status = conn.execute("SELECT status FROM sessions").fetchone()[0]
+            run.notes.append(f"exit status {run.returncode}, session {status}")
+            if status == "failed":
+                return "data changed"
+        return "correct result" if not run.stderr.strip() else "unclear message"
+    return check
+
+
+def lapack_quiet(folder: Path, fx: Fixtures, run: Run) -> str | None:
+    """LAPACK's own complaint (``DLASCL``) on stdout breaks ``--json``."""
+    if "DLASCL" in run.stdout or "DLASCL" in run.stderr:
+        run.notes.append("LAPACK's DLASCL line in the output")
+        return "unclear message"
+    return None
+
+
+def warned_non_causal(expected: bool) -> Callable:
+    """The twin says (stderr, or the API's warning in the JSON result) whether the log is non-causal."""
+    def check(folder: Path, fx: Fixtures, run: Run) -> str | None:
+        said = "same sample" in run.stderr or '"non_causal": true' in run.stdout
+        if said != expected:
+            run.notes.append("no word of the non-causal log" if expected else "a non-causal warning on causal data")
+            return "silently wrong"
+        return None
+    return check
+
+
+def api_tuner_run(budget, seed=0) -> Callable:
+    def run(folder: Path, fx: Fixtures):
+        import agents
+
+        return {"experiments": agents.make("random").run(_make_env(noise=False), budget, seed=seed).n_experiments}
+    return run
+
+
+def api_non_causal(name: str) -> Callable:
+    def run(folder: Path, fx: Fixtures):
+        import warnings
+
+        from agents.twin.csvio import read_csv
+        from agents.twin.records import Batch
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            Batch.from_records(read_csv(fx.paths[name]))
+        return {"non_causal": any("same sample" in str(w.message) for w in caught)}
+    return run
+
+
+def api_twin_effects_twice(folder: Path, fx: Fixtures):
+    from agents.twin.csvio import read_csv
+    from agents.twin.workbench import GreyBoxTwin
+
+    return {"params": GreyBoxTwin(effects=["saturation", "saturation"]).fit(read_csv(fx.paths["csv3"])).greybox_
+            .effect_params}
+
+
+def api_diagnose_jobs(n_jobs) -> Callable:
+    def run(folder: Path, fx: Fixtures):
+        from agents.twin.csvio import read_csv
+        from agents.twin.records import Batch
+        from agents.twin.workbench import diagnose
+
+        return {"best": diagnose(Batch.from_records(read_csv(fx.paths["csv3"])), n_jobs=n_jobs).best}
+    return run
+
+
+def api_read_fifo(folder: Path, fx: Fixtures):
+    from agents.twin.csvio import read_csv
+
+    os.mkfifo(folder / "api-fifo.csv")
+    return {"records": len(read_csv(folder / "api-fifo.csv"))}
+
+
+def api_record_timing(folder: Path, fx: Fixtures):
+    from agents.twin.records import as_records
+
+    t = np.r_[np.arange(50) * 0.01, 0.6 + np.arange(50) * 0.01]
+    return {"records": len(as_records([{"t": t, "r": np.ones(100), "u": np.sin(t), "y": np.cos(t)}]))}
+
+
+def _issue_57_cases(tune: tuple[str, ...]) -> list[Case]:
+    """The cases of issue 57: items 11 (runaway and hangs), 12 (data changed by a refusal), 13 (accepted
+    silently, and wrong), 14 (unclear errors), 15 (the newcomer's path)."""
+    huge = "99999999999999999999"
+    return [
+        # 11. runaway workers and hangs
+        Case("jobs-huge", 11, f"twin diagnose --jobs {huge}", ("twin", "diagnose", "@csv3", "--jobs", huge, "--json"),
+             expect="ok", needs=("csv3",), max_processes=MAX_PROCESSES, check=jobs_capped, timeout=400),
+        Case("jobs-16", 11, "twin diagnose --jobs 16 (more than the cores)",
+             ("twin", "diagnose", "@csv3", "--jobs", "16", "--json"), expect="ok", needs=("csv3",),
+             max_processes=MAX_PROCESSES, check=jobs_capped, timeout=400),
+        Case("jobs-api-huge", 11, "diagnose(n_jobs=10**20)", api=api_diagnose_jobs(10**20), expect="ok",
+             needs=("csv3",), max_processes=MAX_PROCESSES, timeout=400),
+        Case("jobs-negative-huge", 11, f"twin diagnose --jobs=-{huge}",
+             ("twin", "diagnose", "@csv3", f"--jobs=-{huge}"), needles=("--jobs",), needs=("csv3",), fast=True),
+        Case("fifo-compare", 11, "twin compare on a named pipe", ("twin", "compare", "fifo.csv"),
+             needles=("fifo.csv", "regular file"), setup=make_fifo, timeout=30),
+        Case("fifo-api", 11, "read_csv of a named pipe", api=api_read_fifo, needles=("api-fifo.csv", "regular file"),
+             timeout=30),
+        Case("bench-kill-workers", 11, "SIGKILL of gbo bench --workers 2 alone: its workers must end with it",
+             BENCH, expect="ok", setup=bench_spec, kill_when=workers_started, kill_group=False,
+             check=nobody_left, timeout=300),
+        Case("bench-sigint-after-report", 11, "Ctrl-C (SIGINT to the process group) once the report is printed",
+             BENCH, expect="ok", setup=bench_spec, kill_when=report_printed, kill_signal=signal.SIGINT,
+             check=clean_interrupt, timeout=300),
+        # 12. data changed by a refusal
+        Case("tune-damaged-db", 12, "gbo tune into a damaged database", (*tune[:-3], "--db", "runs.sqlite",
+                                                                         "--no-progress"),
+             needles=("runs.sqlite", "damaged"), needs=("damaged",), setup=damaged_db, check=damaged_untouched),
+        Case("export-damaged-db", 12, "gbo export from a damaged database",
+             ("export", "--db", "runs.sqlite", "--csv", "o.csv"), needles=("runs.sqlite",), needs=("damaged",),
+             setup=damaged_db, check=damaged_untouched),
+        # 13. accepted silently, and wrong
+        Case("noise-string-api", 13, "gym.make(noise='no')", api=api_make(noise="no"), needles=("noise",)),
+        Case("noise-string-cli", 13, "--env-kwargs '{\"noise\": \"no\"}'",
+             (*tune, "--env-kwargs", '{"noise": "no"}'), needles=("noise",), check=nothing_written("r.sqlite")),
+        Case("unstable-cost-negative", 13, "gym.make(unstable_cost=-1.0)", api=api_make(unstable_cost=-1.0),
+             needles=("unstable_cost", "> 0")),
+        Case("budget-float-api", 13, "Tuner.run(env, budget=2.5)", api=api_tuner_run(2.5), needles=("budget",)),
+        Case("budget-bool-api", 13, "Tuner.run(env, budget=True)", api=api_tuner_run(True), needles=("budget",)),
+        Case("gains-bool", 13, "env.step([True, True])", api=api_step([True, True]), needles=("action", "boolean")),
+        Case("gains-bool-array", 13, "env.step(array([True, True]))", api=api_step(np.array([True, True])),
+             needles=("action", "boolean")),
+        Case("effects-twice", 13, "twin compare --effects saturation,saturation",
+             ("twin", "compare", "@csv3", "--effects", "saturation,saturation"), needles=("--effects", "twice"),
+             needs=("csv3",), fast=True),
+        Case("effects-twice-api", 13, "GreyBoxTwin(effects=['saturation', 'saturation'])",
+             api=api_twin_effects_twice, needles=("saturation", "twice"), needs=("csv3",)),
+        Case("non-causal-cli", 13, "twin compare on a log whose output answers its input in the same sample",
+             ("twin", "compare", "@noncausal", "--json"), expect="ok", needs=("noncausal",),
+             check=warned_non_causal(True)),
+        Case("non-causal-api", 13, "Batch.from_records of that log warns", api=api_non_causal("noncausal"),
+             expect="ok", needs=("noncausal",), check=warned_non_causal(True)),
+        Case("causal-no-warning", 13, "the same plant logged causally: no warning", api=api_non_causal("causal"),
+             expect="ok", needs=("causal",), check=warned_non_causal(False)),
+        Case("closed-loop-no-warning", 13, "closed-loop DCMotor records: no warning", api=api_non_causal("csv3"),
+             expect="ok", needs=("csv3",), check=warned_non_causal(False)),
+        # 14. unclear errors
+        Case("budget-huge", 14, f"gbo tune --budget {huge}", ("tune", "--budget", huge, "--db", "r.sqlite"),
+             needles=("--budget",), check=nothing_written("r.sqlite"), fast=True),
+        Case("seed-huge", 14, f"gbo tune --seed {huge}", (*tune, "--seed", huge), needles=("--seed",),
+             check=nothing_written("r.sqlite"), fast=True),
+        Case("session-huge", 14, f"gbo export --session {huge}",
+             ("export", "--db", "runs.sqlite", "--session", huge, "--csv", "o.csv"), needles=("--session",),
+             needs=("db",), setup=copy_db),
+        Case("experiment-id-huge", 14, f"a CSV with experiment id {huge}", ("twin", "compare", "@bigid"),
+             needles=("bigid.csv", "experiment id"), needs=("bigid",)),
+        Case("epipe-tune", 14, "gbo tune guided-bo | head (the reader leaves at once)",
+             ("tune", "--tuner", "guided-bo", "--budget", "4", "--db", "runs.sqlite", "--no-progress"),
+             expect="ok", close_stdout=True, check=quiet_epipe(session=True), timeout=300),
+        Case("epipe-twin", 14, "gbo twin compare | head", ("twin", "compare", "@csv3"), expect="ok",
+             needs=("csv3",), close_stdout=True, check=quiet_epipe(session=False)),
+        Case("y-near-1e308", 14, "twin compare --json on y near 1e308", ("twin", "compare", "@huge", "--json"),
+             needles=("huge.csv", "1e+100"), needs=("huge",), check=lapack_quiet),
+        Case("poles-20", 14, "twin compare --poles 20 --json", ("twin", "compare", "@csv3", "--poles", "20", "--json"),
+             needles=("--poles",), needs=("csv3",), check=lapack_quiet, fast=True),
+        Case("three-samples", 14, "experiments of 3 samples", ("twin", "compare", "@short3"),
+             needles=("short3.csv", "samples"), needs=("short3",)),
+        Case("record-timing-1-based", 14, "as_records with a time step that jumps: record numbered from 1",
+             api=api_record_timing, needles=("record 1",), fast=True),
+        Case("sessions-damaged-db", 14, "gbo sessions on a damaged database names the file",
+             ("sessions", "--db", "runs.sqlite"), needles=("runs.sqlite",), needs=("damaged",), setup=damaged_db,
+             check=damaged_untouched),
+        Case("seed-negative-api", 14, "Tuner.run(env, 2, seed=-1) names the seed", api=api_tuner_run(2, seed=-1),
+             needles=("seed",)),
+        # 15. the newcomer's path
+        Case("sessions-leaves-no-wal", 15, "gbo sessions leaves no runs.sqlite-wal / -shm behind",
+             ("sessions", "--db", "runs.sqlite"), expect="ok", needs=("db",), setup=copy_db, check=no_companions),
+    ]
 
 
 def _cases() -> list[Case]:
@@ -649,6 +994,7 @@ def _cases() -> list[Case]:
         Case("export-missing-session", 10, "gbo export --session 99", ("export", "--db", "runs.sqlite",
                                                                       "--session", "99", "--csv", "o.csv"),
              needles=("99",), needs=("db",), setup=copy_db),
+        *_issue_57_cases(tune),
     ]
     ids = [case.id for case in cases]
     assert len(ids) == len(set(ids)), "case ids must be unique"
@@ -675,28 +1021,106 @@ def _child_env(folder: Path) -> dict:
     return env
 
 
-def run_command(args: list[str], folder: Path, timeout: float, memory_mb: int, kill_when=None) -> Run:
-    """``python ARGS`` in ``folder`` under the limits; ``kill_when(folder)`` polled every ms sends SIGKILL."""
+def run_command(args: list[str], folder: Path, timeout: float, memory_mb: int, kill_when=None, *,
+                max_processes: int | None = None, kill_signal: int = signal.SIGKILL, kill_group: bool = True,
+                close_stdout: bool = False) -> Run:
+    """``python ARGS`` in ``folder`` under the limits, in a session of its own (see :class:`Case` for the options).
+
+    ``kill_when(folder, pid, stdout)`` (``stdout``: the lines printed so far) is polled every ms; once
+    true, ``kill_signal`` goes to the process group (or the command alone). After a SIGKILL the
+    command's remaining processes get :data:`SURVIVOR_SECONDS` to
+    end; those still alive are counted (``Run.survivors``), killed, and the output read up to then.
+    """
     start = time.perf_counter()
     proc = subprocess.Popen([sys.executable, *args], cwd=folder, env=_child_env(folder), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, errors="replace",
                             preexec_fn=_limits(memory_mb))
-    if kill_when is not None:
-        deadline = start + timeout
-        while proc.poll() is None and time.perf_counter() < deadline and not kill_when(folder):
-            time.sleep(0.001)
-        killed = proc.poll() is None
-        if killed:
-            os.killpg(proc.pid, signal.SIGKILL)
-        out, err = proc.communicate()
-        return Run(proc.returncode, out, err, time.perf_counter() - start, killed=killed)
-    try:
-        out, err = proc.communicate(timeout=timeout)
-        return Run(proc.returncode, out, err, time.perf_counter() - start)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        out, err = proc.communicate()
-        return Run(None, out, err, time.perf_counter() - start, timed_out=True)
+    parts: dict[str, list[str]] = {"stdout": [], "stderr": []}
+    streams = {"stderr": proc.stderr} if close_stdout else {"stdout": proc.stdout, "stderr": proc.stderr}
+    if close_stdout:
+        proc.stdout.close()  # the reader went away at once, as head does after its lines
+    readers = [threading.Thread(target=lambda stream, into: into.extend(stream), args=(stream, parts[name]),
+                                daemon=True) for name, stream in streams.items()]  # line by line: kill_when reads
+    for reader in readers:
+        reader.start()
+    run = Run(None, "", "", 0.0)
+    signalled = False
+    deadline = start + timeout
+    polls = 0
+    while proc.poll() is None:
+        polls += 1
+        if max_processes is not None and polls % 20 == 0:
+            count = len(session_processes(proc.pid))
+            run.peak_processes = max(run.peak_processes, count)
+            if count > max_processes:
+                run.too_many_processes = True
+                break
+        if kill_when is not None and not signalled and kill_when(folder, proc.pid, "".join(parts["stdout"])):
+            signalled = run.killed = True
+            (os.killpg if kill_group else os.kill)(proc.pid, kill_signal)
+            if kill_signal == signal.SIGKILL:
+                break
+        if time.perf_counter() > deadline:
+            run.timed_out = True
+            run.cpu_seconds = session_cpu_seconds(proc.pid)
+            break
+        time.sleep(0.001)
+    if run.too_many_processes or run.timed_out:
+        _kill_session(proc.pid)
+    proc.wait()
+    run.survivors = _outliving(proc.pid, SURVIVOR_SECONDS)
+    for reader in readers:
+        reader.join(timeout=2.0)
+    run.pipes_held = any(reader.is_alive() for reader in readers)
+    _kill_session(proc.pid)  # whatever outlived it: it would hold the pipes
+    for reader in readers:
+        reader.join(timeout=5.0)
+    run.returncode = None if run.timed_out else proc.returncode
+    run.stdout, run.stderr = "".join(parts["stdout"]), "".join(parts["stderr"])
+    run.seconds = time.perf_counter() - start
+    return run
+
+
+def session_processes(sid: int) -> list[int]:
+    """The processes of session ``sid`` (the command's, started with ``os.setsid``), from ``/proc``."""
+    pids = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                fields = Path(f"/proc/{entry}/stat").read_text().rpartition(")")[2].split()
+            except OSError:  # ended meanwhile
+                continue
+            if int(fields[3]) == sid and fields[0] != "Z":  # field 6, session id; zombies have ended
+                pids.append(int(entry))
+    return pids
+
+
+def session_cpu_seconds(sid: int) -> float:
+    """CPU time (user + system, s) the live processes of session ``sid`` have used."""
+    total = 0
+    for pid in session_processes(sid):
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+        except OSError:
+            continue
+        total += int(fields[11]) + int(fields[12])  # fields 14 and 15: utime, stime in clock ticks
+    return total / os.sysconf("SC_CLK_TCK")
+
+
+def _outliving(sid: int, seconds: float) -> int:
+    """How many processes of session ``sid`` are still alive after ``seconds`` (0 as soon as none is)."""
+    deadline = time.perf_counter() + seconds
+    while session_processes(sid):
+        if time.perf_counter() > deadline:
+            return len(session_processes(sid))
+        time.sleep(0.05)
+    return 0
+
+
+def _kill_session(sid: int) -> None:
+    for pid in session_processes(sid):
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, signal.SIGKILL)
 
 
 def run_in_process(case: Case, folder: Path, fx: Fixtures) -> Run:
@@ -761,18 +1185,30 @@ def run_case(case: Case, root: Path, fx: Fixtures, in_process: bool = False) -> 
         run = run_in_process(case, folder, fx)
     elif case.api is not None:
         child = [str(Path(__file__).resolve()), "--child", case.id, "--dir", str(folder), "--fixtures", str(fx.folder)]
-        run = run_command(child, folder, case.timeout, case.memory_mb)
+        run = run_command(child, folder, case.timeout, case.memory_mb, max_processes=case.max_processes)
     else:
         run = run_command(["-m", "evaluation.cli", *_argv(case, folder, fx)], folder, case.timeout,
-                          case.memory_mb, kill_when=case.kill_when)
+                          case.memory_mb, kill_when=case.kill_when, max_processes=case.max_processes,
+                          kill_signal=case.kill_signal, kill_group=case.kill_group, close_stdout=case.close_stdout)
     return classify(case, run, folder, fx), run
 
 
 def classify(case: Case, run: Run, folder: Path, fx: Fixtures) -> str:
     """The outcome of a run (see the module docstring)."""
     err = run.stderr
-    if not run.killed and (run.timed_out or "MemoryError" in err or (run.returncode or 0) < 0):
-        run.notes.append("over the time limit" if run.timed_out else "over the memory limit")
+    if run.too_many_processes:
+        run.notes.append(f"over {case.max_processes} processes at once ({run.peak_processes} seen)")
+        return "runaway"
+    if run.survivors or run.pipes_held:
+        run.notes.append(f"{run.survivors} process(es) outlived the command by {SURVIVOR_SECONDS:g} s"
+                         + (", holding its output pipes" if run.pipes_held else ""))
+        return "runaway"
+    if run.timed_out and not run.killed:
+        busy = run.cpu_seconds >= 0.25 * run.seconds if not math.isnan(run.cpu_seconds) else True
+        run.notes.append(f"over the time limit ({run.cpu_seconds:.1f} s of CPU in {run.seconds:.0f} s)")
+        return "runaway" if busy else "hang"
+    if not run.killed and ("MemoryError" in err or (run.returncode or 0) < 0):
+        run.notes.append("over the memory limit")
         return "runaway"
     if case.check is not None:
         verdict = case.check(folder, fx, run)

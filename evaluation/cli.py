@@ -16,6 +16,7 @@ import atexit
 import importlib
 import multiprocessing
 import os
+import signal
 import sys
 import threading
 
@@ -26,12 +27,13 @@ from evaluation.cli_args import (
     EnvId,
     Handler,
     OneLineParser,
+    OutputClosed,
     check_env_id,
     env_id,
     error_message,
     import_modules,
-    int_at_least,
     positive_int,
+    seed,
 )
 
 __all__ = ["main"]
@@ -57,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", default="out/demo", help="output folder for the PNGs (default: out/demo)")
     demo.add_argument("--env", type=env_id, default=EnvId("gbo_envs/DCMotor-v0"),
                       help="env id (default: gbo_envs/DCMotor-v0)")
-    demo.add_argument("--seed", type=int_at_least(0), default=0, help="seed of the first tuning run (default: 0)")
+    demo.add_argument("--seed", type=seed, default=0, help="seed of the first tuning run (default: 0)")
     demo.add_argument("--budget", type=positive_int, default=20, help="plant experiments per tuner (default: 20)")
     demo.add_argument("--seeds", type=positive_int, default=3,
                       help="tuning runs per tuner, from --seed on; the convergence plot shows their mean and 95 %% "
@@ -88,6 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         _prepare(args)
         return int(args.handler(args) or 0)
+    except (BrokenPipeError, OutputClosed):  # the reader of stdout went away (gbo ... | head): end quietly
+        return _output_closed()
     except KeyboardInterrupt:
         if args.debug:
             raise
@@ -96,13 +100,24 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:
         if args.debug:
             raise
-        message = error_message(exc)
+        message = error_message(exc, db=getattr(args, "db", None))
         if message is None:  # a bug, not bad input: still one line, and the way to the traceback
             print(f"{command}: internal error: {type(exc).__name__}: {exc} (rerun with gbo --debug for the "
                   "traceback)", file=sys.stderr)
             return 1
         print(f"{command}: error: {' '.join(message.split())}", file=sys.stderr)
         return EXIT_BAD_INPUT
+
+
+def _output_closed() -> int:
+    """Exit status 1 after the reader of stdout went away, with stdout sent to ``os.devnull`` so that the
+    interpreter's last flush does not fail again (Python's documentation, "Note on SIGPIPE")."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # a stdout without a file descriptor (an in-process caller)
+        pass
+    return 1
 
 
 def _prepare(args: argparse.Namespace) -> None:
@@ -125,15 +140,46 @@ def run() -> int:
     down) the exit is the normal one, which waits for them. In-process callers use :func:`main`, which returns.
     """
     code = main()
+    interrupted = _quiet_interrupt()
     if not _alone():
-        return code
+        _shut_down_workers()
+        return 130 if interrupted else code
     atexit._run_exitfuncs()  # what sys.exit would run
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
         except OSError:  # a reader that went away (gbo ... | head): nothing left to write to
             pass
-    os._exit(code)
+    os._exit(130 if interrupted else code)
+
+
+def _quiet_interrupt() -> list:
+    """From now on, Ctrl-C prints one line and the exit status becomes 130, but the shutdown goes on: the
+    command is done, and a ``KeyboardInterrupt`` would only break the worker pools' shutdown (loky's exit
+    handler) with a traceback, or, cut short, leave their semaphores and memory-mapped folders behind. A
+    second Ctrl-C ends the process at once. Returns the list that records the interruption."""
+    interrupted: list = []
+
+    def handler(signum, frame):
+        if interrupted:
+            os._exit(130)
+        interrupted.append(signum)
+        os.write(2, b"gbo: interrupted; the command had finished, its worker processes are shutting down\n")
+
+    try:
+        signal.signal(signal.SIGINT, handler)
+    except ValueError:  # not the main thread
+        pass
+    return interrupted
+
+
+def _shut_down_workers() -> None:
+    """Shut joblib's reusable loky executor down now, as the interpreter's exit would, but under the quiet
+    Ctrl-C of :func:`_quiet_interrupt` (its workers end; the pool of ``gbo bench`` is one)."""
+    module = sys.modules.get("joblib.externals.loky.reusable_executor")
+    executor = getattr(module, "_executor", None)
+    if executor is not None:
+        executor.shutdown(wait=True)
 
 
 def _alone() -> bool:

@@ -34,6 +34,7 @@ __all__ = [
     "EnvId",
     "Handler",
     "OneLineParser",
+    "OutputClosed",
     "check_env_id",
     "env_id",
     "error_message",
@@ -42,10 +43,15 @@ __all__ = [
     "job_count",
     "json_object",
     "positive_int",
+    "seed",
 ]
 
 #: Exit status of a command refused for bad input (argparse's own status for usage errors).
 EXIT_BAD_INPUT = 2
+#: Largest integer argument (SQLite's INTEGER and numpy's int64 hold at most this).
+MAX_INT = 2**63 - 1
+#: Largest seed (``--seed``): what every seeded library accepts (numpy's legacy ``RandomState``, scikit-learn).
+MAX_SEED = 2**32 - 1
 
 
 #: File errors and what they mean, most specific first.
@@ -53,6 +59,11 @@ _FILE_ERRORS = ((IsADirectoryError, "is a folder, expected a file"),
                 (NotADirectoryError, "a part of the path is not a folder"),
                 (FileNotFoundError, "no such file or folder"), (PermissionError, "permission denied"),
                 (FileExistsError, "already exists"))
+
+
+class OutputClosed(KeyboardInterrupt):
+    """The reader of standard output went away (``gbo tune ... | head``): the command stops as if interrupted
+    (a tuning session is left to resume, not failed), and :func:`evaluation.cli.main` ends quietly."""
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -84,18 +95,23 @@ class Handler:
 
 
 def positive_int(text: str) -> int:
-    """An integer ``>= 1`` (``--workers``, ``--budget``, ``--batches``)."""
-    return _int_at_least(text, 1)
+    """An integer from 1 to :data:`MAX_INT` (``--workers``, ``--budget``, ``--batches``, ``--session``)."""
+    return _int_in(text, 1, MAX_INT)
 
 
-def int_at_least(low: int):
-    """A ``type=`` callable for an integer ``>= low`` (e.g. ``int_at_least(2)`` for ``--folds``)."""
+def int_at_least(low: int, high: int = MAX_INT):
+    """A ``type=`` callable for an integer from ``low`` to ``high`` (e.g. ``int_at_least(2)`` for ``--folds``)."""
 
     def parse(text: str) -> int:
-        return _int_at_least(text, low)
+        return _int_in(text, low, high)
 
     parse.__name__ = f"integer >= {low}"
     return parse
+
+
+def seed(text: str) -> int:
+    """A seed (``--seed``): an integer from 0 to :data:`MAX_SEED`."""
+    return _int_in(text, 0, MAX_SEED)
 
 
 def _integer(text: str, expected: str) -> int:
@@ -106,19 +122,34 @@ def _integer(text: str, expected: str) -> int:
         raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
 
 
-def _int_at_least(text: str, low: int) -> int:
+def _int_in(text: str, low: int, high: int) -> int:
     value = _integer(text, f"an integer >= {low}")
     if value < low:
         raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {value}")
+    if value > high:
+        raise argparse.ArgumentTypeError(f"must be an integer from {low} to {high}, got {value}")
     return value
 
 
+def usable_cores() -> int:
+    """The cores this process may run on: its CPU affinity and the container's CPU quota (joblib's count)."""
+    from joblib import cpu_count
+
+    return max(1, int(cpu_count()))
+
+
 def job_count(text: str) -> int:
-    """A count of worker processes (``--jobs``): a positive integer, or a negative one counted back from
-    the cores (``-1``: all of them), as joblib's ``n_jobs``."""
+    """A count of worker processes (``--jobs``): a positive integer, at most the usable cores (a larger one is
+    capped, with a note on stderr), or a negative one counted back from the cores (``-1``: all of them), as
+    joblib's ``n_jobs``."""
     value = _integer(text, "a nonzero integer (-1: all cores)")
-    if value == 0:
-        raise argparse.ArgumentTypeError("must be a nonzero integer (-1: all cores, 1: no worker processes), got 0")
+    cores = usable_cores()
+    if value == 0 or value < -cores:
+        raise argparse.ArgumentTypeError(f"must be a nonzero integer from -{cores} to {cores} (-1: all {cores} "
+                                         f"usable cores, 1: no worker processes), got {value}")
+    if value > cores:
+        print(f"note: --jobs {value} is more than the {cores} usable cores; using {cores}", file=sys.stderr)
+        return cores
     return value
 
 
@@ -200,11 +231,12 @@ def import_modules(modules) -> None:
             raise ValueError(f"--import {module}: importing it raised {type(exc).__name__}: {exc}") from exc
 
 
-def error_message(exc: BaseException) -> str | None:
+def error_message(exc: BaseException, db: str | None = None) -> str | None:
     """The one line for a user-facing error, or None for an unexpected one (a bug).
 
     ``ValueError`` and ``TypeError`` carry the API's own message; file errors
-    name the file; a codec error names the codec and the byte.
+    name the file; a codec error names the codec and the byte; an SQLite error
+    names ``db``, the command's database file.
     """
     if isinstance(exc, UnicodeDecodeError):
         return f"not {exc.encoding} text: byte {exc.object[exc.start:exc.start + 1]!r} at position {exc.start}"
@@ -214,7 +246,9 @@ def error_message(exc: BaseException) -> str | None:
         if isinstance(exc, kind):
             return f"{exc.filename}: {what}" if exc.filename else str(exc)
     if isinstance(exc, sqlite3.DatabaseError):
-        return f"database: {exc}"
+        return f"{db or 'database'}: {exc}" + (
+            "; the file is damaged (restore it from a backup, or give another --db file)"
+            if "malformed" in str(exc) else "")
     if isinstance(exc, OSError) and exc.filename:
         return f"{exc.filename}: {exc.strerror or exc}"
     try:

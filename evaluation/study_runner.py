@@ -49,6 +49,7 @@ from joblib import Parallel, delayed
 import agents
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.jsonable import to_json
+from agents.process_lifetime import die_with_parent
 from agents.run_display import progress_bar
 from agents.thread_limits import single_thread
 from evaluation.curve_table import CURVES_FILE, read_curves, write_curves
@@ -431,7 +432,9 @@ def _local(tasks: list[BatchTask], workers: int) -> Iterator:
             yield _safe_run_batch(task)
         return
 
-    parallel = Parallel(n_jobs=workers, return_as="generator_unordered", batch_size=1)
+    # the workers end with this process, also when it is killed (SIGKILL), instead of finishing their batches
+    parallel = Parallel(n_jobs=workers, return_as="generator_unordered", batch_size=1, initializer=die_with_parent,
+                        initargs=(os.getpid(),))
     yield from parallel(delayed(_safe_run_batch)(task) for task in tasks)
 
 

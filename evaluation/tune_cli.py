@@ -27,7 +27,7 @@ import sys
 
 from agents import TuningStopped
 from agents.run_display import progress_enabled
-from evaluation.cli_args import EXIT_BAD_INPUT
+from evaluation.cli_args import EXIT_BAD_INPUT, OutputClosed
 from evaluation.sessions import ReplayMismatch, SessionBusy, SessionStore, TuningSession, export_csv, sessions_table
 
 
@@ -35,7 +35,10 @@ class _PrintEvents(logging.Handler):
     """Prints a tuner's events (:meth:`agents.Tuner.log_event`) to the current standard output."""
 
     def emit(self, record: logging.LogRecord) -> None:
-        print(record.getMessage(), flush=True)
+        try:
+            print(record.getMessage(), flush=True)
+        except BrokenPipeError:  # gbo tune ... | head: stop as if interrupted, the session left to resume
+            raise OutputClosed() from None
 
 
 def _tune(args: argparse.Namespace) -> int:
@@ -50,7 +53,9 @@ def _tune(args: argparse.Namespace) -> int:
                                 env_kwargs=args.env_kwargs, tuner_kwargs=args.tuner_kwargs, on_crash=args.on_crash,
                                 max_consecutive_skips=args.max_skips, force=args.force)
         result = session.run(progress=progress)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        if isinstance(exc, OutputClosed) or isinstance(exc.__cause__, OutputClosed):
+            raise OutputClosed() from None
         print("gbo tune: interrupted; finished experiments are stored, rerun the same command to resume",
               file=sys.stderr)
         return 130

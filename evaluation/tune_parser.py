@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import argparse
 
-from evaluation.cli_args import EnvId, Handler, env_id, int_at_least, json_object, positive_int
+from agents.base import MAX_BUDGET
+from evaluation.cli_args import EnvId, Handler, env_id, int_at_least, json_object, positive_int, seed
 
 __all__ = ["add_parser"]
 
@@ -28,9 +29,10 @@ def add_parser(subparsers) -> None:
     tune.add_argument("--env", type=env_id, default=EnvId("gbo_envs/DCMotor-v0"),
                       help="registered env id (default: gbo_envs/DCMotor-v0; your own: see --import)")
     tune.add_argument("--tuner", default="bo", help="tuner registry name (default: bo)")
-    tune.add_argument("--budget", type=positive_int, required=True, help="plant experiments the tuner learns from")
+    tune.add_argument("--budget", type=int_at_least(1, MAX_BUDGET), required=True,
+                      help=f"plant experiments the tuner learns from (1 to {MAX_BUDGET})")
     tune.add_argument("--db", default="runs.sqlite", help="SQLite file (default: runs.sqlite)")
-    tune.add_argument("--seed", type=int_at_least(0), default=0, help="seed of env and tuner (default: 0)")
+    tune.add_argument("--seed", type=seed, default=0, help="seed of env and tuner (default: 0)")
     tune.add_argument("--env-kwargs", type=json_object, default={}, metavar="JSON",
                       help='gym.make keyword arguments, e.g. \'{"noise": false}\'')
     tune.add_argument("--tuner-kwargs", type=json_object, default={}, metavar="JSON",
@@ -40,7 +42,7 @@ def add_parser(subparsers) -> None:
                            "it registers your own envs or tuners; repeatable")
     tune.add_argument("--on-crash", choices=("rerun", "stop"), default="rerun",
                       help="an experiment cut by a crash: run it again (default) or stop for a check of the rig")
-    tune.add_argument("--max-skips", type=int_at_least(0), default=5,
+    tune.add_argument("--max-skips", type=int_at_least(1), default=5,
                       help="stop after this many skipped failed experiments in a row (default: 5)")
     tune.add_argument("--force", action="store_true",
                       help="take over a session whose recorded owner process is gone (e.g. crashed on another host)")

@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import sys
 import warnings
 from pathlib import Path
 
@@ -34,6 +35,7 @@ from agents.twin.fits import fit_structure
 from agents.twin.identify import check_orders
 from agents.twin.ladder_text import advice, unobservable_lines
 from agents.twin.model import ModelSpec
+from agents.twin.record_checks import NonCausalRecordWarning
 from agents.twin.records import Batch
 from agents.twin.report import compare_figure, residual_figure, write_report
 from agents.twin.workbench import compare, diagnose, error_ladder, residuals
@@ -85,17 +87,27 @@ def _run(handler):
     """
     def wrapped(args: argparse.Namespace) -> int:
         _check_effects(args.effects)
-        with warnings.catch_warnings(), _naming_the_file(args.data):
-            warnings.simplefilter("ignore")
-            return handler(args)
+        try:
+            with warnings.catch_warnings(record=True) as caught, _naming_the_file(args.data):
+                warnings.simplefilter("ignore")
+                warnings.simplefilter("always", NonCausalRecordWarning)  # about the data: said, on stderr
+                return handler(args)
+        finally:
+            for text in dict.fromkeys(str(w.message).removeprefix("records: ") for w in caught
+                                      if issubclass(w.category, NonCausalRecordWarning)):
+                print(f"gbo twin {args.twin_command}: warning: {args.data}: {text}", file=sys.stderr)
 
     return wrapped
 
 
 def _check_effects(effects: str) -> None:
-    unknown = [e.strip() for e in effects.split(",") if e.strip() and e.strip() not in EFFECT_NAMES]
+    names = [e.strip() for e in effects.split(",") if e.strip()]
+    unknown = [e for e in names if e not in EFFECT_NAMES]
     if unknown:
         raise ValueError(f"--effects: unknown effect {unknown[0]!r}; the catalogue is {', '.join(EFFECT_NAMES)}")
+    twice = [e for i, e in enumerate(names) if e in names[:i]]
+    if twice:
+        raise ValueError(f"--effects: {twice[0]!r} is named twice; each catalogue effect may be in the model once")
 
 
 @contextlib.contextmanager

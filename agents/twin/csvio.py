@@ -39,6 +39,8 @@ _SNIFF_BYTES = 8192
 _MISSING = ("", "nan", "na", "null", "none")
 #: Rows of a CSV parsed at a time by :func:`read_csv` (bounds the parser's memory).
 CHUNK_ROWS = 2**17
+#: Largest experiment id of a CSV: the integers a float holds exactly (2**53).
+MAX_EXPERIMENT_ID = 2**53
 
 
 def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[Experiment]:
@@ -82,6 +84,9 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
         raise FileNotFoundError(f"{path}: no such file")
     if path.is_dir():
         raise ValueError(f"{path}: is a folder; expected a CSV file with the header {','.join(REQUIRED_COLUMNS)}")
+    if not path.is_file():  # opening a named pipe waits for a writer, and the reader reads the file several times
+        raise ValueError(f"{path}: not a regular file (a named pipe, device or socket); the CSV is read more than "
+                         "once, so save the data to a file first")
     with open(path, "rb") as handle:
         if b"\x00" in handle.read(_SNIFF_BYTES):
             raise ValueError(f"{path}: a binary file (it holds NUL bytes); a workbench CSV is UTF-8 text with the "
@@ -117,11 +122,11 @@ def read_csv(path: str | Path, gain_names: Sequence[str] | None = None) -> list[
         values[column] = values[other]
     costs = values.pop("cost", None)
     exp = values.pop("experiment")
-    not_int = np.flatnonzero(exp != np.round(exp))
+    not_int = np.flatnonzero((exp != np.round(exp)) | (np.abs(exp) > MAX_EXPERIMENT_ID))
     if not_int.size:
         i = int(not_int[0])
-        raise ValueError(f"{path}, row {i + 2}, column 'experiment': experiment id must be an integer, "
-                         f"got {float(exp[i])!r}")
+        raise ValueError(f"{path}, row {i + 2}, column 'experiment': experiment id must be an integer from "
+                         f"-{MAX_EXPERIMENT_ID} to {MAX_EXPERIMENT_ID}, got {float(exp[i])!r}")
     groups = _experiment_rows(exp.astype(int))
     del exp
     for name in SIGNALS:  # read-only down to their memory: the records share these columns, uncopied

@@ -20,6 +20,7 @@ from agents.twin.least_squares import Problem, fit_problems, make_problem
 from agents.twin.linear_fit import linear_fit, profile
 from agents.twin.model import GreyFit, ModelSpec, effect_items, effect_offset, fitted_parameters
 from agents.twin.noise_floor import quantization_step
+from agents.twin.record_checks import check_fit_size
 from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
 from agents.twin.workers import map_independent
@@ -50,6 +51,7 @@ def fit_structure(data: Batch, effects=None, spec: ModelSpec | None = None, max_
     """
     spec = ModelSpec() if spec is None else ModelSpec(spec.n_poles, spec.n_zeros, spec.n_integrators, spec.output)
     items = effect_items(effects)
+    check_fit_size(data, spec, sum(len(fitted_parameters(name, given)) for name, given in items))
     base = linear_fit(data, spec)
     if items and all(all(p in given for p, _ in fitted_parameters(name, given)) for name, given in items):
         return _fit_from_given_values(data, spec, items, base, max_iter)

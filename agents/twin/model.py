@@ -273,7 +273,7 @@ def effect_items(effects) -> list[tuple[str, dict]]:
     Raises
     ------
     ValueError
-        An effect outside the catalogue :data:`gbo_envs.physics.EFFECT_NAMES`.
+        An effect outside the catalogue :data:`gbo_envs.physics.EFFECT_NAMES`, or one named twice.
     """
     if effects is None:
         return []
@@ -286,5 +286,7 @@ def effect_items(effects) -> list[tuple[str, dict]]:
         name = name.strip()
         if name not in EFFECTS:
             raise ValueError(f"unknown effect {name!r}; the catalogue is {EFFECT_NAMES}")
+        if any(name == seen for seen, _ in out):
+            raise ValueError(f"effects: {name!r} is named twice; each catalogue effect may be in the model once")
         out.append((name, dict(given or {})))
     return out

@@ -29,12 +29,15 @@ import multiprocessing
 import numbers
 import os
 import sys
+import warnings
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import ExitStack, contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass
 
-from joblib import Parallel, delayed, effective_n_jobs, parallel_config
+from joblib import Parallel, cpu_count, delayed, effective_n_jobs, parallel_config
+
+from agents.process_lifetime import die_with_parent
 
 __all__ = ["check_n_jobs", "map_independent", "worker_processes", "workers_available"]
 
@@ -75,7 +78,8 @@ class _Pool:
 
             warm_up(("open_loop",))  # loaded once here, inherited by the workers
             # left by terminating the workers: every map has returned by then, or is abandoned by an error
-            self._processes = self._stack.enter_context(multiprocessing.get_context("fork").Pool(self.n_jobs))
+            self._processes = self._stack.enter_context(multiprocessing.get_context("fork").Pool(
+                self.n_jobs, initializer=die_with_parent, initargs=(os.getpid(),)))  # they end with this process
         pieces = [(fn, tuple(next((_Shared(i) for i, s in enumerate(self.shared) if a is s), a) for a in piece))
                   for piece in args]
         return self._processes.map(_with_shared, pieces, chunksize=1)
@@ -88,13 +92,16 @@ _POOL: ContextVar[_Pool | None] = ContextVar("agents_twin_worker_pool", default=
 
 def check_n_jobs(n_jobs) -> int | None:
     """``n_jobs`` checked: ``None`` (joblib's active configuration, one process by default), a positive
-    count of processes, or a negative one counted back from the cores (``-1``: all of them)."""
+    count of processes, at most the usable cores (:func:`joblib.cpu_count`: the CPU affinity and the
+    container's quota; a larger count is capped, with a :class:`UserWarning`), or a negative one counted
+    back from the cores (``-1``: all of them, ``-cores`` at most); :func:`worker_processes` warns of a cap."""
     if n_jobs is None:
         return None
-    if isinstance(n_jobs, bool) or not isinstance(n_jobs, numbers.Integral) or n_jobs == 0:
-        raise ValueError(f"n_jobs (--jobs): must be None, a positive number of processes or a negative one "
-                         f"counted back from the cores (-1: all), got {n_jobs!r}")
-    return int(n_jobs)
+    cores = max(1, cpu_count())
+    if isinstance(n_jobs, bool) or not isinstance(n_jobs, numbers.Integral) or n_jobs == 0 or n_jobs < -cores:
+        raise ValueError(f"n_jobs (--jobs): must be None, a number of processes from 1 to the {cores} usable cores "
+                         f"or a negative one counted back from them, -1 (all) to -{cores}, got {n_jobs!r}")
+    return min(int(n_jobs), cores)  # more processes than cores only share them, at the cost of their memory
 
 
 @contextmanager
@@ -107,9 +114,14 @@ def worker_processes(n_jobs: int | None, shared: tuple = ()) -> Iterator[None]:
     ``shared`` objects (that do not change within the block) reach forked workers by the fork, not
     pickled with each piece that takes them as an argument.
     """
-    if check_n_jobs(n_jobs) is None:
+    jobs = check_n_jobs(n_jobs)
+    if jobs is None:
         yield
         return
+    if jobs != n_jobs and n_jobs > 0:
+        warnings.warn(f"n_jobs (--jobs) = {n_jobs} is more than the {jobs} usable cores; using {jobs}", UserWarning,
+                      stacklevel=3)
+    n_jobs = jobs
     if not FORK_IS_SAFE:
         with parallel_config(backend="loky", n_jobs=n_jobs):
             yield

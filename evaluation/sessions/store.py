@@ -54,8 +54,8 @@ from agents.jsonable import to_json
 from evaluation.sessions.identity import APPLICATION_ID, SCHEMA_VERSION, NotASessionDatabase, identify
 from gbo_envs.experiment import SIGNALS, Experiment
 
-__all__ = ["ARRAY_FIELDS", "PLANT_STATUSES", "ExperimentRow", "NotASessionDatabase", "SessionBusy", "SessionInfo",
-           "SessionStore", "array_from_blob", "array_to_blob", "session_key"]
+__all__ = ["ARRAY_FIELDS", "PLANT_STATUSES", "DamagedDatabase", "ExperimentRow", "NotASessionDatabase", "SessionBusy",
+           "SessionInfo", "SessionStore", "array_from_blob", "array_to_blob", "check_sound", "session_key"]
 
 #: Status values of an experiment row.
 PLANT_STATUSES = ("running", "ok", "failed", "lost-in-crash", "interrupted")
@@ -290,6 +290,8 @@ class SessionStore:
         if self.read_only:
             self.conn = self._connect_read_only(kind)
             return
+        if kind != "new":
+            check_sound(self.path)  # a damaged file is refused before anything is written to it
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.conn = sqlite3.connect(str(self.path), timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None)
         self.conn.row_factory = sqlite3.Row
@@ -329,6 +331,9 @@ class SessionStore:
             what = "no such file" if not self.path.exists() else "an empty file, not a gbo session database"
             error = FileNotFoundError if not self.path.exists() else NotASessionDatabase
             raise error(f"{self.path}: {what}")
+        conn = self._connect_query_only()
+        if conn is not None:
+            return conn
         uri = self.path.resolve().as_uri()
         for options in ("mode=ro", "mode=ro&immutable=1"):  # immutable: a read-only folder without the -shm file
             conn = sqlite3.connect(f"{uri}?{options}", uri=True, timeout=BUSY_TIMEOUT_MS / 1000,
@@ -342,6 +347,23 @@ class SessionStore:
                 conn.close()
                 error = exc
         raise NotASessionDatabase(f"{self.path}: cannot be read ({error})")
+
+    def _connect_query_only(self) -> sqlite3.Connection | None:
+        """:func:`query_only_connection` with the row factory, if the file holds the sessions table."""
+        conn = query_only_connection(self.path)
+        if conn is None:
+            return None
+        conn.row_factory = sqlite3.Row
+        try:
+            conn.execute("SELECT COUNT(*) FROM sessions").fetchone()
+        except sqlite3.OperationalError:  # e.g. no sessions table: the read-only connection says what it is
+            conn.close()
+            return None
+        except sqlite3.DatabaseError as exc:  # damaged: said here, where closing leaves no -wal or -shm behind
+            conn.close()
+            raise DamagedDatabase(f"{self.path}: the database is damaged ({exc}); the file was not changed; "
+                                  "restore it from a backup or give another --db file") from None
+        return conn
 
     def close(self) -> None:
         """Close the connection."""
@@ -648,6 +670,63 @@ def _upgrade_from_version_1(conn: sqlite3.Connection) -> None:
         if key not in taken:
             conn.execute("UPDATE sessions SET key = ? WHERE id = ?", (key, row[0]))
             taken.add(key)
+
+
+def query_only_connection(path: Path) -> sqlite3.Connection | None:
+    """A read-write connection that may only read (``PRAGMA query_only``), for a file without ``-wal`` and
+    ``-shm`` companions that this process could write; None otherwise.
+
+    A read-only connection (``mode=ro``) to a WAL database creates those two files and cannot remove
+    them: ``gbo sessions`` would leave them behind. SQLite removes them when the last read-write
+    connection closes, and reading changes nothing in the file.
+    """
+    path = Path(path)
+    if any(Path(f"{path}{suffix}").exists() for suffix in ("-wal", "-shm")) or not os.access(path.parent, os.W_OK):
+        return None
+    try:
+        with open(path, "r+b"):  # writable (chattr +i refuses root too); opening it changes nothing
+            pass
+    except OSError:
+        return None
+    conn = sqlite3.connect(str(path), timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None)
+    try:
+        conn.execute("PRAGMA query_only = ON")
+        conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
+    except sqlite3.DatabaseError:
+        conn.close()
+        return None
+    return conn
+
+
+def check_sound(path: Path) -> None:
+    """Raise :class:`DamagedDatabase` if the SQLite file at ``path`` fails ``PRAGMA quick_check``.
+
+    The check only reads (:func:`query_only_connection`, else a read-only connection), so a damaged
+    file is refused before a session writes to it (a write into a damaged b-tree can damage more,
+    and would mark the session failed).
+    """
+    conn = query_only_connection(path)
+    if conn is None:
+        try:
+            conn = sqlite3.connect(f"{Path(path).resolve().as_uri()}?mode=ro", uri=True,
+                                   timeout=BUSY_TIMEOUT_MS / 1000)
+        except sqlite3.Error:
+            return  # cannot be opened to read (a read-only folder with a write-ahead log): the opening says why
+    try:
+        problems = [str(row[0]) for row in conn.execute("PRAGMA quick_check(5)")]
+    except sqlite3.OperationalError:  # cannot be read here (a read-only folder without its -shm): the opening says why
+        return
+    except sqlite3.DatabaseError as exc:  # "database disk image is malformed"
+        problems = [str(exc)]
+    finally:
+        conn.close()
+    if problems != ["ok"]:
+        raise DamagedDatabase(f"{path}: the database is damaged (SQLite's quick_check: {'; '.join(problems)[:200]}); "
+                              "the file was not changed; restore it from a backup or give another --db file")
+
+
+class DamagedDatabase(ValueError):
+    """A session database that fails SQLite's ``PRAGMA quick_check``; it is refused unchanged."""
 
 
 def _alive(pid: int) -> bool:

@@ -18,7 +18,7 @@ import gymnasium as gym
 import numpy as np
 
 import agents
-from agents.base import TuningInterrupted, TuningStopped
+from agents.base import TuningInterrupted, TuningStopped, checked_budget, checked_seed
 from agents.run_display import env_id as env_name
 from agents.space import GainSpace
 from evaluation.sessions.export import load_result
@@ -84,8 +84,7 @@ class TuningSession:
     def __init__(self, db: str | Path, env, tuner, budget: int, seed: int | None = 0, env_kwargs: dict | None = None,
                  tuner_kwargs: dict | None = None, env_id: str | None = None, on_crash: str = "rerun",
                  max_consecutive_skips: int = 5, force: bool = False) -> None:
-        if int(budget) < 1:
-            raise ValueError(f"budget: must be an integer >= 1, got {budget}")
+        budget, seed = checked_budget(budget), checked_seed(seed)  # before the database is opened
         if on_crash not in CRASH_POLICIES:
             raise ValueError(f"on_crash: must be one of {CRASH_POLICIES}, got {on_crash!r}")
         self.env_kwargs = dict(env_kwargs or {})

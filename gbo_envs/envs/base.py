@@ -7,6 +7,7 @@ cost weights and the reference gains of the cost normalisation.
 
 from __future__ import annotations
 
+import numbers
 from typing import Any
 
 import gymnasium as gym
@@ -103,6 +104,8 @@ class ControllerTuningEnv(gym.Env):
         expectation_seed: int = 0,
     ) -> None:
         self.loop = loop
+        if not isinstance(noise, (bool, np.bool_)):  # bool("no") is True: a string or number would pass unseen
+            raise TypeError(f"noise: must be True or False, got {noise!r} of type {type(noise).__name__}")
         self.noise = bool(noise)
         self.expectation_draws = validated_count("expectation_draws", expectation_draws, low=1)
         self.expectation_seed = validated_count("expectation_seed", expectation_seed, low=0)
@@ -138,8 +141,11 @@ class ControllerTuningEnv(gym.Env):
         if out_of_bounds not in OUT_OF_BOUNDS_POLICIES:
             raise ValueError(f"out_of_bounds: must be one of {OUT_OF_BOUNDS_POLICIES}, got {out_of_bounds!r}")
         self.out_of_bounds = out_of_bounds
-        if not np.isfinite(unstable_cost):
-            raise ValueError(f"unstable_cost: must be finite, got {unstable_cost}")
+        if isinstance(unstable_cost, bool) or not isinstance(unstable_cost, numbers.Real) \
+                or not np.isfinite(unstable_cost) or unstable_cost <= 0.0:
+            # the cost J of eq. (J_used) is >= 0, so a diverging loop must not score at or below a perfect one
+            raise ValueError(f"unstable_cost: must be a finite number > 0 (dimensionless, as the cost; above the "
+                             f"costs of the stable loops, default 10), got {unstable_cost!r}")
         self.unstable_cost = float(unstable_cost)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode: must be None or one of {self.metadata['render_modes']}, "
@@ -240,6 +246,9 @@ class ControllerTuningEnv(gym.Env):
         if _is_complex(action):
             raise TypeError(f"action: gains {self.gain_names} must be real numbers, got the complex value(s) "
                             f"{action!r}")
+        if _is_boolean(action):
+            raise TypeError(f"action: gains {self.gain_names} must be real numbers, got the boolean value(s) "
+                            f"{action!r} (True would run as a gain of 1.0)")
         try:
             gains = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError) as exc:
@@ -381,6 +390,21 @@ def _is_complex(values) -> bool:
         return bool(np.iscomplexobj(np.asarray(values)))
     except (TypeError, ValueError):  # ragged: the float conversion reports it
         return False
+
+
+def _is_boolean(values) -> bool:
+    """Whether ``values`` holds a boolean (``True`` would run as the gain 1.0)."""
+    if isinstance(values, (bool, np.bool_)):
+        return True
+    if isinstance(values, (list, tuple)) and any(isinstance(v, (bool, np.bool_)) for v in values):
+        return True  # [True, 1.2] converts to float64 without a trace of the bool
+    try:
+        array = np.asarray(values)
+    except (TypeError, ValueError):  # ragged: the float conversion reports it
+        return False
+    if array.dtype == np.bool_:
+        return True
+    return array.dtype == object and any(isinstance(v, (bool, np.bool_)) for v in array.ravel())
 
 
 def _validated_vector(name: str, values, size: int, positive: bool = False) -> np.ndarray:

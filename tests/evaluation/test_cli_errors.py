@@ -198,7 +198,7 @@ def test_data_errors_of_the_workbench_name_the_file(capsys, tmp_path, command):
     refused(capsys, ["twin", command, mixed, *out], f"{mixed}: every experiment must have the same sample time",
             "experiment 3 has 0.01 s, experiment 4 0.02 s")
     few = _workbench_csv(tmp_path / "few.csv", {1: (t[:4], step[:4], command_u[:4], response[:4])})
-    refused(capsys, ["twin", command, few, *out], f"{few}: 4 samples in all are too few")
+    refused(capsys, ["twin", command, few, *out], f"{few}: experiment 1 has 4 samples", "needs at least 7")
     err = refused(capsys, ["twin", command, mixed, "--effects", "saturation,friction", *out], "--effects",
                   "'friction'")
     assert str(mixed) not in err

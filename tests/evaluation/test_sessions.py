@@ -482,3 +482,45 @@ def test_force_takes_a_session_over_and_fences_its_previous_owner(tmp_path, monk
     with SessionStore(db) as store:
         (info,) = store.sessions()
         assert (info.status, info.done) == ("done", 6) and store.integrity_check() == "ok"
+
+
+# -- issue 57: a damaged database is refused unchanged; reading leaves no -wal or -shm behind ---------------------
+def _damage(path) -> None:
+    """Overwrite the start of pages 2-4 (the tables' b-trees) of an SQLite file."""
+    data = bytearray(path.read_bytes())
+    size = int.from_bytes(data[16:18], "big") or 65536
+    for page in (2, 3, 4):
+        data[size * (page - 1) : size * (page - 1) + 100] = b"\xff" * 100
+    path.write_bytes(bytes(data))
+
+
+def test_a_damaged_database_is_refused_before_anything_is_written(tmp_path, capsys):
+    import hashlib
+
+    db = tmp_path / "runs.sqlite"
+    TuningSession(db, ENV, "random", budget=3, seed=0, env_kwargs={"noise": False}).run()
+    _damage(db)
+    before = hashlib.sha256(db.read_bytes()).hexdigest()
+    argv = ["tune", "--tuner", "random", "--budget", "5", "--db", str(db), "--env-kwargs", '{"noise": false}',
+            "--no-progress"]
+    capsys.readouterr()
+    assert gbo(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"gbo tune: error: {db}: the database is damaged") and "not changed" in err, err
+    assert gbo(["sessions", "--db", str(db)]) == 2
+    assert f"gbo sessions: error: {db}: the database is damaged" in capsys.readouterr().err
+    assert hashlib.sha256(db.read_bytes()).hexdigest() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs.sqlite"]  # no -wal or -shm left either
+
+
+def test_gbo_sessions_and_export_leave_the_folder_as_they_found_it(tmp_path, capsys):
+    import hashlib
+
+    db = tmp_path / "runs.sqlite"
+    TuningSession(db, ENV, "random", budget=2, seed=0, env_kwargs={"noise": False}).run()
+    before = hashlib.sha256(db.read_bytes()).hexdigest()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs.sqlite"]
+    assert gbo(["sessions", "--db", str(db)]) == 0
+    assert gbo(["export", "--db", str(db), "--csv", str(tmp_path / "out" / "s.csv")]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "runs.sqlite"]
+    assert hashlib.sha256(db.read_bytes()).hexdigest() == before

@@ -131,7 +131,7 @@ def test_record_without_signals_and_metrics_in_metric_order():
     assert not record.has_signals and record.n_steps == 0 and math.isnan(record.dt)
     assert record.metrics == dict(zip(gbo_envs.METRIC_NAMES, [1.0, 2.0, 3.0, 4.0]))
     assert "t" not in record.to_dict()
-    with pytest.raises(ValueError, match="record 0, t, r, u, y: required for identification"):
+    with pytest.raises(ValueError, match="record 1, t, r, u, y: required for identification"):
         as_records([record])
 
 
