@@ -35,7 +35,7 @@ from agents.twin.fits import fit_structure
 from agents.twin.identify import check_orders
 from agents.twin.ladder_text import advice, unobservable_lines
 from agents.twin.model import ModelSpec
-from agents.twin.record_checks import NonCausalRecordWarning
+from agents.twin.record_checks import NonCausalRecordWarning, check_poles
 from agents.twin.records import Batch
 from agents.twin.report import compare_figure, residual_figure, write_report
 from agents.twin.workbench import compare, diagnose, error_ladder, residuals
@@ -82,11 +82,13 @@ def _fit(data, spec, effects):
 def _run(handler):
     """The handler without the fitting's numerical warnings; bad input ends in :func:`evaluation.cli.main`.
 
-    ``--effects`` is checked first, so that every ``ValueError`` after it is about the data: it is raised
-    again naming the file (:func:`_naming_the_file`).
+    ``--effects`` and ``--poles`` are checked first, so that every ``ValueError`` after them is about the
+    data: it is raised again naming the file (:func:`_naming_the_file`). A warning that the records are
+    not causal (:class:`~agents.twin.record_checks.NonCausalRecordWarning`) is printed on stderr.
     """
     def wrapped(args: argparse.Namespace) -> int:
         _check_effects(args.effects)
+        check_poles(args.poles)  # an argument's error, not the file's
         try:
             with warnings.catch_warnings(record=True) as caught, _naming_the_file(args.data):
                 warnings.simplefilter("ignore")

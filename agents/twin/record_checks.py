@@ -19,7 +19,7 @@ import warnings
 import numpy as np
 
 __all__ = ["MAX_MAGNITUDE", "MAX_POLES", "NonCausalRecordWarning", "check_fit_size", "check_magnitudes",
-           "warn_if_non_causal"]
+           "check_poles", "warn_if_non_causal"]
 
 #: Largest magnitude of a value of ``t, r, u, y``: the fit squares the values (1e150 fitted, 1e200 overflowed).
 MAX_MAGNITUDE = 1e100
@@ -52,13 +52,18 @@ def check_magnitudes(signals: dict, numbers: np.ndarray) -> None:
                              "rescale the data, e.g. into other units")
 
 
+def check_poles(n_poles: int) -> None:
+    """Raise ``ValueError`` unless ``n_poles`` is from 1 to :data:`MAX_POLES`."""
+    if not 1 <= n_poles <= MAX_POLES:
+        raise ValueError(f"n_poles (--poles): must be an integer from 1 to {MAX_POLES}, got {n_poles}")
+
+
 def check_fit_size(data, spec, n_effect_params: int = 0) -> None:
     """Raise ``ValueError`` if ``spec`` (a :class:`~agents.twin.model.ModelSpec`) has more than
     :data:`MAX_POLES` poles, or a record of ``data`` fewer samples than the fit has parameters in its
     block: the shared ones (``spec.n_global`` plus ``n_effect_params`` of effects to add) and the
     record's own (rest level, bias and ``spec.n_start`` initial-state parameters)."""
-    if not 1 <= spec.n_poles <= MAX_POLES:
-        raise ValueError(f"n_poles (--poles): must be an integer from 1 to {MAX_POLES}, got {spec.n_poles}")
+    check_poles(spec.n_poles)
     need = spec.n_global + n_effect_params + 2 + spec.n_start
     lengths = data.mask.sum(axis=1)
     short = np.flatnonzero(lengths < need)
