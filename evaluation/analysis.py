@@ -111,7 +111,7 @@ def study_ground_truth(study, out: Path | str | None = None):
                                         axes=tuple(data[f"axis{i}"] for i in range(n)), costs=data["costs"],
                                         gain_units=tuple(str(s) for s in data["gain_units"]))
     truth = gbo_envs.ground_truth(study.env_id, resolution=study.resolution, **study.env_kwargs)
-    if cache is not None:
+    if cache is not None and truth.costs is not None:  # a grid (a search holds no cost grid to cache)
         cache.parent.mkdir(parents=True, exist_ok=True)
         axes = {f"axis{i}": axis for i, axis in enumerate(truth.axes)}
         np.savez(cache, key=key, gains=truth.gains, cost=truth.cost, gain_names=np.array(truth.gain_names),

@@ -144,7 +144,13 @@ def plant_optimum_cell(env_id: str, env_kwargs: dict, resolution: int = 100,
     known = _read_json(cache).get(key)
     if known is None:
         truth = gbo_envs.ground_truth(env_id, resolution=resolution, **env_kwargs)
-        cell = np.unravel_index(np.argmin(truth.costs), truth.costs.shape)
+        if truth.costs is None:  # a search (three gains and more): the cell of the grid nearest its optimum
+            import gymnasium as gym
+
+            box = gym.make(env_id, **env_kwargs).unwrapped.action_space
+            cell = np.rint((truth.gains - box.low) / (box.high - box.low) * (resolution - 1)).astype(int)
+        else:
+            cell = np.unravel_index(np.argmin(truth.costs), truth.costs.shape)
         known = {"cell": [int(i) for i in cell], "gain_names": list(truth.gain_names)}
         _write_entry(cache, key, known)
     return tuple(known["cell"]), tuple(known["gain_names"])
