@@ -31,6 +31,8 @@ PAGE_STYLE = (
     "table{border-collapse:collapse;font-size:13px;width:max-content;max-width:none}"
     "td,th{border:1px solid #ccc;padding:3px 8px;text-align:left;vertical-align:top;max-width:26em}"
     "th{background:#f3f3f3}tr:nth-child(even) td{background:#fafafa}"
+    "tr.highlight td{background:#fff2c2;font-weight:600}"
+    "table.wrap{width:100%}table.wrap td{max-width:none;overflow-wrap:anywhere}"
     "pre{overflow-x:auto;background:#f6f6f6;padding:8px;font-size:12px}code{font-size:0.92em}"
     "</style>"
 )

@@ -3,8 +3,9 @@
 For every tuner and plant of the suite, over the seeds it ran:
 
 - the **mean real experiments to the target** (a run that never reaches it counts as
-  its budget + 1 and as a *miss*) with the 95 % Student-t interval of the mean, the
-  misses, and the **ratio to the reference tuner** (``bo``): the tuner's mean over the
+  its budget + 1 and as a *miss*) with the 95 % bootstrap percentile interval of the mean
+  (:func:`mean_interval`: it stays within the counts' range, which a Student-t interval of
+  three seeds does not), the misses, and the **ratio to the reference tuner** (``bo``): the tuner's mean over the
   reference's mean on the seeds both ran;
 - **one aggregate over the suite**: the geometric mean over the plants of those ratios to
   ``bo`` (1 is ``bo``'s data efficiency, 0.5 needs half its experiments), with a 95 %
@@ -14,7 +15,9 @@ For every tuner and plant of the suite, over the seeds it ran:
 - the **runtime ECDF** of experiments-to-target as in COCO: the fraction of (plant, seed)
   pairs reached within ``x`` real experiments, over all plants and per plant.
 
-Tuners rank by the aggregate. :class:`Leaderboard` computes it from curves
+Tuners rank by :data:`RANKING_RULE`: the share solved first (a tuner that never reaches a
+target is not ahead of one that does, whatever its ratio of misses), then the aggregate.
+:class:`Leaderboard` computes it from curves
 (:mod:`evaluation.curves`); :func:`write_leaderboard` writes ``leaderboard.md``,
 ``leaderboard.csv``, ``leaderboard.html`` and the ECDF figures.
 """
@@ -38,7 +41,15 @@ from gbo_envs.atomic_write import atomic_write
 from gbo_envs.lazy_pyplot import pyplot
 from gbo_envs.plotting import MEASURED, axis_label, legend_outside, style
 
-__all__ = ["Leaderboard", "PlantTarget", "mean_interval", "write_leaderboard"]
+__all__ = ["RANKING_RULE", "Leaderboard", "PlantTarget", "mean_interval", "write_leaderboard"]
+
+#: How the aggregate table is ordered, printed above it.
+RANKING_RULE = ("Ranked by the share of (plant, seed) pairs solved (higher first), then by the geometric mean "
+                "vs the reference (lower first): a tuner that reaches fewer targets ranks below one that reaches "
+                "more, whatever its ratio.")
+#: Line styles and markers of the ECDF curves, cycled, so that curves drawn over each other stay apart.
+LINE_STYLES = ("-", "--", "-.", ":")
+MARKERS = ("o", "s", "^", "v", "D", "x", "P", "*")
 
 
 @dataclass(frozen=True)
@@ -67,14 +78,35 @@ class PlantTarget:
         return self.budget - self.start + 1
 
 
-def mean_interval(counts, confidence: float = 0.95) -> tuple[float, float, float]:
-    """Mean of ``counts`` and its Student-t interval (one count: the mean three times)."""
+def mean_interval(counts, confidence: float = 0.95, n_resamples: int = 2000,
+                  seed: int = 0) -> tuple[float, float, float]:
+    """Mean of ``counts`` and its bootstrap percentile interval (one count: the mean three times).
+
+    :func:`scipy.stats.bootstrap` with ``method="percentile"``: the quantiles of the means of
+    ``n_resamples`` resamples (seeded by ``seed``), so the interval stays within the range of the
+    counts (a count of experiments is never negative). BCa is not used: on three seeds of equal counts
+    it is undefined.
+
+    Parameters
+    ----------
+    counts : array_like of shape (n_seeds,)
+        Real experiments to the target (count).
+    confidence : float, default 0.95
+    n_resamples : int, default 2000
+    seed : int, default 0
+
+    Returns
+    -------
+    mean, low, high : float
+        In counts.
+    """
     counts = np.asarray(counts, dtype=float)
     mean = float(np.mean(counts))
-    if counts.size < 2:
+    if counts.size < 2 or np.all(counts == counts[0]):
         return mean, mean, mean
-    half = float(stats.t.ppf(0.5 + confidence / 2, counts.size - 1) * np.std(counts, ddof=1) / np.sqrt(counts.size))
-    return mean, mean - half, mean + half
+    ci = stats.bootstrap((counts,), np.mean, confidence_level=confidence, method="percentile",
+                         n_resamples=n_resamples, rng=np.random.default_rng(seed)).confidence_interval
+    return mean, float(ci.low), float(ci.high)
 
 
 class Leaderboard:
@@ -160,7 +192,7 @@ class Leaderboard:
                                   "mean": np.nan, "ci_low": np.nan, "ci_high": np.nan, "misses": 0,
                                   "vs_reference": np.nan, "status": status.get((tuner, plant.label), "no runs")})
                     continue
-                mean, low, high = mean_interval(mine.to_numpy(), self.confidence)
+                mean, low, high = mean_interval(mine.to_numpy(), self.confidence, self.n_bootstrap, self.seed)
                 shared = mine.index.intersection(ref.index) if ref is not None else []
                 vs = (mine[shared].mean() / ref[shared].mean()) if len(shared) else np.nan
                 table.append({"tuner": tuner, "plant": plant.label, "target": plant.target, "seeds": int(mine.size),
@@ -203,8 +235,8 @@ class Leaderboard:
                          "pairs": int(len(solved)), "status": ", ".join(flags)})
         frame = pd.DataFrame(rows, columns=["tuner", "plants", "geo_mean_vs_reference", "ci_low", "ci_high", "solved",
                                             "pairs", "status"])
-        frame = frame.sort_values(["geo_mean_vs_reference", "solved"], ascending=[True, False], kind="stable",
-                                  na_position="last").reset_index(drop=True)
+        frame = frame.sort_values(["solved", "geo_mean_vs_reference"], ascending=[False, True], kind="stable",
+                                  na_position="last").reset_index(drop=True)  # RANKING_RULE
         frame.insert(0, "rank", np.arange(1, len(frame) + 1))
         return frame
 
@@ -232,7 +264,9 @@ class Leaderboard:
         """The runtime ECDF over the suite (or one plant): one step line per tuner, x on a log axis.
 
         Axes: real experiments to the target (count, log scale); fraction of (plant, seed) pairs that
-        reached it (-). ``highlight`` (the researcher's tuner) is drawn thick and dark.
+        reached it (-). ``highlight`` (the researcher's tuner) is drawn thick and dark. Every tuner has its
+        own line style and marker (:data:`LINE_STYLES`, :data:`MARKERS`), and a curve equal to one drawn
+        before it is labelled ``"(same as ...)"`` in the legend: a curve is never hidden without a word.
 
         Returns
         -------
@@ -245,12 +279,19 @@ class Leaderboard:
             else:
                 fig = ax.figure
             cmap = pyplot().get_cmap("tab10")
+            drawn: dict[str, np.ndarray] = {}
             for i, tuner in enumerate(self.tuners_):
                 mine = data[data["tuner"] == tuner]
                 if not len(mine):
                     continue
+                fraction = mine["fraction"].to_numpy()
+                same = [name for name, other in drawn.items() if np.array_equal(other, fraction)]
+                drawn[tuner] = fraction
+                label = f"{tuner} (same as {', '.join(same)})" if same else tuner
                 kwargs = dict(MEASURED, lw=2.4) if tuner == highlight else {"color": cmap(i % 10), "lw": 1.3}
-                ax.step(mine["experiments"], mine["fraction"], where="post", label=tuner, **kwargs)
+                kwargs.update(ls=LINE_STYLES[i % len(LINE_STYLES)], marker=MARKERS[i % len(MARKERS)], ms=4,
+                              markevery=(i % 3, 3))  # markers of coinciding curves at different experiments
+                ax.step(mine["experiments"], fraction, where="post", label=label, **kwargs)
             ax.set_xscale("log")
             top = int(data["experiments"].max()) if len(data) else 1
             ticks = [t for t in (1, 2, 3, 5, 10, 20) if t < top] + [top]
@@ -277,9 +318,14 @@ def _number(value, digits: int = 2) -> str:
     return "—" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
 
 
+def _name(tuner: str, highlight: str | None) -> str:
+    """The tuner's cell: the researcher's own in bold with a marker (its HTML row gets the class ``highlight``)."""
+    return f"**{tuner}** ◀ yours" if tuner == highlight else tuner
+
+
 def leaderboard_markdown(board: Leaderboard, title: str, intro: list[str], figures: dict[str, str],
-                         notes: list[str]) -> list[str]:
-    """The lines of ``leaderboard.md``."""
+                         notes: list[str], highlight: str | None = None) -> list[str]:
+    """The lines of ``leaderboard.md``; the row of ``highlight`` (the researcher's tuner) in bold."""
     ref = board.reference
     level = f"{100 * board.confidence:.0f} %"
     lines = [f"# {title}", "", *intro, ""]
@@ -288,10 +334,11 @@ def leaderboard_markdown(board: Leaderboard, title: str, intro: list[str], figur
               f"over `{ref}`'s on the same seeds (below 1: fewer experiments than `{ref}`), with its "
               f"{level} bootstrap interval ({board.n_bootstrap} resamples of the seeds); solved: the "
               "share of (plant, seed) pairs whose target was reached within the budget.", "",
+              RANKING_RULE.replace("the reference", f"`{ref}`"), "",
               f"| rank | tuner | vs {ref} (geometric mean) | {level} interval | solved | plants | "
               "status |", "|---|---|---|---|---|---|---|"]
     for row in board.aggregate_.to_dict("records"):
-        lines.append(f"| {row['rank']} | {row['tuner']} | {_number(row['geo_mean_vs_reference'])} | "
+        lines.append(f"| {row['rank']} | {_name(row['tuner'], highlight)} | {_number(row['geo_mean_vs_reference'])} | "
                      f"[{_number(row['ci_low'])}, {_number(row['ci_high'])}] | "
                      f"{_number(100 * row['solved'], 0)} % of {row['pairs']} | {row['plants']} | "
                      f"{row['status'] or 'current'} |")
@@ -304,8 +351,10 @@ def leaderboard_markdown(board: Leaderboard, title: str, intro: list[str], figur
         if "ecdf_plants" in figures:
             lines += [f"![runtime ECDF per plant]({figures['ecdf_plants']})", ""]
     lines += ["## Per plant", "",
-              f"Mean real experiments to the target with its {level} Student-t interval; a miss "
-              f"counts as the experiments counted + 1; `/ {ref}`: the mean over `{ref}`'s on the same seeds.", ""]
+              f"Mean real experiments to the target with its {level} bootstrap percentile interval "
+              f"(`scipy.stats.bootstrap`, {board.n_bootstrap} resamples of the seeds, seed {board.seed}; it stays "
+              f"within the range of the counts); a miss counts as the experiments counted + 1; `/ {ref}`: the mean "
+              f"over `{ref}`'s on the same seeds.", ""]
     for plant in board.plants_:
         part = board.table_[board.table_["plant"] == plant.label]
         counted = f"experiments {plant.start + 1}-{plant.budget} (after the plant change)" if plant.start else \
@@ -314,7 +363,8 @@ def leaderboard_markdown(board: Leaderboard, title: str, intro: list[str], figur
                   f"| tuner | experiments to {plant.target:g} | misses | / {ref} | seeds | status |",
                   "|---|---|---|---|---|---|"]
         for row in part.to_dict("records"):
-            lines.append(f"| {row['tuner']} | {_cell(row)} | {row['misses']} | {_number(row['vs_reference'])} | "
+            lines.append(f"| {_name(row['tuner'], highlight)} | {_cell(row)} | {row['misses']} | "
+                         f"{_number(row['vs_reference'])} | "
                          f"{row['seeds']} | {row['status'] or 'current'} |")
         lines.append("")
     if notes:
@@ -336,7 +386,8 @@ def write_leaderboard(board: Leaderboard, out: Path | str, title: str, intro: li
     intro, notes : list of str, optional
         Paragraphs above the tables; bullet points at the end.
     highlight : str, optional
-        The researcher's tuner, drawn thick in the ECDFs.
+        The researcher's tuner: drawn thick in the ECDFs, in bold with a marker in the tables, and its
+        HTML rows of class ``highlight``.
     meta : dict, optional
         Written as ``leaderboard.json`` beside (the command, suite, references' commits).
 
@@ -350,11 +401,12 @@ def write_leaderboard(board: Leaderboard, out: Path | str, title: str, intro: li
     paths = {"ecdf": save(board.plot(highlight=highlight), out / "leaderboard_ecdf.png")}
     if len(board.plants_) > 1:
         paths["ecdf_plants"] = save(_plant_grid(board, highlight), out / "leaderboard_ecdf_plants.png")
-    lines = leaderboard_markdown(board, title, intro or [], {k: v.name for k, v in paths.items()}, notes or [])
+    lines = leaderboard_markdown(board, title, intro or [], {k: v.name for k, v in paths.items()}, notes or [],
+                                 highlight)
     paths["md"] = out / "leaderboard.md"
     with atomic_write(paths["md"]) as handle:
         handle.write("\n".join(lines))
-    paths["html"] = write_html(paths["md"], title=title)
+    paths["html"] = write_html(paths["md"], title=title, highlight=highlight)
     table = board.table_.assign(kind="plant")
     aggregate = board.aggregate_.rename(columns={"geo_mean_vs_reference": "vs_reference"}).assign(
         kind="suite", plant="all", mean=np.nan, target=np.nan, seeds=np.nan, misses=np.nan)

@@ -36,7 +36,7 @@ def markdown_table(headers: list[str], rows: list[list]) -> str:
     return "\n".join(lines)
 
 
-def write_html(markdown_path: Path | str, title: str = "") -> Path:
+def write_html(markdown_path: Path | str, title: str = "", highlight: str | None = None) -> Path:
     """Write the Markdown report as one self-contained HTML page beside it (``report.html``).
 
     Images linked relatively are inlined as base64 PNG; every table scrolls
@@ -48,6 +48,9 @@ def write_html(markdown_path: Path | str, title: str = "") -> Path:
         The ``report.md`` of a study.
     title : str, optional
         Title of the page (default: the file's folder name).
+    highlight : str, optional
+        A name written in bold (``**name**``) at the start of a table cell: the rows holding it get the
+        class ``highlight`` (shaded, :data:`agents.html_page.PAGE_STYLE`).
 
     Returns
     -------
@@ -65,6 +68,9 @@ def write_html(markdown_path: Path | str, title: str = "") -> Path:
         return image_tag(image.read_bytes(), alt)
 
     body = re.sub(r'<p><img src="([^"]*)" alt="([^"]*)" /></p>', inline, body)
+    if highlight:
+        bold = re.escape(f"<td><strong>{html.escape(highlight)}</strong>")
+        body = re.sub(rf"<tr>(?=(?:(?!</tr>).)*{bold})", "<tr class='highlight'>", body, flags=re.S)
     body = re.sub(r"<table>.*?</table>", lambda m: scrolling(m.group(0)), body, flags=re.S)
     path = markdown_path.with_suffix(".html")
     with atomic_write(path) as handle:

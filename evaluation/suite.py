@@ -168,8 +168,8 @@ def run_suite(tuner: str, *, params: dict | None = None, label: str | None = Non
     if study.batches > base.batches:
         notes.append(f"{entry.label} ran {study.batches} seeds per plant, the references {base.batches}: its "
                      f"ratio to {reference} is on the seeds both ran")
-    intro = [f"Suite `{suite}`: {len(study.plants)} plants, seeds {study.seed}-{study.seed + study.batches - 1}, "
-             f"the env's episode length as budget. Your tuner: `{entry.label}` (`{entry.name}`, kwargs "
+    intro = [f"Suite `{suite}`: {len(study.plants)} plants ({', '.join(p.label for p in study.plants)}), seeds "
+             f"{study.seed}-{study.seed + study.batches - 1}, the env's episode length as budget. Your tuner: `{entry.label}` (`{entry.name}`, kwargs "
              f"`{entry.params}`), {len(mine)} runs from `{folder}`. References: "
              f"{', '.join(f'`{name}`' for name in reference_labels)} from `{references}` (not rerun).",
              "", base.description.strip()]
