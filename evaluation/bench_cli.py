@@ -24,6 +24,7 @@ from pathlib import Path
 
 import agents
 from evaluation.cli_args import EXIT_BAD_INPUT
+from evaluation.leaderboard import RANKING_RULE
 from evaluation.references import describe, rebuild
 from evaluation.report import write_report
 from evaluation.study import load_study, shipped_studies
@@ -147,10 +148,12 @@ def suite(args: argparse.Namespace) -> int:
     board = result.leaderboard
     for line in (result.references and _stale_lines(result.references)) or []:
         print(line)
+    print(RANKING_RULE.replace("the reference", board.reference))
     for row in board.aggregate_.to_dict("records"):
-        print(f"{row['rank']:>2}. {row['tuner']:<16} vs {board.reference}: {row['geo_mean_vs_reference']:.2f} "
-              f"[{row['ci_low']:.2f}, {row['ci_high']:.2f}], solved {100 * row['solved']:.0f} % of {row['pairs']}"
-              + (f" ({row['status']})" if row["status"] else ""))
+        print(f"{row['rank']:>2}. {row['tuner']:<16} solved {100 * row['solved']:3.0f} % of {row['pairs']}, "
+              f"vs {board.reference}: {row['geo_mean_vs_reference']:.2f} [{row['ci_low']:.2f}, {row['ci_high']:.2f}]"
+              + (f" ({row['status']})" if row["status"] else "") + ("  <- yours" if row["tuner"] == result.label
+                                                                     else ""))
     print(f"leaderboard: {result.paths['md']} (.csv, .html)")
     return 0
 

@@ -433,9 +433,16 @@ def _plant_grid(board: Leaderboard, highlight: str | None):
         for i, (ax, plant) in enumerate(zip(axes.flat, board.plants_)):
             board.plot(plant=plant.label, highlight=highlight, ax=ax)
             ax.set_title(f"{plant.label} (ratio {plant.target:g})", fontsize=9)
+            same = [line.get_label() for line in ax.get_lines() if " (same as " in line.get_label()]
+            if same:  # the legend is shared: each panel names its own coinciding curves
+                ax.text(0.98, 0.03, "\n".join(same), transform=ax.transAxes, ha="right", va="bottom", fontsize=7,
+                        bbox={"facecolor": "white", "alpha": 0.85, "lw": 0})
             legend = ax.get_legend()
             if legend is not None and i != cols - 1:
                 legend.remove()
+            elif legend is not None:
+                for text in legend.get_texts():
+                    text.set_text(text.get_text().split(" (same as ")[0])
             if i % cols:
                 ax.set_ylabel("")
             if i < n - cols:

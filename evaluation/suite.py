@@ -169,9 +169,9 @@ def run_suite(tuner: str, *, params: dict | None = None, label: str | None = Non
         notes.append(f"{entry.label} ran {study.batches} seeds per plant, the references {base.batches}: its "
                      f"ratio to {reference} is on the seeds both ran")
     intro = [f"Suite `{suite}`: {len(study.plants)} plants ({', '.join(p.label for p in study.plants)}), seeds "
-             f"{study.seed}-{study.seed + study.batches - 1}, the env's episode length as budget. Your tuner: `{entry.label}` (`{entry.name}`, kwargs "
-             f"`{entry.params}`), {len(mine)} runs from `{folder}`. References: "
-             f"{', '.join(f'`{name}`' for name in reference_labels)} from `{references}` (not rerun).",
+             f"{study.seed}-{study.seed + study.batches - 1}, the env's episode length as budget. Your tuner: "
+             f"`{entry.label}` (`{entry.name}`, kwargs `{entry.params}`), {len(mine)} runs from `{folder}`. "
+             f"References: {', '.join(f'`{name}`' for name in reference_labels)} from `{references}` (not rerun).",
              "", base.description.strip()]
     meta = {"suite": suite, "tuner": {"label": entry.label, "name": entry.name, "params": entry.params,
                                       "imports": list(imports), "runs": len(mine)},

@@ -15,7 +15,54 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
-__all__ = ["advice", "format_interval", "rung_text", "unit_text", "unobservable_lines"]
+import numpy as np
+
+from gbo_envs.physics.effects import EFFECTS, describe_effect
+
+__all__ = ["advice", "format_interval", "number", "pairs_text", "params_text", "rung_text", "unit_text",
+           "unobservable_lines"]
+
+#: Significant digits of a quantity in the texts and tables (the noise floor, RMSEs, parameters).
+DIGITS = 3
+
+
+def number(value, digits: int = DIGITS) -> str:
+    """``value`` in fixed-point notation to ``digits`` significant digits (``-12800``, ``0.0929``); never ``1e+04``.
+
+    None and NaN give ``"n/a"``; infinities ``"inf"`` / ``"-inf"``; integers, booleans and words as they are.
+    """
+    if value is None:
+        return "n/a"
+    if isinstance(value, (bool, str, np.bool_)) or isinstance(value, (int, np.integer)):
+        return str(value)
+    value = float(value)
+    if math.isnan(value):
+        return "n/a"
+    if math.isinf(value):
+        return "inf" if value > 0 else "-inf"
+    return np.format_float_positional(value, precision=digits, unique=False, fractional=False, trim="-")
+
+
+def params_text(effect: str, params: Mapping, units: Mapping[str, str] | None = None, output: str = "speed",
+                intervals: Mapping | None = None) -> str:
+    """An effect's fitted parameters with their units: ``"limit = 159.9 V"``, ``"frequency = 66.7 rad/s"``.
+
+    The units are the catalogue's (:func:`gbo_envs.physics.describe_effect`) in the data's units
+    (:func:`unit_text`), or those of ``intervals`` (a grown order's ``{"value", "unit"}``).
+    """
+    catalogue = {p.name: p.unit for p in describe_effect(effect)} if effect in EFFECTS else {}
+    cells = []
+    for name, value in params.items():
+        unit = (intervals or {}).get(name, {}).get("unit") or catalogue.get(name, "")
+        text = unit_text(unit, units, output) if unit else ""
+        cells.append(f"{name} = {number(value, 4)}" + (f" {text}" if text else ""))
+    return ", ".join(cells)
+
+
+def pairs_text(pairs) -> str:
+    """Pairs of candidates in words: ``"zero and pole pair; Coulomb friction and stiction"``."""
+    return "; ".join(" and ".join(name.replace("_", " ") for name in pair) for pair in pairs)
+
 
 
 def unit_text(catalogue_unit: str, units: Mapping[str, str] | None = None, output: str = "speed") -> str:
@@ -34,8 +81,10 @@ def unit_text(catalogue_unit: str, units: Mapping[str, str] | None = None, outpu
     units = units or {}
     y, u = units.get("y"), units.get("u")
     speed = None if y is None else (y if output != "position" else f"{y}/s")
+    position = None if y is None else (y if output == "position" else (y[:-2] if y.endswith("/s") else f"{y}·s"))
     words = {"input units": u, "output units": y, "speed units": speed,
-             "input units per speed unit": None if u is None or speed is None else f"{u}/({speed})"}
+             "input units per speed unit": None if u is None or speed is None else f"{u}/({speed})",
+             "position units (rad for a speed loop in rad/s)": position or "position units"}
     if catalogue_unit in ("1", "-"):  # dimensionless: no unit after the number
         return ""
     return words.get(catalogue_unit) or catalogue_unit
@@ -64,12 +113,12 @@ def rung_text(rung: Mapping, units: Mapping[str, str] | None = None, output: str
     y = _y_unit(units)
     before = rung.get("before")
     if before is None:
-        return f"{rung['model']}: RMSE {rung['rmse']:.3g} {y}, fit {rung['fit_percent']:.1f} %"
+        return f"{rung['model']}: RMSE {number(rung['rmse'])} {y}, fit {rung['fit_percent']:.1f} %"
     params = "; ".join(format_interval(name, ci, unit_text(ci.get("unit", ""), units, output))
                        for name, ci in (rung.get("added_params") or {}).items())
     change = 100.0 * (rung["rmse"] / before["rmse"] - 1.0)
-    return (f"+ {rung['added']}" + (f" ({params})" if params else "") + f": RMSE {before['rmse']:.3g} → "
-            f"{rung['rmse']:.3g} {y} ({change:+.0f} %, {rung['rmse_factor']:.3g}×), "
+    return (f"+ {rung['added']}" + (f" ({params})" if params else "") + f": RMSE {number(before['rmse'])} → "
+            f"{number(rung['rmse'])} {y} ({change:+.0f} %, {rung['rmse_factor']:.3g}×), "
             f"fit {before['fit_percent']:.1f} % → {rung['fit_percent']:.1f} %")
 
 
@@ -119,13 +168,13 @@ def advice(diagnosis, effects: Sequence[str], data: str = "DATA.csv", stopped_at
         return f"next: {pairs[0][0]} and {pairs[0][1]} explain the data equally well; {diagnosis.suggested_experiment}"
     noise = diagnosis.noise_rmse
     if noise is not None and diagnosis.current.rmse <= 1.5 * noise:
-        return (f"stop: the model is at the noise floor (RMSE {diagnosis.current.rmse:.3g} {y}, noise-floor "
-                f"estimate {noise:.3g} {y}); no further effect can be told from measurement noise")
+        return (f"stop: the model is at the noise floor (RMSE {number(diagnosis.current.rmse)} {y}, noise-floor "
+                f"estimate {number(noise)} {y}); no further effect can be told from measurement noise")
     tail = "" if not diagnosis.unobservable else (
         f"; {len(diagnosis.unobservable)} effect(s) cannot be seen in these data (listed above), run the "
         f"experiments named there to test them")
     return (f"stop adding catalogue effects: none improves the held-out error beyond its complexity cost "
-            f"(RMSE {diagnosis.current.rmse:.3g} {y}" + ("" if noise is None else f", noise floor estimate "
-            f"{noise:.3g} {y}") + "); look at the residuals (`gbo twin resid " + data +
+            f"(RMSE {number(diagnosis.current.rmse)} {y}" + ("" if noise is None else f", noise floor estimate "
+            f"{number(noise)} {y}") + "); look at the residuals (`gbo twin resid " + data +
             (f" --effects {','.join(effects)}" if effects else "") + "`) or the model orders (--poles, --zeros)"
             + tail)

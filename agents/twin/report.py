@@ -3,6 +3,7 @@
 * :func:`compare_figure`: measured against simulated output per experiment, and the error;
 * :func:`residual_figure`: whiteness, input cross-correlation (99 % bands) and where the model fails;
 * :func:`ladder_figure`: the error ladder, RMSE as effects are added;
+* :func:`saturation_figure`: the commanded input u(t) against a fitted saturation limit, its evidence;
 * :func:`write_report`: one self-contained HTML page (figures inline as base64 PNG, readable at phone
   width) with the plots, the ranking and the ladder.
 """
@@ -16,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.html_page import image_tag, page, scrolling
-from agents.twin.ladder_text import advice, unobservable_lines
+from agents.twin.ladder_text import advice, number, pairs_text, params_text, unobservable_lines
 from agents.twin.model import GreyFit
 from agents.twin.records import Batch
 from agents.twin.workbench import Diagnosis, ResidualAnalysis, compare
@@ -24,7 +25,8 @@ from gbo_envs.atomic_write import atomic_write
 from gbo_envs.lazy_pyplot import pyplot
 from gbo_envs.plotting import MEASURED, MODEL, REFERENCE, axis_label, legend_outside, style
 
-__all__ = ["RESIDUAL_PANELS", "compare_figure", "ladder_figure", "residual_figure", "shown_experiments", "write_report"]
+__all__ = ["RESIDUAL_PANELS", "compare_figure", "ladder_figure", "residual_figure", "saturation_figure",
+           "shown_experiments", "write_report"]
 
 
 #: Panels of :func:`residual_figure`, in order.
@@ -178,29 +180,75 @@ def ladder_figure(rungs: Sequence[dict], noise_rmse: float | None = None, y_unit
     return fig
 
 
+def saturation_figure(data: Batch, fit: GreyFit, u_unit: str = "", max_experiments: int = 4):
+    """The commanded input u(t) of each shown experiment against the fitted saturation limit ``±limit``.
+
+    The evidence of a drive limit: where the command goes beyond the band (shaded) the plant gets the limit,
+    not the command. Axes: time since the step t (s); commanded input u in ``u_unit``.
+
+    Parameters
+    ----------
+    data : Batch
+    fit : GreyFit
+        A model with the ``saturation`` effect.
+    u_unit : str
+        Unit of the input ("" when unknown).
+    max_experiments : int, default 4
+        Experiments drawn (spread over the data set).
+    """
+    limit = fit.effect_params.get("saturation", {}).get("limit")
+    if limit is None:
+        raise ValueError(f"fit: a model with the saturation effect, got {fit.spec.label}")
+    plt = pyplot()
+    with style():
+        fig, ax = plt.subplots(figsize=(7.5, 4.2))
+        for i, k in enumerate(shown_experiments(data, max_experiments)):
+            m = data.mask[k]
+            ax.plot(data.t[k][m], data.u[k][m], color=f"C{i}", lw=1.2, label=f"u, experiment {int(data.numbers[k])}")
+        ax.axhline(limit, color="k", ls="--", lw=1.4, label=f"fitted limit ±{number(limit, 4)} {u_unit}".rstrip())
+        ax.axhline(-limit, color="k", ls="--", lw=1.4)
+        low, high = ax.get_ylim()
+        ax.axhspan(limit, max(high, limit), color="tab:red", alpha=0.12, label="beyond the limit: clipped")
+        ax.axhspan(min(low, -limit), -limit, color="tab:red", alpha=0.12)
+        ax.set_ylim(low, high)
+        ax.set_xlabel(axis_label("time since step t", "s"))
+        ax.set_ylabel(axis_label("commanded input u", u_unit))
+        ax.set_title("commanded input against the fitted saturation limit")
+        legend_outside(ax)
+    return fig
+
+
 def _grid(items) -> str:
     """Figures side by side on a wide screen, one under the other on a phone."""
     return f"<div class='grid'>{''.join(items)}</div>"
 
 
 def _cell(value) -> str:
-    """Text of a table cell: floats to 4 significant digits, mappings as ``key=value``, None as a dash."""
+    """Text of a table cell: numbers in fixed point to 4 significant digits, None as a dash."""
     if value is None:
         return "\u2014"
     if isinstance(value, float):
-        return f"{value:.4g}"
-    if isinstance(value, dict):
-        return ", ".join(f"{k}={_cell(x)}" if not isinstance(x, dict) else f"{k}: {_cell(x)}"
-                         for k, x in value.items())
+        return number(value, 4)
     return str(value)
 
 
-def _table(rows: Sequence[dict], columns: Sequence[str], table_id: str = "") -> str:
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
-    body = ["<tr>" + "".join(f"<td>{html.escape(_cell(row.get(c, '')))}</td>" for c in columns) + "</tr>"
-            for row in rows]
-    id_attr = f" id='{table_id}'" if table_id else ""
-    return scrolling(f"<table{id_attr}><tr>{head}</tr>{''.join(body)}</table>")
+def _table(rows: Sequence[dict], columns: Sequence[tuple[str, str]], table_id: str = "", formats=None,
+           wrap: bool = False) -> str:
+    """An HTML table of ``rows``: ``columns`` are ``(key, header)``; ``formats`` maps a key to its cell's text.
+
+    ``wrap``: the table takes the page's width and its long text cells wrap (class ``wrap``) instead of scrolling.
+    """
+    formats = formats or {}
+    head = "".join(f"<th>{html.escape(header)}</th>" for _, header in columns)
+    body = ["<tr>" + "".join(f"<td>{html.escape(formats.get(key, _cell)(row.get(key)))}</td>" for key, _ in columns)
+            + "</tr>" for row in rows]
+    attrs = (f" id='{table_id}'" if table_id else "") + (" class='wrap'" if wrap else "")
+    return scrolling(f"<table{attrs}><tr>{head}</tr>{''.join(body)}</table>")
+
+
+def _saturated(fits: Sequence[GreyFit]) -> GreyFit | None:
+    """The first of ``fits`` with a fitted saturation limit."""
+    return next((f for f in fits if f is not None and "limit" in f.effect_params.get("saturation", {})), None)
 
 
 def write_report(out_dir: str | Path, data: Batch, rungs: Sequence[dict], diagnoses: Sequence[Diagnosis],
@@ -223,17 +271,29 @@ def write_report(out_dir: str | Path, data: Batch, rungs: Sequence[dict], diagno
     fits = [first.current] + ([last.current] if last is not first else [])
     noise = first.noise_rmse
     units = {key: unit for key, unit in (("y", y_unit), ("u", u_unit)) if unit}
+    output = first.current.spec.output
+    y = y_unit or "units of y"
     next_step = advice(last, last.current.spec.effect_names, source or "DATA.csv", stopped_at_max=last.best is not None,
                        units=units)
+
+    def rung_params(params) -> str:
+        return "; ".join(f"{name}: {params_text(name, values, units, output)}" for name, values in params.items()) \
+            or "\u2014"
+
+    def candidate_params(row) -> str:
+        return params_text(row["effect"], row.get("params") or {}, units, output, row.get("intervals")) or "\u2014"
+
     parts = [
         f"<h1>Twin workbench: {html.escape(source)}</h1>",
         f"<p>{data.n_records} experiments, {data.n_samples} samples, dt = {data.dt:g} s; "
-        f"{html.escape(first.noise_label)}: {'n/a' if noise is None else f'{noise:.4g}'} "
-        f"({html.escape(y_unit or 'units of y')}).</p>",
+        f"{html.escape(first.noise_label)}: {number(noise)} ({html.escape(y)}).</p>",
         "<h2>Error ladder</h2>",
         "<p>RMSE of the linear model, then with the best effect added, then the next, until no effect improves "
         "the held-out error beyond its complexity cost.</p>",
-        _table(rungs, ["model", "added", "rmse", "heldout_rmse", "fit_percent", "params"], table_id="ladder"),
+        _table(rungs, [("model", "model"), ("added", "effect added"), ("rmse", f"RMSE of the fit ({y})"),
+                       ("heldout_rmse", f"held-out RMSE ({y})"), ("fit_percent", "fit (%)"),
+                       ("params", "effect parameters")], table_id="ladder",
+               formats={"params": rung_params, "fit_percent": lambda v: f"{v:.1f}"}, wrap=True),
         "<ul>" + "".join(f"<li>{html.escape(r['text'])}</li>" for r in rungs if "text" in r) + "</ul>",
         f"<p><b>{html.escape(next_step)}</b></p>",
         image_tag(ladder_figure(rungs, noise, y_unit=y_unit), "error ladder",
@@ -243,23 +303,38 @@ def write_report(out_dir: str | Path, data: Batch, rungs: Sequence[dict], diagno
         _grid(image_tag(compare_figure(data, fits, y_unit=y_unit, experiments=[k]),
                         f"measured against simulated output, experiment {int(data.numbers[k])}")
               for k in shown_experiments(data)),
+    ]
+    saturated = _saturated([last.current, first.current, first.fits.get("saturation")])
+    if saturated is not None:
+        limit = saturated.effect_params["saturation"]["limit"]
+        parts += ["<h2>Input against the fitted saturation limit</h2>",
+                  image_tag(saturation_figure(data, saturated, u_unit=u_unit), "commanded input against the limit",
+                            f"Commanded input u(t) with the limit ±{number(limit, 4)} {u_unit or 'units of u'} "
+                            f"fitted in {saturated.spec.label}: beyond it (shaded) the plant gets the limit.")]
+    parts += [
         "<h2>Ranking of the effects (first diagnosis)</h2>",
         f"<p>Model: {html.escape(first.current.spec.label)}; best: <b>{html.escape(str(first.best))}</b>; "
         f"validation: {html.escape(first.validation)}.</p>",
-        _table(first.candidates, ["effect", "rmse", "train_rmse", "delta_bic", "params", "evidence", "note"]),
+        _table([{**c, "params": candidate_params(c)} for c in first.candidates],
+               [("effect", "effect"), ("rmse", f"held-out RMSE ({y})"), ("train_rmse", f"RMSE of the fit ({y})"),
+                ("delta_bic", "ΔBIC (-)"), ("params", "fitted parameters"), ("evidence", "evidence"),
+                ("note", "note")], table_id="ranking", formats={"delta_bic": lambda v: f"{v:.1f}",
+                                                                 "note": lambda v: v or ""}, wrap=True),
     ]
     if last.unobservable:
         parts += ["<h3>Not observable in this data</h3>",
                   "<ul>" + "".join(f"<li>{html.escape(line)}</li>" for line in unobservable_lines(last)) + "</ul>"]
     if first.indistinguishable:
-        parts.append(f"<p>Indistinguishable on this data: {html.escape(str(first.indistinguishable))}; "
-                     f"{html.escape(str(first.suggested_experiment))}.</p>")
+        parts.append(f"<p>Indistinguishable on this data: {html.escape(pairs_text(first.indistinguishable))}. "
+                     f"{html.escape(str(first.suggested_experiment or ''))}</p>")
     for analysis, fit in zip(analyses, fits):
         parts += [f"<h2>Residuals of {html.escape(fit.spec.label)}</h2>",
                   _grid(image_tag(residual_figure(analysis, y_unit=y_unit, u_unit=u_unit, panels=[panel]),
                                   f"residuals of {fit.spec.label}: {panel}") for panel in RESIDUAL_PANELS),
                   "<p>Worst segments:</p>",
-                  _table(analysis.worst, ["experiment", "t_start", "t_end", "rms", "mean"])]
+                  _table(analysis.worst, [("experiment", "experiment"), ("t_start", "from t (s)"),
+                                          ("t_end", "to t (s)"), ("rms", f"RMS residual ({y})"),
+                                          ("mean", f"mean residual ({y})")])]
     path = out / "index.html"
     with atomic_write(path) as handle:
         handle.write(page(f"twin workbench: {source}", "\n".join(parts)))

@@ -100,3 +100,16 @@ def test_curves_that_coincide_stay_apart_and_the_legend_says_so():
     assert len(styles) == 4
     legend = [text.get_text() for text in ax.get_legend().get_texts()]
     assert "grid (same as bo, random)" in legend
+
+
+def test_each_panel_of_the_plant_grid_names_its_own_coinciding_curves():
+    from evaluation.leaderboard import _plant_grid
+
+    plants = [PlantTarget("A", 1.05, budget=6), PlantTarget("B", 1.05, budget=6)]
+    rows = [(t, "A", s, reach(at, 6)) for t in ("bo", "me") for s, at in enumerate([2, 4])]  # equal on A
+    rows += [(t, "B", s, reach(at, 6)) for t, at in (("bo", 2), ("me", 1)) for s in range(2)]
+    board = Leaderboard(n_bootstrap=50).fit(curves(rows), plants, order=["me", "bo"])
+    fig = _plant_grid(board, "me")
+    a, b = fig.axes[:2]
+    assert [t.get_text() for t in a.texts] == ["bo (same as me)"] and not b.texts
+    assert [t.get_text() for t in b.get_legend().get_texts()] == ["me", "bo"]  # the shared legend: names only
