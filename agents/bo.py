@@ -132,7 +132,7 @@ class BayesianOptimization(Tuner):
         points; guided BO uses ``"posterior_mean"`` during its twin iterations.
     polish : bool
         Whether the best grid point of EI is refined by L-BFGS-B (``False``; guided BO
-        polishes during its twin iterations).
+        polishes during its twin iterations). The multistart optimizer always refines.
     last_ei_, last_std_, last_mean_ : float
         EI (cost units), posterior std and mean of ``J_hat`` at the gains of the
         last :meth:`ask` (``nan`` for initial-design gains).
