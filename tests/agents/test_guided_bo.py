@@ -190,3 +190,12 @@ def test_twin_simulations_of_the_prior_are_counted_though_not_rows():
     assert f"(+{guided.twin_evaluations} twin evaluations)" in repr(guided)
     plain = BayesianOptimization().run(gym.make("gbo_envs/DCMotor-v0"), budget=2, seed=0)
     assert plain.twin_evaluations == 0
+
+
+@pytest.mark.slow
+def test_the_twin_prior_guides_bo_beyond_two_gains():
+    """DCMotorPID-v0 (3 gains): EI is maximised off any grid, and the prior is the twin evaluated wherever it looks."""
+    result = agents.make("guided-bo").run(gym.make("gbo_envs/DCMotorPID-v0"), budget=3, seed=0)
+    assert result.info["activations"] == 2 and result.info["twin_evaluations"] > 0
+    optimum = gbo_envs.ground_truth("gbo_envs/DCMotorPID-v0").cost
+    assert result.min_true_cost_curve().min() / optimum <= 1.1
