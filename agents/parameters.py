@@ -1,20 +1,31 @@
-"""Constructor-parameter constraints of the tuners, checked in one place (scikit-learn's ``_parameter_constraints``).
+"""Parameter constraints of the tuners, the twin estimators and the option objects, checked in one place.
 
-A tuner declares a class-level ``_parameter_constraints`` dict, parameter name ->
-list of allowed forms (``None``, an :class:`Interval` or an :class:`Options`); a
-value is valid when it meets any of them. :func:`validate_params` checks the
-constructor's arguments against it and raises :class:`ValueError` naming the
-parameter and what it allows, e.g. ``n_initial: must be an int in [1, inf), got 0``.
+A class declares a class-level ``_parameter_constraints`` dict (scikit-learn's convention),
+parameter name -> list of allowed forms (``None``, :class:`Interval`, :class:`Options`,
+:class:`Boolean`, :class:`InstanceOf`, :class:`ArrayLike` or :class:`HasMethods`); a value is
+valid when it meets any of them. :func:`validate_params` checks arguments against it and
+raises :class:`ValueError` naming the parameter and what it allows, e.g.
+``n_initial: must be an int in [1, inf), got 0``. :func:`check_fields` applies it to a
+frozen dataclass of options, :func:`validated` to a function's arguments.
+
+The project's own module, on NumPy alone: importing it loads no scikit-learn (the workbench's
+start-up path stays free of it).
 """
 
 from __future__ import annotations
 
+import functools
+import inspect
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, fields
 from numbers import Integral, Real
 from typing import Any
 
-__all__ = ["HasMethods", "Interval", "Options", "validate_params"]
+import numpy as np
+
+__all__ = ["ArrayLike", "Boolean", "HasMethods", "InstanceOf", "Interval", "Options", "check_fields",
+           "validate_params", "validated"]
 
 
 @dataclass(frozen=True)
@@ -26,14 +37,17 @@ class Interval:
     kind : {int, float}
         ``int`` admits integers only (not ``bool``); ``float`` admits any real number but NaN.
     low, high : float or None
-        Bounds, ``None`` for ``-inf`` / ``inf`` (an infinite value is then admitted).
+        Bounds, ``None`` for ``-inf`` / ``inf`` (an infinite value is then admitted, unless ``finite``).
     closed : {"both", "left", "right", "neither"}, default "both"
+    finite : bool, default False
+        Refuse ``-inf`` and ``inf`` also where a bound is ``None`` (e.g. a delay in ``[0, inf)`` s).
     """
 
     kind: type
     low: float | None
     high: float | None
     closed: str = "both"
+    finite: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in (int, float):
@@ -44,7 +58,7 @@ class Interval:
     def admits(self, value: Any) -> bool:
         if isinstance(value, bool) or not isinstance(value, Integral if self.kind is int else Real):
             return False
-        if math.isnan(value):
+        if math.isnan(value) or (self.finite and math.isinf(value)):
             return False
         if self.low is not None and (value < self.low or (value == self.low and self.closed in ("right", "neither"))):
             return False
@@ -58,7 +72,8 @@ class Interval:
         right = "]" if self.closed in ("both", "right") and self.high is not None else ")"
         low = "-inf" if self.low is None else f"{self.low:g}"
         high = "inf" if self.high is None else f"{self.high:g}"
-        return f"{'an int' if self.kind is int else 'a float'} in {left}{low}, {high}{right}"
+        kind = "an int" if self.kind is int else "a finite float" if self.finite else "a float"
+        return f"{kind} in {left}{low}, {high}{right}"
 
 
 @dataclass(frozen=True)
@@ -75,6 +90,51 @@ class Options:
 
     def __str__(self) -> str:
         return f"one of {self.values}"
+
+
+@dataclass(frozen=True)
+class Boolean:
+    """``True`` or ``False`` (also NumPy's ``bool_``, converted to ``bool``); not ``0`` or ``1``."""
+
+    def admits(self, value: Any) -> bool:
+        return isinstance(value, (bool, np.bool_))
+
+    def convert(self, value: Any) -> bool:
+        return bool(value)
+
+    def __str__(self) -> str:
+        return "a bool"
+
+
+@dataclass(frozen=True)
+class InstanceOf:
+    """An instance of one of ``types`` (e.g. ``(list, tuple, dict, str)``), passed unchanged."""
+
+    types: tuple[type, ...]
+
+    def admits(self, value: Any) -> bool:
+        return isinstance(value, self.types)
+
+    def convert(self, value: Any) -> Any:
+        return value
+
+    def __str__(self) -> str:
+        return f"an instance of {' or '.join(t.__name__ for t in self.types)}"
+
+
+@dataclass(frozen=True)
+class ArrayLike:
+    """A sequence or an array (anything with a length, a shape or ``__array__``, but no string or scalar)."""
+
+    def admits(self, value: Any) -> bool:
+        return (hasattr(value, "__len__") or hasattr(value, "shape") or hasattr(value, "__array__")) \
+            and not isinstance(value, (str, bytes)) and not np.isscalar(value)
+
+    def convert(self, value: Any) -> Any:
+        return value
+
+    def __str__(self) -> str:
+        return "an array-like"
 
 
 @dataclass(frozen=True)
@@ -100,9 +160,10 @@ def validate_params(constraints: dict[str, list], params: dict[str, Any]) -> dic
     ----------
     constraints : dict
         Parameter name -> list of allowed forms: ``None`` (the value ``None``),
-        :class:`Interval`, :class:`Options` or :class:`HasMethods`.
+        :class:`Interval`, :class:`Options`, :class:`Boolean`, :class:`InstanceOf`,
+        :class:`ArrayLike` or :class:`HasMethods`.
     params : dict
-        The constructor's arguments; every name must have a constraint.
+        The arguments; every name must have a constraint.
 
     Returns
     -------
@@ -129,3 +190,56 @@ def validate_params(constraints: dict[str, list], params: dict[str, Any]) -> dic
             raise ValueError(f"{name}: must be {allowed}, got {value!r}")
         checked[name] = form.convert(value)
     return checked
+
+
+def check_fields(options: Any) -> None:
+    """Validate a frozen dataclass's fields against its class's ``_parameter_constraints``, in ``__post_init__``.
+
+    Each field takes its converted value (ints to ``int``, reals to ``float``), so that equal
+    settings make equal objects.
+
+    Raises
+    ------
+    ValueError
+        For the first field outside its allowed values, named as by :func:`validate_params`.
+    """
+    checked = validate_params(type(options)._parameter_constraints,
+                              {f.name: getattr(options, f.name) for f in fields(options)})
+    for name, value in checked.items():
+        object.__setattr__(options, name, value)
+
+
+def validated(constraints: dict[str, list]) -> Callable[[Callable], Callable]:
+    """Decorator: check a function's arguments named in ``constraints`` (defaults included) at every call.
+
+    The function receives them converted as by :func:`validate_params`; arguments
+    without a constraint pass unchecked.
+
+    Examples
+    --------
+    >>> @validated({"n": [Interval(int, 1, None)]})
+    ... def twice(n=1):
+    ...     return 2 * n
+    >>> twice(n=0)
+    Traceback (most recent call last):
+        ...
+    ValueError: n: must be an int in [1, inf), got 0
+    """
+
+    def decorate(fn: Callable) -> Callable:
+        signature = inspect.signature(fn)
+        missing = set(constraints) - set(signature.parameters)
+        if missing:
+            raise ValueError(f"constraints: {sorted(missing)} are not parameters of {fn.__qualname__}")
+
+        @functools.wraps(fn)
+        def wrapper(*args, **kwargs):
+            bound = signature.bind(*args, **kwargs)
+            bound.apply_defaults()
+            bound.arguments.update(validate_params(constraints, {name: bound.arguments[name]
+                                                                 for name in constraints}))
+            return fn(*bound.args, **bound.kwargs)
+
+        return wrapper
+
+    return decorate

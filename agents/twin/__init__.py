@@ -16,6 +16,7 @@ import importlib
 from agents.twin.compare import compare
 from agents.twin.csvio import read_csv, write_csv
 from agents.twin.diagnose import diagnose
+from agents.twin.diagnosis_options import CandidateSearch, DiagnosisRules
 from agents.twin.env import TwinEnv, make_twin_env
 from agents.twin.fits import fit_model
 from agents.twin.identify import identify_linear
@@ -31,6 +32,7 @@ _ESTIMATORS = {"GreyBoxTwin": "agents.twin.greybox_twin", "LinearTwin": "agents.
 __all__ = ["GreyBoxTwin", "LinearTwin", "TwinEnv", "identify_linear", "make_twin_env"]
 __all__ += ["Batch", "GreyFit", "ModelSpec", "compare", "diagnose", "error_ladder", "fit_model", "read_csv",
             "residuals", "write_csv"]
+__all__ += ["CandidateSearch", "DiagnosisRules"]
 
 
 def __getattr__(name: str):

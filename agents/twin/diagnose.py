@@ -20,6 +20,7 @@ from agents.run_display import progress_bar
 from agents.thread_limits import single_thread
 from agents.twin.candidates import candidate_plan
 from agents.twin.compare import compare
+from agents.twin.diagnosis_options import CandidateSearch, DiagnosisRules
 from agents.twin.fits import fit_candidates, fit_structure
 from agents.twin.ladder_text import rung_text
 from agents.twin.model import GreyFit, ModelSpec
@@ -131,10 +132,9 @@ class Diagnosis:
 
 
 @single_thread()
-def diagnose(data: Batch, effects=None, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
-             current: GreyFit | None = None, n_folds: int | None = None, bic_margin: float = 10.0,
-             min_gain: float = 0.02, max_iter: int = 20, *, noise_gain: float = 0.05, skip_unexcited: bool = True,
-             screen_iter: int = 8, orders: bool = True, progress: bool | None = False, n_jobs: int | None = None,
+def diagnose(data: Batch, effects=None, *, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
+             current: GreyFit | None = None, n_folds: int | None = None, rules: DiagnosisRules = DiagnosisRules(),
+             search: CandidateSearch = CandidateSearch(), progress: bool | None = False, n_jobs: int | None = None,
              _nested: bool = False) -> Diagnosis:
     """Try every catalogued effect as an addition to the model and rank them on held-out experiments.
 
@@ -152,39 +152,12 @@ def diagnose(data: Batch, effects=None, candidates: Sequence[str] | None = None,
     n_folds : int, optional
         Folds of the cross-validation over experiments, from 2 to the number of
         experiments (default: 4, or one per experiment when there are fewer).
-    bic_margin : float, default 10.0
-        ``best`` needs ``delta_bic < -bic_margin`` ("very strong" evidence on the
-        Kass-Raftery scale); two improving effects whose ``delta_bic`` differ by
-        less than it (and whose held-out RMSE differ by less than 1 %) are
-        reported as indistinguishable.
-    min_gain : float, default 0.02
-        ``best`` also needs its held-out RMSE ``min_gain`` below the current model's,
-        and the effect itself must matter: switching it off (magnitude at zero)
-        must change the output by at least a fifth of the RMS it explains
-        (``effect_rms``), so that no effect is credited with a refit of the
-        other parameters.
-    max_iter : int, default 20
-        Trial points of the full-data least-squares fits (:func:`agents.twin.least_squares.fit_problems`).
-    noise_gain : float, default 0.05
-        ``best`` also needs its held-out RMSE at least ``noise_gain`` times the
-        measurement noise floor (:func:`agents.twin.noise_floor.noise_floor_estimate`) below
-        the current model's: a gain far below what the measurement resolves is not
-        evidence (on noise-free data the linear model's error is far below the
-        floor, and an effect would otherwise be credited with fitting that error).
-    skip_unexcited : bool, default True
-        Do not fit the effects the data cannot show (:func:`agents.twin.evidence.excitation_notes`,
-        judged on all experiments together and on how each starts). They stay in
-        ``candidates`` with their ``note``, ``"fitted": False``, no entry in ``fits``, the
-        current model's errors (the effect is absorbed by the estimated rest levels, so
-        its fit is the current model's) and a ``delta_bic`` of its extra parameters' penalty alone.
-    screen_iter : int, default 8
-        Trial points after which a candidate whose cost is not below the current
-        model's (fitted with all ``max_iter``) stops: it cannot pass the decision rule
-        without beating the current model. The candidates ahead of it are fitted again
-        from their starts with all ``max_iter`` trial points.
-    orders : bool, default True
-        Also try the linear part's structure grown by a pole pair, a pole or a zero
-        (:data:`agents.twin.candidates.ORDER_CANDIDATES`), ranked as the effects are.
+    rules : DiagnosisRules, default DiagnosisRules()
+        When an effect is named ``best``: the BIC margin, the held-out gain and the gain over
+        the noise floor it needs (:class:`agents.twin.diagnosis_options.DiagnosisRules`).
+    search : CandidateSearch, default CandidateSearch()
+        Which candidates are tried (the unexcited ones skipped, the linear part's orders grown)
+        and the trial points of their fits (:class:`agents.twin.diagnosis_options.CandidateSearch`).
     progress : bool or None, default False
         A progress bar on stderr over the steps (each candidate's starts, the fits, the
         cross-validation); ``None``: only when stderr is a terminal.
@@ -216,26 +189,26 @@ def diagnose(data: Batch, effects=None, candidates: Sequence[str] | None = None,
     """
     n_folds = validated_folds(n_folds, data.n_records)
     check_n_jobs(n_jobs)
-    if not np.isfinite(noise_gain) or noise_gain < 0.0:
-        raise ValueError(f"noise_gain: must be a finite number >= 0, got {noise_gain}")
-    if int(screen_iter) < 1:
-        raise ValueError(f"screen_iter: must be an integer >= 1, got {screen_iter}")
+    for name, value, kind in (("rules", rules, DiagnosisRules), ("search", search, CandidateSearch)):
+        if not isinstance(value, kind):
+            raise TypeError(f"{name}: expected a {kind.__name__}, got {value!r}")
     with worker_processes(n_jobs, shared=(data,)):
         # records -> linear fit (and the effects the model already has)
         if current is None:
-            current = fit_structure(data, effects, spec, max_iter=max_iter)
+            current = fit_structure(data, effects, spec, max_iter=search.max_iter)
         # -> candidates
-        plan = candidate_plan(data, current, candidates, skip_unexcited, orders)
+        plan = candidate_plan(data, current, candidates, search.skip_unexcited, search.orders)
         bar = progress_bar(len(plan.candidates) + 2, f"diagnose {current.spec.label}", progress, unit="step",
                            leave=not _nested)
         try:
             # -> fits
             noise = noise_floor_estimate(data)
-            fitted = fit_candidates(data, current, plan, max_iter, screen_iter, progress=bar, noise=noise.rmse)
+            fitted = fit_candidates(data, current, plan, search.max_iter, search.screen_iter, progress=bar,
+                                    noise=noise.rmse)
             bar.update(1)
             # -> ranking
-            ranking = rank(data, fitted.current, fitted.fits, plan, noise, n_folds, bic_margin, min_gain,
-                           noise_gain, progress=bar)
+            ranking = rank(data, fitted.current, fitted.fits, plan, noise, n_folds, rules.bic_margin, rules.min_gain,
+                           rules.noise_gain, progress=bar)
             bar.update(1)
         finally:
             bar.close()

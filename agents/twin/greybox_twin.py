@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from numbers import Integral
+from typing import ClassVar
 
 import numpy as np
-from sklearn.base import BaseEstimator
-from sklearn.utils._param_validation import Interval, StrOptions
 from sklearn.utils.validation import check_is_fitted
 
+from agents.parameters import InstanceOf, Interval, Options
 from agents.thread_limits import single_thread
+from agents.twin.estimator import TwinEstimator
 from agents.twin.fidelity import rmse
 from agents.twin.fits import fit_structure
 from agents.twin.guesses import rest_command
@@ -23,7 +23,7 @@ from gbo_envs.physics.effects import build_effect
 __all__ = ["GreyBoxTwin"]
 
 
-class GreyBoxTwin(BaseEstimator):
+class GreyBoxTwin(TwinEstimator):
     r"""A linear transfer function with delay plus physical effects, all fitted by simulation error.
 
     The model of a record is the open-loop replay of its command ``u``
@@ -99,14 +99,14 @@ class GreyBoxTwin(BaseEstimator):
     True
     """
 
-    _parameter_constraints: dict = {
-        "effects": [list, tuple, dict, str],
+    _parameter_constraints: ClassVar[dict[str, list]] = {
+        "effects": [InstanceOf((list, tuple, dict, str))],
         "n_poles": linear_constraints()["n_poles"],
         "n_zeros": linear_constraints()["n_zeros"],
         "n_integrators": linear_constraints()["n_integrators"],
-        "output": [StrOptions({"speed", "position"})],
+        "output": [Options(("speed", "position"))],
         "n_samples": linear_constraints()["n_samples"],
-        "max_iter": [Interval(Integral, 0, None, closed="left")],
+        "max_iter": [Interval(int, 0, None)],
     }
 
     def __init__(self, effects=(), *, n_poles: int = 2, n_zeros: int = 0, n_integrators: int = 0,
@@ -140,11 +140,11 @@ class GreyBoxTwin(BaseEstimator):
         ValueError
             A parameter outside its allowed range (named), an effect outside the catalogue, or bad records.
         """
-        self._validate_params()
-        orders = check_orders(self.n_poles, self.n_zeros, self.n_integrators)
+        params = self._validate_params()
+        orders = check_orders(params["n_poles"], params["n_zeros"], params["n_integrators"])
         data = self._data(records)
-        spec = ModelSpec(orders.n, orders.m, orders.k, self.output)
-        self._store(data, fit_structure(data, self.effects, spec, max_iter=self.max_iter))
+        spec = ModelSpec(orders.n, orders.m, orders.k, params["output"])
+        self._store(data, fit_structure(data, params["effects"], spec, max_iter=params["max_iter"]))
         return self
 
     @classmethod
@@ -187,9 +187,6 @@ class GreyBoxTwin(BaseEstimator):
         """
         data, fit = self._refit_rest(records)
         return -_normalised_rmse(data, fit)
-
-    def __sklearn_is_fitted__(self) -> bool:
-        return hasattr(self, "plant_")
 
     def _data(self, records) -> Batch:
         """The records stacked (decimated to ``n_samples``; their :attr:`~gbo_envs.Experiment.index` kept)."""

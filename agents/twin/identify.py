@@ -12,11 +12,11 @@ from __future__ import annotations
 import dataclasses
 import functools
 from dataclasses import dataclass
-from numbers import Integral, Real
 
 import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
+from agents.parameters import ArrayLike, Boolean, InstanceOf, Interval, Options, validate_params
 from agents.twin import srivc
 from agents.twin.fidelity import rmse
 from agents.twin.records import Batch
@@ -99,31 +99,24 @@ class IdentifyOptions:
 
 @functools.cache
 def linear_constraints() -> dict[str, list]:
-    """Allowed values of the settings of :func:`identify_linear` (scikit-learn parameter constraints), shared
-    by :class:`agents.twin.LinearTwin` and :class:`agents.twin.GreyBoxTwin`.
-
-    Built on first use, so that the workbench's pipeline, which calls no estimator, does not import
-    scikit-learn (0.4 s of every ``gbo twin`` command on the project machine).
-    """
-    # heavy dependency: scikit-learn (kept off the diagnose start-up path)
-    from sklearn.utils._param_validation import Interval, StrOptions
-
+    """Allowed values of the settings of :func:`identify_linear` (:mod:`agents.parameters` constraints), shared
+    by :class:`agents.twin.LinearTwin` and :class:`agents.twin.GreyBoxTwin`."""
     return {
-        "n_poles": [Interval(Integral, 1, None, closed="left")],
-        "n_zeros": [Interval(Integral, 0, None, closed="left")],
-        "n_integrators": [Interval(Integral, 0, None, closed="left")],
-        "delay": [None, Interval(Real, 0, None, closed="left")],
-        "max_delay": [None, Interval(Real, 0, None, closed="left")],
-        "delay_step": [None, Interval(Real, 0, None, closed="neither")],
-        "refine_delay": ["boolean"],
-        "offset": ["boolean"],
-        "n_samples": [None, Interval(Integral, 2, None, closed="left")],
-        "hold": [StrOptions({"auto", "zoh", "foh"})],
-        "oversample": [Interval(Integral, 1, None, closed="left")],
-        "max_iter": [Interval(Integral, 1, None, closed="left")],
-        "tol": [Interval(Real, 0, None, closed="neither")],
-        "svf_bandwidth": [None, Interval(Real, 0, None, closed="neither")],
-        "polish": ["boolean"],
+        "n_poles": [Interval(int, 1, None)],
+        "n_zeros": [Interval(int, 0, None)],
+        "n_integrators": [Interval(int, 0, None)],
+        "delay": [None, Interval(float, 0, None, closed="left", finite=True)],
+        "max_delay": [None, Interval(float, 0, None, closed="left", finite=True)],
+        "delay_step": [None, Interval(float, 0, None, closed="neither", finite=True)],
+        "refine_delay": [Boolean()],
+        "offset": [Boolean()],
+        "n_samples": [None, Interval(int, 2, None)],
+        "hold": [Options(("auto", "zoh", "foh"))],
+        "oversample": [Interval(int, 1, None)],
+        "max_iter": [Interval(int, 1, None)],
+        "tol": [Interval(float, 0, None, closed="neither", finite=True)],
+        "svf_bandwidth": [None, Interval(float, 0, None, closed="neither", finite=True)],
+        "polish": [Boolean()],
     }
 
 
@@ -316,8 +309,8 @@ def identify(batch: Batch, options: IdentifyOptions | None = None, *, start: tup
 
     :func:`identify` takes records already validated (a :class:`~agents.twin.records.Batch`) and
     checked settings, as the workbench's pipeline passes them; :func:`identify_linear` takes records in
-    any form :func:`agents.twin.records.as_records` reads and validates its settings (scikit-learn's
-    parameter constraints: an out-of-range setting raises, naming it).
+    any form :func:`agents.twin.records.as_records` reads and validates its settings
+    (:mod:`agents.parameters`: an out-of-range setting raises, naming it and its allowed range).
 
     Parameters
     ----------
@@ -462,19 +455,17 @@ def identify_linear(records, *, start: tuple | None = None, rest_levels=None, **
 
 
 def checked_options(settings: dict, caller: str) -> IdentifyOptions:
-    """``settings`` as :class:`IdentifyOptions`, each checked against :func:`linear_constraints` (a setting out of
-    range raises ``ValueError`` naming it and ``caller``); ``start`` (a tuple) and ``rest_levels`` (array-like)
-    are checked too and left out of the options."""
-    # heavy dependency: scikit-learn (kept off the diagnose start-up path)
-    from sklearn.utils._param_validation import validate_parameter_constraints
-
+    """``settings`` as :class:`IdentifyOptions`, each checked against :func:`linear_constraints` and converted
+    (:func:`agents.parameters.validate_params`: a setting out of range raises ``ValueError`` naming it and its
+    range); ``start`` (a tuple) and ``rest_levels`` (array-like) are checked too and left out of the options;
+    an unknown setting raises ``TypeError`` naming ``caller``."""
     fields = {f.name for f in dataclasses.fields(IdentifyOptions)}
     unknown = sorted(set(settings) - fields - {"start", "rest_levels"})
     if unknown:
         raise TypeError(f"{caller}() got unexpected keyword argument(s) {unknown}")
-    constraints = {"start": [None, tuple], "rest_levels": [None, "array-like"], **linear_constraints()}
-    validate_parameter_constraints(constraints, settings, caller_name=caller)
-    return IdentifyOptions(**{name: value for name, value in settings.items() if name in fields})
+    constraints = {"start": [None, InstanceOf((tuple,))], "rest_levels": [None, ArrayLike()], **linear_constraints()}
+    checked = validate_params(constraints, settings)
+    return IdentifyOptions(**{name: value for name, value in checked.items() if name in fields})
 
 
 def _polish(orders, theta, tau, signals, score, delay_bounds, offset):

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
-from sklearn.base import BaseEstimator
-from sklearn.utils._param_validation import StrOptions
 from sklearn.utils.validation import check_is_fitted
 
+from agents.parameters import Boolean, Options
 from agents.thread_limits import single_thread
 from agents.twin import srivc
+from agents.twin.estimator import TwinEstimator
 from agents.twin.identify import (
     IdentifyOptions,
     check_orders,
@@ -22,7 +24,7 @@ from agents.twin.records import Batch
 __all__ = ["LinearTwin"]
 
 
-class LinearTwin(BaseEstimator):
+class LinearTwin(TwinEstimator):
     r"""The DT plant ``G_tilde`` of the paper (subsec. Digital Twin): a transfer function with delay, by SRIVC.
 
     ``fit`` runs :func:`agents.twin.identify.identify_linear` (SRIVC at each delay of a
@@ -83,8 +85,9 @@ oversample, max_iter, tol, svf_bandwidth, polish
     True
     """
 
-    _parameter_constraints: dict = {**linear_constraints(), "output": [StrOptions({"speed", "position"})],
-                                    "warm_start": ["boolean"]}
+    _parameter_constraints: ClassVar[dict[str, list]] = {**linear_constraints(),
+                                                          "output": [Options(("speed", "position"))],
+                                                          "warm_start": [Boolean()]}
 
     def __init__(self, *, n_poles: int = 2, n_zeros: int = 0, n_integrators: int = 0, delay: float | None = None,
                  max_delay: float | None = None, delay_step: float | None = None, refine_delay: bool = True,
@@ -128,9 +131,9 @@ oversample, max_iter, tol, svf_bandwidth, polish
         ValueError
             A parameter outside its allowed range (named), or bad records.
         """
-        self._validate_params()
-        orders = check_orders(self.n_poles, self.n_zeros, self.n_integrators)
-        options = IdentifyOptions(**{name: getattr(self, name) for name in linear_constraints()})
+        params = self._validate_params()
+        orders = check_orders(params["n_poles"], params["n_zeros"], params["n_integrators"])
+        options = IdentifyOptions(**{name: params[name] for name in linear_constraints()})
         with single_thread():  # tiny matrices: BLAS threads only contend
             fit = identify(_batch(records), options, start=self._warm_start_point(orders))
         self.num_ = fit.num
@@ -138,7 +141,7 @@ oversample, max_iter, tol, svf_bandwidth, polish
         self.params_ = fit.params
         self.param_names_ = fit.param_names
         self.delay_ = fit.delay
-        self.plant_ = fit.plant(self.output)
+        self.plant_ = fit.plant(params["output"])
         self.rmse_ = fit.rmse
         self.rmse_abs_ = fit.rmse_abs
         self.rest_levels_ = fit.rest_levels
@@ -185,15 +188,12 @@ oversample, max_iter, tol, svf_bandwidth, polish
         orders, signals, _ = self._prepared(records)
         return -simulation_error(orders, self._theta(orders), self.delay_, signals, self.offset)[0]
 
-    def __sklearn_is_fitted__(self) -> bool:
-        return hasattr(self, "plant_")
-
     def _prepared(self, records):
         check_is_fitted(self)
-        self._validate_params()
-        orders = check_orders(self.n_poles, self.n_zeros, self.n_integrators)
-        _, groups, signals = prepare_signals(_batch(records), orders, self.n_samples, self.hold, self.oversample,
-                                             self.offset)
+        params = self._validate_params()
+        orders = check_orders(params["n_poles"], params["n_zeros"], params["n_integrators"])
+        _, groups, signals = prepare_signals(_batch(records), orders, params["n_samples"], params["hold"],
+                                             params["oversample"], params["offset"])
         return orders, signals, groups
 
     def _theta(self, orders: srivc.Orders) -> np.ndarray:

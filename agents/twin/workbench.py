@@ -7,7 +7,8 @@
   (:mod:`agents.twin.compare`);
 * :func:`residuals`: whiteness, input cross-correlation and where the model fails (:mod:`agents.twin.residuals`);
 * :func:`noise_floor`: the measurement's noise or quantization floor (:mod:`agents.twin.noise_floor`);
-* :func:`diagnose`: every catalogued effect tried as an addition, ranked on held-out experiments;
+* :func:`diagnose`: every catalogued effect tried as an addition, ranked on held-out experiments
+  (its decision rules :class:`DiagnosisRules`, its search :class:`CandidateSearch`);
 * :func:`error_ladder`: add the best effect, diagnose again, until nothing helps
   (:mod:`agents.twin.diagnose`, :mod:`agents.twin.ladder`, with the evidence of :mod:`agents.twin.evidence`);
 * :class:`GreyBoxTwin`: the grey-box fit as a scikit-learn estimator (:mod:`agents.twin.greybox_twin`),
@@ -30,6 +31,7 @@ import importlib
 from agents.twin.candidates import candidate_problems
 from agents.twin.compare import CompareResult, compare
 from agents.twin.diagnose import Diagnosis, diagnose
+from agents.twin.diagnosis_options import CandidateSearch, DiagnosisRules
 from agents.twin.evidence import SEPARATING_EXPERIMENTS, separating_experiment
 from agents.twin.fits import fit_model, refine_grid_parameters
 from agents.twin.guesses import data_scales, effect_starts
@@ -43,6 +45,7 @@ __all__ = ["CompareResult", "Diagnosis", "ResidualAnalysis", "SEPARATING_EXPERIM
            "diagnose", "effect_starts", "error_ladder", "fit_model", "heldout_rss", "linear_fit", "noise_floor",
            "quantization_step", "residuals", "separating_experiment"]
 __all__ += ["PROFILE_EFFECTS", "candidate_problems", "refine_grid_parameters"]
+__all__ += ["CandidateSearch", "DiagnosisRules"]
 
 #: The scikit-learn estimators, loaded on first access: the pipeline itself imports no scikit-learn (0.4 s of
 #: every ``gbo twin`` command on the project machine).

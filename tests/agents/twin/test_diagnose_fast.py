@@ -17,7 +17,7 @@ from agents.twin.least_squares import fit_problems
 from agents.twin.linear_fit import linear_fit
 from agents.twin.open_loop import _transfer_functions
 from agents.twin.records import Batch
-from agents.twin.workbench import diagnose
+from agents.twin.workbench import CandidateSearch, DiagnosisRules, diagnose
 from agents.twin.workers import map_independent, worker_processes
 from gbo_envs.physics import ContinuousPlant
 from tests.support import loop_records
@@ -101,8 +101,8 @@ def test_a_resumed_fit_takes_the_steps_of_one_fit_with_the_whole_budget():
 
 def test_a_diagnosis_does_not_depend_on_its_worker_processes():
     data = _data({"coulomb_friction": {"torque": 8.0}}, n=3)
-    one = diagnose(data, orders=False, n_jobs=1)
-    two = diagnose(data, orders=False, n_jobs=2)
+    one = diagnose(data, search=CandidateSearch(orders=False), n_jobs=1)
+    two = diagnose(data, search=CandidateSearch(orders=False), n_jobs=2)
     assert one.to_dict() == two.to_dict()
 
 
@@ -120,12 +120,27 @@ def test_fit_problems_budgets_are_checked():
         fit_problems(data, problems, budgets=[1] * (len(problems) + 1))
 
 
-@pytest.mark.parametrize(("kwargs", "name"), [({"noise_gain": -0.1}, "noise_gain"),
-                                              ({"noise_gain": float("nan")}, "noise_gain"),
-                                              ({"screen_iter": 0}, "screen_iter")])
-def test_diagnose_rejects_bad_options(kwargs, name):
-    with pytest.raises(ValueError, match=name):
-        diagnose(_data(n=2), **kwargs)
+@pytest.mark.parametrize(("make", "message"), [
+    (lambda: DiagnosisRules(noise_gain=-0.1), r"noise_gain: must be a finite float in \[0, inf\), got -0.1"),
+    (lambda: DiagnosisRules(noise_gain=float("nan")), r"noise_gain: must be a finite float in \[0, inf\), got nan"),
+    (lambda: DiagnosisRules(bic_margin=float("inf")), r"bic_margin: must be a finite float in \[0, inf\), got inf"),
+    (lambda: DiagnosisRules(min_gain=1.0), r"min_gain: must be a float in \[0, 1\), got 1.0"),
+    (lambda: CandidateSearch(screen_iter=0), r"screen_iter: must be an int in \[1, inf\), got 0"),
+    (lambda: CandidateSearch(orders="no"), r"orders: must be a bool, got 'no'"),
+])
+def test_diagnosis_options_reject_bad_settings(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
+
+
+def test_diagnose_takes_its_settings_as_option_objects_by_keyword():
+    data = _data(n=2)
+    with pytest.raises(TypeError, match="rules: expected a DiagnosisRules"):
+        diagnose(data, rules={"bic_margin": 6.0})
+    with pytest.raises(TypeError, match="positional"):
+        diagnose(data, None, None)  # candidates onwards are keyword-only
+    with pytest.raises(TypeError, match="unexpected keyword argument 'noise_gain'"):
+        diagnose(data, noise_gain=0.1)
 
 
 def _copy(p):
@@ -150,7 +165,8 @@ def test_unexcited_effects_are_listed_with_their_note_and_not_fitted():
         assert c["note"] and c["evidence"].startswith("not fitted")
         assert c["rmse"] == pytest.approx(out["heldout_rmse"])
         assert c["delta_bic"] > 0
-    fitted = diagnose(data, candidates=["saturation", "offset"], skip_unexcited=False, orders=False)
+    fitted = diagnose(data, candidates=["saturation", "offset"],
+                      search=CandidateSearch(skip_unexcited=False, orders=False))
     assert set(fitted.fits) == {"saturation", "offset"}
 
 
@@ -162,7 +178,7 @@ def test_noise_free_linear_data_evidence_no_effect():
     assert out["heldout_rmse"] < 0.05 * out["noise_rmse"]
     assert out["best"] is None
     # every effect fitted: some pass BIC on the linear model's tiny error, none by a resolvable margin
-    out = diagnose(data, skip_unexcited=False).to_dict()
+    out = diagnose(data, search=CandidateSearch(skip_unexcited=False)).to_dict()
     assert out["best"] is None
     assert min(c["delta_bic"] for c in out["candidates"]) < -10.0
 
