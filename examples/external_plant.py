@@ -21,8 +21,8 @@ import numpy as np
 from scipy.signal import cont2discrete
 
 from evaluation.sessions import SessionStore, TuningSession, export_csv
+from gbo_envs import ExternalPlantEnv, FailurePolicy, StepExperiment
 from gbo_envs.controllers import PIController
-from gbo_envs.envs.external import ExternalPlantEnv
 
 DT = 0.002  # s
 DURATION = 5.0  # s
@@ -104,14 +104,11 @@ def main(argv: list[str] | None = None) -> int:
     low, high = np.array([0.11, 0.87]), np.array([1.10, 2.08])
     env = ExternalPlantEnv(
         rig,
-        gain_bounds={"Kp": (low[0], high[0]), "Ki": (low[1], high[1])},
-        reference=(R1, R2),
+        {"Kp": (low[0], high[0]), "Ki": (low[1], high[1])},
         controller=PIController(),  # with dt and duration, a digital twin can simulate this loop
-        dt=DT,
-        duration=DURATION,
-        reference_gains=np.linspace(low, high, 5),  # costs 5 rig experiments; pass normalizers= to skip
-        timeout_s=30.0,
-        on_failure="penalize",
+        experiment=StepExperiment(reference=(R1, R2), dt=DT, duration=DURATION),
+        reference_gains=np.linspace(low, high, 5),  # 5 rig experiments; cost=CostSpec(normalizers=...) skips them
+        failure_policy=FailurePolicy(on_failure="penalize", timeout_s=30.0),
     )
     print(f"normalisers measured on the rig ({len(env.reference_records)} experiments): "
           f"{np.array2string(env.normalizers, precision=4)}")

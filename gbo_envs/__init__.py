@@ -14,7 +14,9 @@ from gymnasium.envs.registration import register
 from gbo_envs.closed_loop import ClosedLoop, StepResponse
 from gbo_envs.controllers import CascadeController, PDT1Controller, PIController, PIDController
 from gbo_envs.envs.base import ControllerTuningEnv
-from gbo_envs.envs.external import ExperimentFailed, ExternalPlantEnv
+from gbo_envs.envs.cost_spec import CostSpec
+from gbo_envs.envs.external import ExperimentFailed, ExternalPlantEnv, PlantStructure
+from gbo_envs.envs.rig_options import FailurePolicy, StepExperiment
 from gbo_envs.experiment import Experiment, RecordError, validate_signals
 from gbo_envs.ground_truth import GroundTruth, ground_truth
 from gbo_envs.metrics import METRIC_NAMES, step_metrics, weighted_cost
@@ -25,15 +27,19 @@ __all__ = [
     "ClosedLoop",
     "ContinuousPlant",
     "ControllerTuningEnv",
+    "CostSpec",
     "Experiment",
     "ExperimentFailed",
     "ExternalPlantEnv",
+    "FailurePolicy",
     "GroundTruth",
     "METRIC_NAMES",
     "PDT1Controller",
     "PIController",
     "PIDController",
+    "PlantStructure",
     "RecordError",
+    "StepExperiment",
     "StepResponse",
     "ground_truth",
     "step_metrics",

@@ -68,12 +68,12 @@ def flexible_coupling_env(omega: float = 15.0, zeta: float = 0.1, noise_std: flo
     The cost normalisers are measured on the rig at 5 gains spanning the feasible set, as
     ``examples/external_plant.py`` does (5 rig experiments before the tuning starts).
     """
-    from gbo_envs import ExternalPlantEnv
+    from gbo_envs import ExternalPlantEnv, StepExperiment
 
     low, high = np.array([0.11, 0.87]), np.array([1.10, 2.08])
     return ExternalPlantEnv(FlexibleCouplingRig(omega, zeta, noise_std, seed),
-                            gain_bounds={"Kp": (low[0], high[0]), "Ki": (low[1], high[1])}, reference=(245.0, 306.0),
-                            controller=PIController(), dt=0.002, duration=5.0,
+                            {"Kp": (low[0], high[0]), "Ki": (low[1], high[1])}, controller=PIController(),
+                            experiment=StepExperiment((245.0, 306.0), dt=0.002, duration=5.0),
                             reference_gains=np.linspace(low, high, 5))
 
 

@@ -31,6 +31,8 @@ from agents.twin.workers import check_n_jobs, worker_processes
 
 __all__ = ["Diagnosis", "as_step", "diagnose"]
 
+_RULES, _SEARCH = DiagnosisRules(), CandidateSearch()  # the defaults of diagnose (frozen)
+
 
 @dataclass(frozen=True, eq=False)
 class Diagnosis:
@@ -133,8 +135,8 @@ class Diagnosis:
 
 @single_thread()
 def diagnose(data: Batch, effects=None, *, candidates: Sequence[str] | None = None, spec: ModelSpec | None = None,
-             current: GreyFit | None = None, n_folds: int | None = None, rules: DiagnosisRules = DiagnosisRules(),
-             search: CandidateSearch = CandidateSearch(), progress: bool | None = False, n_jobs: int | None = None,
+             current: GreyFit | None = None, n_folds: int | None = None, rules: DiagnosisRules = _RULES,
+             search: CandidateSearch = _SEARCH, progress: bool | None = False, n_jobs: int | None = None,
              _nested: bool = False) -> Diagnosis:
     """Try every catalogued effect as an addition to the model and rank them on held-out experiments.
 

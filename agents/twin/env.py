@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gbo_envs import ContinuousPlant, ControllerTuningEnv
+from gbo_envs import ContinuousPlant, ControllerTuningEnv, CostSpec
 
 __all__ = ["TwinEnv", "make_twin_env"]
 
@@ -87,12 +87,10 @@ class TwinEnv(ControllerTuningEnv):
             loop=loop.replace(plant=plant, effects=effects, output_noise_std=float(measurement_noise_std)),
             gain_low=base.action_space.low,
             gain_high=base.action_space.high,
-            weights=base.weights,
-            normalizers=np.asarray(base.normalizers, dtype=float).copy(),
+            cost=CostSpec(weights=base.weights, normalizers=base.normalizers, unstable_cost=base.unstable_cost),
             cost_noise_std=cost_noise_std,
             max_experiments=base.max_experiments,
             out_of_bounds=base.out_of_bounds,
-            unstable_cost=base.unstable_cost,
             expectation_draws=draws,
         )
         self._noise_free: TwinEnv | None = None  # made by noise_free() on first use

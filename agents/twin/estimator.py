@@ -1,4 +1,4 @@
-"""The twins' scikit-learn estimator base: parameters checked by :mod:`agents.parameters`, fitted state in ``plant_``."""
+"""The twins' scikit-learn estimator base: parameters checked by :mod:`agents.parameters`, fitted in ``plant_``."""
 
 from __future__ import annotations
 

@@ -7,7 +7,6 @@ cost weights and the reference gains of the cost normalisation.
 
 from __future__ import annotations
 
-import numbers
 from typing import Any
 
 import gymnasium as gym
@@ -16,6 +15,7 @@ from gymnasium import spaces
 
 from gbo_envs import plotting
 from gbo_envs.closed_loop import ClosedLoop, StepResponse
+from gbo_envs.envs.cost_spec import CostSpec, is_complex, validated_vector
 from gbo_envs.experiment import Experiment
 from gbo_envs.metrics import METRIC_NAMES, weighted_cost
 from gbo_envs.physics.block import validated_count
@@ -37,14 +37,13 @@ class ControllerTuningEnv(gym.Env):
         The plant, controller and step experiment.
     gain_low, gain_high : array_like of shape (n_gains,)
         Feasible set ``Theta`` (the action ``Box``), in the controller's units.
-    weights : array_like of shape (4,)
-        Metric weights ``w`` of eq. (J_used), in :data:`~gbo_envs.metrics.METRIC_NAMES` order.
-    reference_gains : array_like of shape (n_ref, n_gains)
-        Gains whose mean metrics normalise the cost (paper: 5 gains evenly
-        spanning the feasible set). Ignored when ``normalizers`` is given.
-    normalizers : array_like of shape (4,), optional
-        Explicit normalisers (a digital twin reuses its plant's), each finite
-        and ``> 0``. Computed ones are at least :data:`NORMALIZER_FLOOR`.
+    cost : CostSpec
+        The cost of eq. (J_used): metric weights ``w``, the normalisers (a digital twin reuses
+        its plant's) and the cost of a diverging experiment (:class:`~gbo_envs.envs.cost_spec.CostSpec`).
+    reference_gains : array_like of shape (n_ref, n_gains), optional
+        Gains whose mean metrics are the normalisers when ``cost`` has none (paper: 5 gains
+        evenly spanning the feasible set), in the controller's units; computed normalisers
+        are at least :data:`NORMALIZER_FLOOR`.
     cost_noise_std : float
         Standard deviation of the additive cost noise ``epsilon`` of
         ``J = J_hat + epsilon`` (paper, Sec. II), dimensionless.
@@ -53,8 +52,6 @@ class ControllerTuningEnv(gym.Env):
     out_of_bounds : {"raise", "clip", "allow"}
         Gains outside the feasible set raise ``ValueError`` (default), are
         clipped into it, or are run as given.
-    unstable_cost : float
-        Finite cost reported for a diverging experiment (``info["unstable"]``).
     render_mode : {None, "rgb_array"}
         ``"rgb_array"`` renders the last step response.
     noise : bool, default True
@@ -91,13 +88,12 @@ class ControllerTuningEnv(gym.Env):
         loop: ClosedLoop,
         gain_low,
         gain_high,
-        weights,
+        *,
+        cost: CostSpec,
         reference_gains=None,
-        normalizers=None,
         cost_noise_std: float = 0.0,
         max_experiments: int = 35,
         out_of_bounds: str = "raise",
-        unstable_cost: float = 10.0,
         render_mode: str | None = None,
         noise: bool = True,
         expectation_draws: int = 16,
@@ -126,12 +122,15 @@ class ControllerTuningEnv(gym.Env):
         obs_high = np.concatenate([np.full(low.size, np.inf) if unbounded else high,
                                    np.full(n_obs - high.size, np.inf)])
         self.observation_space = spaces.Box(low=obs_low, high=obs_high, dtype=np.float64)
-        self.weights = _validated_vector("weights", weights, len(METRIC_NAMES), positive=True)
+        if not isinstance(cost, CostSpec):
+            raise TypeError(f"cost: expected a CostSpec, got {cost!r}")
+        self.weights = np.array(cost.weights)
+        normalizers = cost.normalizers
         if normalizers is None:  # a metric the reference gains never show (e.g. no overshoot) still normalises
             reference = np.atleast_2d(np.asarray(reference_gains, dtype=float))
             normalizers = np.maximum(expected_outcome(loop, reference, self.expectation_draws, self.expectation_seed,
                                                       cost=None, record=False)[0].mean(axis=0), NORMALIZER_FLOOR)
-        self.normalizers = _validated_vector("normalizers", normalizers, len(METRIC_NAMES), positive=True)
+        self.normalizers = validated_vector("normalizers", normalizers, len(METRIC_NAMES), positive=True)
         if not np.isfinite(cost_noise_std) or cost_noise_std < 0.0:
             raise ValueError(f"cost_noise_std: must be a finite number >= 0, got {cost_noise_std}")
         self.cost_noise_std = float(cost_noise_std)
@@ -141,12 +140,7 @@ class ControllerTuningEnv(gym.Env):
         if out_of_bounds not in OUT_OF_BOUNDS_POLICIES:
             raise ValueError(f"out_of_bounds: must be one of {OUT_OF_BOUNDS_POLICIES}, got {out_of_bounds!r}")
         self.out_of_bounds = out_of_bounds
-        if isinstance(unstable_cost, bool) or not isinstance(unstable_cost, numbers.Real) \
-                or not np.isfinite(unstable_cost) or unstable_cost <= 0.0:
-            # the cost J of eq. (J_used) is >= 0, so a diverging loop must not score at or below a perfect one
-            raise ValueError(f"unstable_cost: must be a finite number > 0 (dimensionless, as the cost; above the "
-                             f"costs of the stable loops, default 10), got {unstable_cost!r}")
-        self.unstable_cost = float(unstable_cost)
+        self.unstable_cost = cost.unstable_cost
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode: must be None or one of {self.metadata['render_modes']}, "
                              f"got {render_mode!r}")
@@ -243,7 +237,7 @@ class ControllerTuningEnv(gym.Env):
             Wrong shape, NaN/inf, or (with ``out_of_bounds="raise"``) a gain
             outside the feasible set; the message names the gain and its range.
         """
-        if _is_complex(action):
+        if is_complex(action):
             raise TypeError(f"action: gains {self.gain_names} must be real numbers, got the complex value(s) "
                             f"{action!r}")
         if _is_boolean(action):
@@ -384,14 +378,6 @@ def expected_outcome(loop: ClosedLoop, gains: np.ndarray, draws: int, seed: int,
     return np.concatenate(metrics), (np.concatenate(costs) if cost is not None else None), kept
 
 
-def _is_complex(values) -> bool:
-    """Whether ``values`` holds a complex number (``np.asarray(..., dtype=float)`` would drop its imaginary part)."""
-    try:
-        return bool(np.iscomplexobj(np.asarray(values)))
-    except (TypeError, ValueError):  # ragged: the float conversion reports it
-        return False
-
-
 def _is_boolean(values) -> bool:
     """Whether ``values`` holds a boolean (``True`` would run as the gain 1.0)."""
     if isinstance(values, (bool, np.bool_)):
@@ -405,17 +391,3 @@ def _is_boolean(values) -> bool:
     if array.dtype == np.bool_:
         return True
     return array.dtype == object and any(isinstance(v, (bool, np.bool_)) for v in array.ravel())
-
-
-def _validated_vector(name: str, values, size: int, positive: bool = False) -> np.ndarray:
-    if _is_complex(values):
-        raise TypeError(f"{name}: expected {size} real numbers, got complex values {values!r}")
-    try:
-        array = np.asarray(values, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"{name}: expected {size} real numbers, got {values!r}") from exc
-    if array.shape != (size,) or not np.all(np.isfinite(array)):
-        raise ValueError(f"{name}: expected {size} finite numbers, got {values!r}")
-    if positive and np.any(array <= 0.0):
-        raise ValueError(f"{name}: every entry must be > 0, got {array}")
-    return array

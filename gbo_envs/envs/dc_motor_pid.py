@@ -41,6 +41,7 @@ import numpy as np
 from gbo_envs.closed_loop import ClosedLoop
 from gbo_envs.controllers import PIDController
 from gbo_envs.envs.base import ControllerTuningEnv
+from gbo_envs.envs.cost_spec import CostSpec
 from gbo_envs.envs.dc_motor import DC_MOTOR, _build_effects, dc_motor_plant
 
 __all__ = ["DCMotorPIDEnv", "DC_MOTOR_PID", "corner_gains"]
@@ -182,13 +183,11 @@ class DCMotorPIDEnv(ControllerTuningEnv):
             loop=loop,
             gain_low=low,
             gain_high=high,
-            weights=DC_MOTOR["weights"],
+            cost=CostSpec(weights=DC_MOTOR["weights"], normalizers=normalizers, unstable_cost=unstable_cost),
             reference_gains=corner_gains(low, high),
-            normalizers=normalizers,
             cost_noise_std=cost_noise_std,
             max_experiments=DC_MOTOR["max_experiments"],
             out_of_bounds=out_of_bounds,
-            unstable_cost=unstable_cost,
             render_mode=render_mode,
             noise=noise,
             expectation_draws=expectation_draws,

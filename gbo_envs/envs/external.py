@@ -14,13 +14,14 @@ import numpy as np
 from gbo_envs.closed_loop import UNSTABLE_LIMIT, ClosedLoop
 from gbo_envs.controllers import Controller
 from gbo_envs.envs.base import NORMALIZER_FLOOR, ControllerTuningEnv
+from gbo_envs.envs.cost_spec import CostSpec
+from gbo_envs.envs.rig_options import FAILURE_POLICIES, FailurePolicy, StepExperiment
 from gbo_envs.experiment import SIGNALS, Experiment, validate_signals
 from gbo_envs.metrics import METRIC_NAMES, step_metrics
 
 __all__ = ["ExperimentFailed", "ExternalLoop", "ExternalPlantEnv", "FAILURE_POLICIES", "PlantStructure"]
 
-#: Values of ``on_failure``.
-FAILURE_POLICIES = ("penalize", "stop", "skip")
+_COST, _FAILURE_POLICY = CostSpec(), FailurePolicy()  # defaults of ExternalPlantEnv (frozen)
 
 _log = logging.getLogger(__name__)
 
@@ -53,12 +54,26 @@ class ExperimentFailed(RuntimeError):
 class PlantStructure:
     """What a twin must know of an unknown plant: what ``y`` measures and its poles at ``s = 0``.
 
+    Parameters
+    ----------
+    output : {"speed", "position"}, default "speed"
+        What the measured output ``y`` is.
+    n_integrators : int, default 0
+        Known poles at ``s = 0``, ``>= 0`` (1 for a position loop driven by a force or current).
+
     Stands in ``ExternalLoop.plant`` for a :class:`~gbo_envs.physics.lti.ContinuousPlant`
     (same ``output``, and ``num``/``den`` that carry only the integrators).
     """
 
     output: str = "speed"
     n_integrators: int = 0
+
+    def __post_init__(self) -> None:
+        if self.output not in ("speed", "position") or isinstance(self.n_integrators, bool) \
+                or int(self.n_integrators) != self.n_integrators or self.n_integrators < 0:
+            raise ValueError(f"output, n_integrators: expected 'speed' or 'position' and an integer >= 0, got "
+                             f"{self.output!r}, {self.n_integrators!r}")
+        object.__setattr__(self, "n_integrators", int(self.n_integrators))
 
     @property
     def num(self) -> tuple[float, ...]:
@@ -206,35 +221,51 @@ class ExternalPlantEnv(ControllerTuningEnv):
     ## Arguments
 
     * ``run_experiment``: the callable above; it receives the gains as a float
-      array of shape (n_gains,) in ``gain_names`` order.
-    * ``gain_bounds``: ``{"Kp": (lo, hi), ...}`` or an array of shape (n_gains, 2).
-    * ``reference``: ``(r1, r2)``, the reference before and after the step.
-    * ``gain_names``, ``gain_units``: default from ``controller`` (or the mapping keys).
-    * ``weights``: metric weights (default: the paper's DC motor 0.44, 0.22, 0.22, 0.11).
-    * ``normalizers``: the metric normalisers ``n_i`` of eq. (J_used). Or
-      ``reference_gains`` of shape (n_ref, n_gains): the normalisers are then
-      *measured* as the mean metrics of one experiment per row, run on the
-      plant when the env is built. That costs n_ref real experiments (kept in
-      :attr:`reference_records`) every time the env is built, and their noise
-      makes the cost scale differ between builds: measure once, then pass the
-      printed ``env.normalizers`` as ``normalizers`` (a resumed session
-      requires the same normalisers).
-    * ``controller``, ``dt``, ``duration``: the controller structure
-      (:class:`~gbo_envs.controllers.PIController`,
-      :class:`~gbo_envs.controllers.PDT1Controller`), sample time and
-      experiment length in s. Optional for tuning; a digital twin (guided BO,
-      the twin workbench) needs all three to simulate the loop, via
-      ``env.unwrapped.loop.replace(plant=model)`` (:class:`ExternalLoop`).
-      ``dt`` and ``duration`` also enable the record checks above.
-    * ``output``, ``n_integrators``: what ``y`` measures (``"speed"`` or
-      ``"position"``) and the plant's known poles at ``s = 0`` (1 for a
-      position loop driven by a force or current), for the twin's model
-      structure (:class:`PlantStructure`).
-    * ``timeout_s``: wall-time limit of one experiment in s (None: no limit).
-    * ``on_failure``: ``"penalize"``, ``"stop"`` or ``"skip"``.
-    * ``failure_cost``: cost reported under ``"penalize"`` (default ``unstable_cost``).
-    * ``dt_rtol``: allowed relative error of the median sample time (default 0.05).
-    * ``max_experiments``, ``out_of_bounds``, ``unstable_cost``: as in :class:`ControllerTuningEnv`.
+      array of shape (n_gains,) in :attr:`gain_names` order.
+    * ``gain_bounds``: ``{"Kp": (lo, hi), ...}`` (the keys name the gains) or an array of
+      shape (n_gains, 2) (the gains named by ``controller``, else ``gain_0, gain_1, ...``).
+    * ``experiment``: the step experiment, a :class:`~gbo_envs.envs.rig_options.StepExperiment`:
+      ``reference=(r1, r2)``, the reference before and after the step, and ``dt``, ``duration``,
+      the sample time and experiment length in s. ``dt`` and ``duration`` are optional for
+      tuning; a digital twin (guided BO, the twin workbench) needs them, and ``controller``,
+      to simulate the loop, via ``env.unwrapped.loop.replace(plant=model)`` (:class:`ExternalLoop`).
+      They also enable the record checks above.
+    * ``controller``: the controller structure (:class:`~gbo_envs.controllers.PIController`,
+      :class:`~gbo_envs.controllers.PDT1Controller`); optional for tuning.
+    * ``gain_units``: the units of the gains when there is no ``controller`` (default ``"-"``).
+    * ``cost``: the cost of eq. (J_used), a :class:`~gbo_envs.envs.cost_spec.CostSpec`:
+      ``weights`` (default: the paper's DC motor 0.44, 0.22, 0.22, 0.11), ``unstable_cost``,
+      and the metric normalisers ``n_i`` (``normalizers``).
+    * ``reference_gains``: without ``cost.normalizers``, gains of shape (n_ref, n_gains) at
+      which the normalisers are *measured* as the mean metrics of one experiment per row, run
+      on the plant when the env is built. That costs n_ref real experiments (kept in
+      :attr:`reference_records`) every time the env is built, and their noise makes the cost
+      scale differ between builds: measure once, then pass the printed ``env.normalizers`` as
+      ``cost=CostSpec(normalizers=...)`` (a resumed session requires the same normalisers).
+    * ``failure_policy``: when an experiment has failed and what follows, a
+      :class:`~gbo_envs.envs.rig_options.FailurePolicy`: ``on_failure`` (``"penalize"``,
+      ``"stop"`` or ``"skip"``), ``failure_cost`` (reported under ``"penalize"``, default
+      the ``unstable_cost``), ``timeout_s`` (wall-time limit of one experiment in s, None: no
+      limit) and ``dt_rtol`` (allowed relative error of the median sample time, default 0.05).
+    * ``plant``: what ``y`` measures (``"speed"`` or ``"position"``) and the plant's known
+      poles at ``s = 0`` (1 for a position loop driven by a force or current), for the
+      twin's model structure (:class:`PlantStructure`).
+    * ``max_experiments``, ``out_of_bounds``: as in :class:`ControllerTuningEnv`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from gbo_envs import CostSpec, ExternalPlantEnv, FailurePolicy, PIController, StepExperiment
+    >>> def rig(gains):  # a stand-in for the hardware: a first-order response to the step 0 -> 1
+    ...     t = np.arange(501) * 0.01
+    ...     return t, np.ones_like(t), np.ones_like(t), 1.0 - np.exp(-t * gains[0])
+    >>> env = ExternalPlantEnv(rig, {"Kp": (1.0, 5.0), "Ki": (0.5, 2.0)}, controller=PIController(),
+    ...                        experiment=StepExperiment((0.0, 1.0), dt=0.01, duration=5.0),
+    ...                        cost=CostSpec(normalizers=(1.0, 1.0, 1.0, 1.0)),
+    ...                        failure_policy=FailurePolicy(on_failure="stop", timeout_s=10.0))
+    >>> info = env.step(np.array([2.0, 1.0]))[4]
+    >>> info["failed"], round(info["metrics"]["rise_time"], 2)
+    (False, 0.41)
 
     ## Version History
 
@@ -248,54 +279,36 @@ class ExternalPlantEnv(ControllerTuningEnv):
         self,
         run_experiment: Callable[[np.ndarray], Any],
         gain_bounds,
-        reference,
-        gain_names=None,
-        gain_units=None,
-        weights=(0.44, 0.22, 0.22, 0.11),
-        normalizers=None,
-        reference_gains=None,
+        *,
+        experiment: StepExperiment,
         controller: Controller | None = None,
-        dt: float | None = None,
-        duration: float | None = None,
-        output: str = "speed",
-        n_integrators: int = 0,
-        timeout_s: float | None = None,
-        on_failure: str = "penalize",
-        failure_cost: float | None = None,
-        dt_rtol: float = 0.05,
+        gain_units=None,
+        cost: CostSpec = _COST,
+        reference_gains=None,
+        failure_policy: FailurePolicy = _FAILURE_POLICY,
+        plant: PlantStructure = PlantStructure(),
         max_experiments: int = 35,
         out_of_bounds: str = "raise",
-        unstable_cost: float = 10.0,
         render_mode: str | None = None,
     ) -> None:
         if not callable(run_experiment):
             raise TypeError(f"run_experiment: expected a callable (gains) -> (t, r, u, y), got {run_experiment!r}")
+        for name, value, kind in (("experiment", experiment, StepExperiment), ("cost", cost, CostSpec),
+                                  ("failure_policy", failure_policy, FailurePolicy), ("plant", plant, PlantStructure)):
+            if not isinstance(value, kind):
+                raise TypeError(f"{name}: expected a {kind.__name__}, got {value!r}")
         self.run_experiment = run_experiment
-        names, low, high = _bounds(gain_bounds, gain_names, controller)
-        r1, r2 = (float(v) for v in reference)
-        if not (np.isfinite(r1) and np.isfinite(r2)) or r1 == r2:
-            raise ValueError(f"reference: expected (r1, r2) finite with r1 != r2, got {reference!r}")
+        names, low, high = _bounds(gain_bounds, controller)
         if controller is None:
             units = tuple(gain_units) if gain_units is not None else ("-",) * len(names)
             controller = Controller(gain_names=names, gain_units=units)
         elif tuple(controller.gain_names) != names:
-            raise ValueError(f"gain_names: {names} differ from the controller's {tuple(controller.gain_names)}")
-        for name, value in (("dt", dt), ("duration", duration), ("timeout_s", timeout_s)):
-            if value is not None and not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name}: must be a number > 0 or None, got {value}")
-        if dt is not None and duration is not None and duration <= dt:
-            raise ValueError(f"duration: must exceed dt = {dt} s, got {duration}")
-        if on_failure not in FAILURE_POLICIES:
-            raise ValueError(f"on_failure: must be one of {FAILURE_POLICIES}, got {on_failure!r}")
-        failure_cost = unstable_cost if failure_cost is None else failure_cost
-        if not np.isfinite(failure_cost):
-            raise ValueError(f"failure_cost: must be finite, got {failure_cost}")
-        if not (np.isfinite(dt_rtol) and dt_rtol > 0):
-            raise ValueError(f"dt_rtol: must be > 0, got {dt_rtol}")
-        self.timeout_s = None if timeout_s is None else float(timeout_s)
-        self.on_failure = on_failure
-        self.failure_cost = float(failure_cost)
-        self.dt_rtol = float(dt_rtol)
+            raise ValueError(f"gain_bounds: the gains {names} differ from the controller's "
+                             f"{tuple(controller.gain_names)}")
+        self.timeout_s = failure_policy.timeout_s
+        self.on_failure = failure_policy.on_failure
+        self.failure_cost = cost.unstable_cost if failure_policy.failure_cost is None else failure_policy.failure_cost
+        self.dt_rtol = failure_policy.dt_rtol
         #: Failed experiments: dicts with ``experiment_index``, ``gains``, ``reason``.
         self.failures: list[dict] = []
         #: Records of the experiments run to measure the normalisers (empty if ``normalizers`` was given).
@@ -303,18 +316,13 @@ class ExternalPlantEnv(ControllerTuningEnv):
         self._busy: threading.Thread | None = None
         self._busy_index: int | None = None
         self.experiment_index = 0
-        if output not in ("speed", "position") or int(n_integrators) < 0:
-            raise ValueError(f"output, n_integrators: expected 'speed' or 'position' and >= 0, got {output!r}, "
-                             f"{n_integrators!r}")
-        loop = ExternalLoop(controller=controller, dt=None if dt is None else float(dt),
-                            duration=None if duration is None else float(duration), r1=r1, r2=r2,
-                            plant=PlantStructure(output=output, n_integrators=int(n_integrators)))
+        loop = ExternalLoop(controller=controller, dt=experiment.dt, duration=experiment.duration,
+                            r1=experiment.reference[0], r2=experiment.reference[1], plant=plant)
         self.loop = loop
-        if normalizers is None:
-            normalizers = self._measure_normalizers(reference_gains, low, high)
-        super().__init__(loop=loop, gain_low=low, gain_high=high, weights=weights, normalizers=normalizers,
-                         max_experiments=max_experiments, out_of_bounds=out_of_bounds, unstable_cost=unstable_cost,
-                         render_mode=render_mode)
+        if cost.normalizers is None:
+            cost = dataclasses.replace(cost, normalizers=self._measure_normalizers(reference_gains, low, high))
+        super().__init__(loop=loop, gain_low=low, gain_high=high, cost=cost, max_experiments=max_experiments,
+                         out_of_bounds=out_of_bounds, render_mode=render_mode)
 
     # -- Gymnasium API ---------------------------------------------------------------------------
     def step(self, action):
@@ -454,8 +462,8 @@ class ExternalPlantEnv(ControllerTuningEnv):
     def _measure_normalizers(self, reference_gains, low: np.ndarray, high: np.ndarray) -> np.ndarray:
         """Mean metrics over one plant experiment per row of ``reference_gains``."""
         if reference_gains is None:
-            raise ValueError("ExternalPlantEnv: pass normalizers=(n1, n2, n3, n4), or reference_gains to measure "
-                             "them on the plant (one experiment per row, e.g. np.linspace(low, high, 5))")
+            raise ValueError("ExternalPlantEnv: pass cost=CostSpec(normalizers=(n1, n2, n3, n4)), or reference_gains "
+                             "to measure them on the plant (one experiment per row, e.g. np.linspace(low, high, 5))")
         reference = np.atleast_2d(np.asarray(reference_gains, dtype=float))
         if reference.shape[1] != low.size:
             raise ValueError(f"reference_gains: expected shape (n_ref, {low.size}), got {reference.shape}")
@@ -471,13 +479,11 @@ class ExternalPlantEnv(ControllerTuningEnv):
         return np.maximum(np.mean(metrics, axis=0), NORMALIZER_FLOOR)  # a metric never shown still normalises
 
 
-def _bounds(gain_bounds, gain_names, controller) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+def _bounds(gain_bounds, controller) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
     """Gain names and bounds from a mapping or an (n_gains, 2) array."""
     if isinstance(gain_bounds, Mapping):
         names = tuple(gain_bounds)
         pairs = [gain_bounds[name] for name in names]
-        if gain_names is not None and tuple(gain_names) != names:
-            raise ValueError(f"gain_names: {tuple(gain_names)} differ from the keys of gain_bounds {names}")
     else:
         pairs = gain_bounds
         names = None
@@ -485,12 +491,10 @@ def _bounds(gain_bounds, gain_names, controller) -> tuple[tuple[str, ...], np.nd
     if bounds.ndim != 2 or bounds.shape[1] != 2:
         raise ValueError(f"gain_bounds: expected (low, high) per gain, got {gain_bounds!r}")
     if names is None:
-        if gain_names is not None:
-            names = tuple(gain_names)
-        elif controller is not None:
+        if controller is not None:
             names = tuple(controller.gain_names)
         else:
             names = tuple(f"gain_{i}" for i in range(bounds.shape[0]))
     if len(names) != bounds.shape[0]:
-        raise ValueError(f"gain_names: {len(names)} names for {bounds.shape[0]} gain bounds")
+        raise ValueError(f"gain_bounds: {bounds.shape[0]} gain bounds for the controller's {len(names)} gains {names}")
     return names, bounds[:, 0].copy(), bounds[:, 1].copy()

@@ -49,6 +49,7 @@ import numpy as np
 from gbo_envs.closed_loop import ClosedLoop
 from gbo_envs.controllers import PDT1Controller
 from gbo_envs.envs.base import ControllerTuningEnv
+from gbo_envs.envs.cost_spec import CostSpec
 from gbo_envs.physics.effects import build_effects
 from gbo_envs.physics.lti import ContinuousPlant
 
@@ -221,13 +222,11 @@ class LinearMotorEnv(ControllerTuningEnv):
             loop=loop,
             gain_low=low,
             gain_high=high,
-            weights=LINEAR_MOTOR["weights"],
+            cost=CostSpec(weights=LINEAR_MOTOR["weights"], normalizers=normalizers, unstable_cost=unstable_cost),
             reference_gains=vertex_gains(low, high),
-            normalizers=normalizers,
             cost_noise_std=cost_noise_std,
             max_experiments=LINEAR_MOTOR["max_experiments"],
             out_of_bounds=out_of_bounds,
-            unstable_cost=unstable_cost,
             render_mode=render_mode,
             noise=noise,
             expectation_draws=expectation_draws,

@@ -60,6 +60,7 @@ import numpy as np
 from gbo_envs.closed_loop import ClosedLoop
 from gbo_envs.controllers import CascadeController
 from gbo_envs.envs.base import ControllerTuningEnv
+from gbo_envs.envs.cost_spec import CostSpec
 from gbo_envs.envs.dc_motor_pid import corner_gains
 from gbo_envs.envs.linear_motor import LINEAR_MOTOR, _build_effects, linear_motor_effects, linear_motor_plant
 
@@ -233,13 +234,11 @@ class LinearMotorCascadeEnv(ControllerTuningEnv):
             loop=loop,
             gain_low=low,
             gain_high=high,
-            weights=LINEAR_MOTOR["weights"],
+            cost=CostSpec(weights=LINEAR_MOTOR["weights"], normalizers=normalizers, unstable_cost=unstable_cost),
             reference_gains=corner_gains(low, high),
-            normalizers=normalizers,
             cost_noise_std=cost_noise_std,
             max_experiments=LINEAR_CASCADE["max_experiments"],
             out_of_bounds=out_of_bounds,
-            unstable_cost=unstable_cost,
             render_mode=render_mode,
             noise=noise,
             expectation_draws=expectation_draws,

@@ -9,7 +9,7 @@ import pytest
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.base import Tuner, TuningStopped
 from evaluation.sessions import SessionStore, TuningSession
-from gbo_envs import PIController
+from gbo_envs import CostSpec, FailurePolicy, PIController, StepExperiment
 from gbo_envs.envs.external import ExternalPlantEnv
 from tests.support import RaiseAt
 
@@ -62,9 +62,10 @@ def _rig(fail_calls, on_failure):
         response = plant.loop.simulate(np.asarray(gains)[None, :])
         return response.t, response.r, response.u[0], response.y[0]
 
-    return ExternalPlantEnv(run_experiment, gain_bounds={"Kp": (0.11, 1.10), "Ki": (0.87, 2.08)},
-                            reference=(245.0, 306.0), controller=PIController(), dt=0.002, duration=5.0,
-                            normalizers=plant.normalizers, on_failure=on_failure, failure_cost=5.0)
+    return ExternalPlantEnv(run_experiment, {"Kp": (0.11, 1.10), "Ki": (0.87, 2.08)}, controller=PIController(),
+                            experiment=StepExperiment((245.0, 306.0), dt=0.002, duration=5.0),
+                            cost=CostSpec(normalizers=plant.normalizers),
+                            failure_policy=FailurePolicy(on_failure=on_failure, failure_cost=5.0))
 
 
 def _tune(mode, env, tuner, budget, tmp_path, **options):

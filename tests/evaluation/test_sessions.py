@@ -27,7 +27,7 @@ from evaluation.sessions import (
     export_csv,
 )
 from evaluation.sessions import store as store_module
-from gbo_envs import PIController
+from gbo_envs import CostSpec, FailurePolicy, PIController, StepExperiment
 from gbo_envs.envs.external import ExternalPlantEnv
 from tests.support import RaiseAt
 
@@ -333,9 +333,10 @@ def _rig(fail_calls):
 
 def _external(fail_calls, on_failure):
     normalizers = gym.make(ENV).unwrapped.normalizers
-    return ExternalPlantEnv(_rig(fail_calls), gain_bounds={"Kp": (0.11, 1.10), "Ki": (0.87, 2.08)},
-                            reference=(245.0, 306.0), controller=PIController(), dt=0.002, duration=5.0,
-                            normalizers=normalizers, on_failure=on_failure, failure_cost=5.0)
+    return ExternalPlantEnv(_rig(fail_calls), {"Kp": (0.11, 1.10), "Ki": (0.87, 2.08)}, controller=PIController(),
+                            experiment=StepExperiment((245.0, 306.0), dt=0.002, duration=5.0),
+                            cost=CostSpec(normalizers=normalizers),
+                            failure_policy=FailurePolicy(on_failure=on_failure, failure_cost=5.0))
 
 
 def test_failure_policies(tmp_path):

@@ -13,7 +13,7 @@ from gymnasium.utils.env_checker import check_env
 
 import agents
 import gbo_envs
-from gbo_envs import PIController
+from gbo_envs import CostSpec, FailurePolicy, PIController, PlantStructure, StepExperiment
 from gbo_envs.closed_loop import ClosedLoop
 from gbo_envs.envs.dc_motor import dc_motor_plant
 from gbo_envs.envs.external import ExperimentFailed, ExternalPlantEnv
@@ -29,21 +29,21 @@ def _runner(loop: ClosedLoop):
     return run_experiment
 
 
-def _external(dc_motor, run=None, **kwargs) -> ExternalPlantEnv:
+def _external(dc_motor, run=None, **failure) -> ExternalPlantEnv:
+    """The DC motor behind ExternalPlantEnv, with its normalisers; ``failure``: FailurePolicy settings."""
     low, high = dc_motor.action_space.low, dc_motor.action_space.high
-    options = {"gain_bounds": np.column_stack([low, high]), "reference": (245.0, 306.0),
-               "controller": PIController(), "dt": 0.002, "duration": 5.0, "normalizers": dc_motor.normalizers}
-    options.update(kwargs)
-    return ExternalPlantEnv(run or _runner(dc_motor.loop), **options)
+    return ExternalPlantEnv(run or _runner(dc_motor.loop), np.column_stack([low, high]), controller=PIController(),
+                            experiment=StepExperiment((245.0, 306.0), dt=0.002, duration=5.0),
+                            cost=CostSpec(normalizers=dc_motor.normalizers), failure_policy=FailurePolicy(**failure))
 
 
 def test_costs_identical_to_dc_motor_noise_free(dc_motor):
     low, high = dc_motor.action_space.low, dc_motor.action_space.high
     calls = []
     run = _runner(dc_motor.loop)
-    env = ExternalPlantEnv(lambda g: calls.append(g) or run(g), gain_bounds={"Kp": (low[0], high[0]),
-                           "Ki": (low[1], high[1])}, reference=(245.0, 306.0), controller=PIController(), dt=0.002,
-                           duration=5.0, reference_gains=np.linspace(low, high, 5))
+    env = ExternalPlantEnv(lambda g: calls.append(g) or run(g), {"Kp": (low[0], high[0]), "Ki": (low[1], high[1])},
+                           experiment=StepExperiment((245.0, 306.0), dt=0.002, duration=5.0), controller=PIController(),
+                           reference_gains=np.linspace(low, high, 5))
     # measuring the normalisers cost 5 experiments, and gives the built-in env's normalisers exactly
     assert len(calls) == 5 and len(env.reference_records) == 5
     np.testing.assert_array_equal(env.normalizers, dc_motor.normalizers)
@@ -82,8 +82,8 @@ def test_loop_builds_a_twin(dc_motor):
     np.testing.assert_array_equal(model_loop.simulate(gains).y, dc_motor.loop.simulate(gains).y)
     twin = TwinEnv(env, dc_motor_plant(*DC_MOTOR_PARAMS, 0.002))
     np.testing.assert_allclose(twin.evaluate(gains)[1], dc_motor.evaluate(gains)[1], rtol=1e-12)
-    bare = ExternalPlantEnv(_runner(dc_motor.loop), gain_bounds=[(0.1, 1.0), (0.5, 2.0)], reference=(245, 306),
-                            normalizers=dc_motor.normalizers)
+    bare = ExternalPlantEnv(_runner(dc_motor.loop), [(0.1, 1.0), (0.5, 2.0)], experiment=StepExperiment((245, 306)),
+                            cost=CostSpec(normalizers=dc_motor.normalizers))
     assert bare.gain_names == ("gain_0", "gain_1")
     with pytest.raises(ValueError, match="needs controller"):
         bare.loop.replace(plant=dc_motor.loop.plant)
@@ -170,20 +170,51 @@ def test_timeout_runs_in_a_worker_and_blocks_until_the_rig_is_free(dc_motor):
 
 def test_argument_errors(dc_motor):
     run = _runner(dc_motor.loop)
+    bounds, experiment = [(0.1, 1.0), (0.5, 2.0)], StepExperiment((245, 306))
     with pytest.raises(ValueError, match="normalizers=.*reference_gains"):
-        ExternalPlantEnv(run, gain_bounds=[(0.1, 1.0), (0.5, 2.0)], reference=(245, 306))
+        ExternalPlantEnv(run, bounds, experiment=experiment)
     with pytest.raises(ValueError, match="reference"):
-        _external(dc_motor, reference=(1.0, 1.0))
+        StepExperiment((1.0, 1.0))
     with pytest.raises(ValueError, match="on_failure"):
         _external(dc_motor, on_failure="ignore")
-    with pytest.raises(ValueError, match="gain_names"):
-        _external(dc_motor, gain_names=("Kp", "Kd"))
+    with pytest.raises(ValueError, match=r"gain_bounds: the gains \('Kp', 'Kd'\) differ from the controller's"):
+        ExternalPlantEnv(run, {"Kp": (0.1, 1.0), "Kd": (0.5, 2.0)}, experiment=experiment, controller=PIController())
     with pytest.raises(ValueError, match="reference_gains: the experiment"):
-        ExternalPlantEnv(lambda g: 1 / 0, gain_bounds=[(0.1, 1.0), (0.5, 2.0)], reference=(245, 306),
-                         reference_gains=[[0.5, 1.0]])
+        ExternalPlantEnv(lambda g: 1 / 0, bounds, experiment=experiment, reference_gains=[[0.5, 1.0]])
+    with pytest.raises(TypeError, match="experiment: expected a StepExperiment"):
+        ExternalPlantEnv(run, bounds, experiment=(245, 306))
+    with pytest.raises(TypeError, match="positional"):
+        ExternalPlantEnv(run, bounds, experiment)  # everything after the gain bounds is keyword-only
     with pytest.raises(ValueError, match="outside the feasible set"):
         _external(dc_motor).step([5.0, 1.0])
     assert "ExternalPlantEnv" in gbo_envs.__all__
+
+
+@pytest.mark.parametrize(("make", "message"), [
+    (lambda: StepExperiment((245, 306), dt=0.0), "dt: must be a number > 0 or None, got 0.0"),
+    (lambda: StepExperiment((245, 306), dt=0.01, duration=0.01), "duration: must exceed dt = 0.01 s, got 0.01"),
+    (lambda: StepExperiment((245, np.inf)), "reference: expected"),
+    (lambda: StepExperiment((1, 2, 3)), "reference: expected"),
+    (lambda: FailurePolicy(timeout_s=-1), "timeout_s: must be a number > 0 or None, got -1"),
+    (lambda: FailurePolicy(failure_cost=np.nan), "failure_cost: must be finite, got nan"),
+    (lambda: FailurePolicy(dt_rtol=0), "dt_rtol: must be > 0, got 0"),
+    (lambda: PlantStructure(output="torque"), "output, n_integrators"),
+    (lambda: PlantStructure(n_integrators=-1), "output, n_integrators"),
+    (lambda: CostSpec(weights=(1, 1, 1)), "weights: expected 4 finite numbers"),
+    (lambda: CostSpec(normalizers=(1, 1, 1, 0)), r"normalizers: every entry must be > 0"),
+    (lambda: CostSpec(unstable_cost=np.inf), "unstable_cost: must be finite, got inf"),
+])
+def test_option_objects_check_their_settings(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
+
+
+def test_option_objects_are_frozen_values():
+    assert StepExperiment((245, 306), dt=0.002) == StepExperiment((245.0, 306.0), dt=0.002)
+    assert CostSpec(normalizers=np.ones(4)) == CostSpec(normalizers=(1, 1, 1, 1))
+    assert hash(CostSpec(weights=np.ones(4))) == hash(CostSpec(weights=[1, 1, 1, 1]))
+    with pytest.raises(AttributeError):
+        FailurePolicy().on_failure = "stop"
 
 
 @pytest.mark.slow

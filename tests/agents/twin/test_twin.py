@@ -9,7 +9,7 @@ from sklearn.base import clone
 from sklearn.exceptions import NotFittedError
 
 from agents.twin import LinearTwin, TwinEnv, make_twin_env
-from gbo_envs import ClosedLoop, ContinuousPlant, ControllerTuningEnv, PDT1Controller
+from gbo_envs import ClosedLoop, ContinuousPlant, ControllerTuningEnv, CostSpec, PDT1Controller
 from tests.support import DC_MOTOR_PARAMS, gain_grid
 
 TRUE = DC_MOTOR_PARAMS
@@ -101,7 +101,7 @@ def test_position_loop_with_integrator():
     plant = ContinuousPlant(num=(0.44262 / 0.070983,), den=(1.0, 15.0, 0.0), delay=0.001, output="position")
     loop = ClosedLoop(plant=plant, controller=PDT1Controller(), dt=0.001, duration=0.3, r1=0.03, r2=0.04)
     low, high = np.array([5123.8, 40.1]), np.array([6136.2, 51.0])
-    env = ControllerTuningEnv(loop, low, high, weights=(0.10, 0.18, 0.69, 0.04),
+    env = ControllerTuningEnv(loop, low, high, cost=CostSpec(weights=(0.10, 0.18, 0.69, 0.04)),
                               reference_gains=np.linspace(low, high, 5))
     env.reset(seed=0)
     records = [env.step(g)[4] for g in np.linspace(low, high, 2)]
