@@ -30,7 +30,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from gbo_envs import ClosedLoop, ContinuousPlant, ExternalPlantEnv, PIController
+from gbo_envs import ClosedLoop, ContinuousPlant, CostSpec, ExternalPlantEnv, PIController, StepExperiment
 from gbo_envs.physics.block import EffectBlock, EffectParameter
 
 __all__ = ["BEYOND_IDS", "DahlFriction", "MovingAverageSpeed", "SimulatedRig", "StribeckFriction", "rig_loop"]
@@ -168,8 +168,8 @@ class SimulatedRig(ExternalPlantEnv):
         low, high = (np.array([b[i] for b in GAIN_BOUNDS.values()]) for i in (0, 1))
         quiet = self._rig_loop.replace(output_noise_std=0.0)
         metrics = quiet.metrics(quiet.simulate(np.linspace(low, high, 5), rng=np.random.default_rng(0)))
-        super().__init__(self._run, gain_bounds=GAIN_BOUNDS, reference=REFERENCE, controller=PIController(), dt=DT,
-                         duration=DURATION, normalizers=metrics.mean(axis=0), **kwargs)
+        super().__init__(self._run, GAIN_BOUNDS, experiment=StepExperiment(REFERENCE, dt=DT, duration=DURATION),
+                         controller=PIController(), cost=CostSpec(normalizers=metrics.mean(axis=0)), **kwargs)
 
     def _run(self, gains):
         response = self._rig_loop.simulate(np.asarray(gains, dtype=float)[None, :], rng=self._rig_rng)
