@@ -30,6 +30,8 @@ TABLE_ROWS = {
 PENDING = {
     "agents.twin.identify.identify_linear": "identify's settings move into IdentifyOptions with the one record "
                                             "form (issue 53, point 2, helper 'records')",
+    "agents.twin.linear_twin.LinearTwin": "LinearTwin takes identify's IdentifyOptions, which lands with the one "
+                                          "record form (issue 53, point 2)",
 }
 
 
@@ -115,7 +117,8 @@ def test_at_most_twelve_parameters(name):
 
 @pytest.mark.parametrize(("path", "positional"), [
     ("agents.twin.diagnose.diagnose", ("data", "effects")),
-    ("agents.twin.linear_twin.LinearTwin", ("options",)),
+    pytest.param("agents.twin.linear_twin.LinearTwin", ("options",),
+                 marks=pytest.mark.xfail(strict=True, reason=PENDING["agents.twin.linear_twin.LinearTwin"])),
     ("gbo_envs.envs.external.ExternalPlantEnv", ("run_experiment", "gain_bounds")),
     ("gbo_envs.envs.base.ControllerTuningEnv", ("loop", "gain_low", "gain_high")),
 ])
