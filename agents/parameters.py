@@ -6,7 +6,7 @@ parameter name -> list of allowed forms (``None``, :class:`Interval`, :class:`Op
 valid when it meets any of them. :func:`validate_params` checks arguments against it and
 raises :class:`ValueError` naming the parameter and what it allows, e.g.
 ``n_initial: must be an int in [1, inf), got 0``. :func:`check_fields` applies it to a
-frozen dataclass of options, :func:`validated` to a function's arguments.
+frozen dataclass of options.
 
 The project's own module, on NumPy alone: importing it loads no scikit-learn (the workbench's
 start-up path stays free of it).
@@ -14,10 +14,7 @@ start-up path stays free of it).
 
 from __future__ import annotations
 
-import functools
-import inspect
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, fields
 from numbers import Integral, Real
 from typing import Any
@@ -25,7 +22,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["ArrayLike", "Boolean", "HasMethods", "InstanceOf", "Interval", "Options", "check_fields",
-           "validate_params", "validated"]
+           "validate_params"]
 
 
 @dataclass(frozen=True)
@@ -208,38 +205,3 @@ def check_fields(options: Any) -> None:
     for name, value in checked.items():
         object.__setattr__(options, name, value)
 
-
-def validated(constraints: dict[str, list]) -> Callable[[Callable], Callable]:
-    """Decorator: check a function's arguments named in ``constraints`` (defaults included) at every call.
-
-    The function receives them converted as by :func:`validate_params`; arguments
-    without a constraint pass unchecked.
-
-    Examples
-    --------
-    >>> @validated({"n": [Interval(int, 1, None)]})
-    ... def twice(n=1):
-    ...     return 2 * n
-    >>> twice(n=0)
-    Traceback (most recent call last):
-        ...
-    ValueError: n: must be an int in [1, inf), got 0
-    """
-
-    def decorate(fn: Callable) -> Callable:
-        signature = inspect.signature(fn)
-        missing = set(constraints) - set(signature.parameters)
-        if missing:
-            raise ValueError(f"constraints: {sorted(missing)} are not parameters of {fn.__qualname__}")
-
-        @functools.wraps(fn)
-        def wrapper(*args, **kwargs):
-            bound = signature.bind(*args, **kwargs)
-            bound.apply_defaults()
-            bound.arguments.update(validate_params(constraints, {name: bound.arguments[name]
-                                                                 for name in constraints}))
-            return fn(*bound.args, **bound.kwargs)
-
-        return wrapper
-
-    return decorate

@@ -45,6 +45,7 @@ from sklearn.base import clone
 
 from agents.parameters import HasMethods, Interval, Options, validate_params
 from agents.twin import make_twin_env
+from agents.twin.identify import IdentifyOptions
 from agents.twin.linear_twin import LinearTwin
 from agents.twin.model import ModelSpec
 from agents.twin.prior import TwinMetrics
@@ -504,8 +505,9 @@ class TwinKeeper:
         return min(integrators, self.twin_poles - 1)
 
     def _default_twin(self) -> LinearTwin:
-        return LinearTwin(n_poles=self.twin_poles, n_zeros=0, n_integrators=self._integrators(),
-                          n_samples=self.n_samples, output=self._env.loop.plant.output, warm_start=True)
+        options = IdentifyOptions(n_poles=self.twin_poles, n_zeros=0, n_integrators=self._integrators(),
+                                  n_samples=self.n_samples)
+        return LinearTwin(options, output=self._env.loop.plant.output, warm_start=True)
 
     # -- what the run shows -----------------------------------------------------------------------------
     def drain_events(self) -> list[str]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, ClassVar
 
 from sklearn.base import BaseEstimator
@@ -16,6 +17,10 @@ class TwinEstimator(BaseEstimator):
 
     Subclasses declare ``_parameter_constraints`` in the forms of :mod:`agents.parameters`, the
     tuners' validation system; :meth:`_validate_params` checks the stored parameters at ``fit``.
+    A parameter that is an option object (a frozen dataclass, e.g. ``options=IdentifyOptions(...)``)
+    shows its fields as nested parameters, as scikit-learn shows a nested estimator's:
+    ``get_params()["options__n_poles"]``, ``set_params(options__n_zeros=1)`` (a copy with the field
+    replaced, :func:`dataclasses.replace`).
     """
 
     _parameter_constraints: ClassVar[dict[str, list]] = {}
@@ -30,6 +35,38 @@ class TwinEstimator(BaseEstimator):
             e.g. ``n_poles: must be an int in [1, inf), got 0``.
         """
         return validate_params(self._parameter_constraints, self.get_params(deep=False))
+
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        """The constructor's parameters; with ``deep``, also ``<option>__<field>`` of each option object."""
+        params = super().get_params(deep=False)
+        if deep:
+            for name, value in list(params.items()):
+                if dataclasses.is_dataclass(value) and not isinstance(value, type):
+                    params.update({f"{name}__{f.name}": getattr(value, f.name) for f in dataclasses.fields(value)})
+        return params
+
+    def set_params(self, **params) -> TwinEstimator:
+        """Set parameters; ``<option>__<field>=value`` replaces one field of an option object.
+
+        Raises
+        ------
+        ValueError
+            For a name that is not a parameter, or a field the option object does not have.
+        """
+        nested: dict[str, dict[str, Any]] = {}
+        for key in [key for key in params if "__" in key]:
+            name, field = key.split("__", 1)
+            nested.setdefault(name, {})[field] = params.pop(key)
+        for name, changes in nested.items():
+            option = params.get(name, getattr(self, name, None))
+            if not dataclasses.is_dataclass(option) or isinstance(option, type):
+                raise ValueError(f"{name}__{next(iter(changes))}: {name} is not an option object of "
+                                 f"{type(self).__name__} (got {option!r})")
+            unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(option)})
+            if unknown:
+                raise ValueError(f"{name}__{unknown[0]}: {type(option).__name__} has no field {unknown[0]!r}")
+            params[name] = dataclasses.replace(option, **changes)
+        return super().set_params(**params)
 
     def __sklearn_is_fitted__(self) -> bool:
         return hasattr(self, "plant_")

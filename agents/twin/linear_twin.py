@@ -2,26 +2,29 @@
 
 from __future__ import annotations
 
+from dataclasses import fields
 from typing import ClassVar
 
 import numpy as np
 from sklearn.utils.validation import check_is_fitted
 
-from agents.parameters import Boolean, Options
+from agents.parameters import Boolean, InstanceOf, Options
 from agents.thread_limits import single_thread
 from agents.twin import srivc
 from agents.twin.estimator import TwinEstimator
 from agents.twin.identify import (
     IdentifyOptions,
     check_orders,
+    checked_options,
     identify,
-    linear_constraints,
     prepare_signals,
     simulation_error,
 )
 from agents.twin.records import Batch
 
 __all__ = ["LinearTwin"]
+
+_OPTIONS = IdentifyOptions()  # the default identification settings (frozen)
 
 
 class LinearTwin(TwinEstimator):
@@ -34,9 +37,13 @@ class LinearTwin(TwinEstimator):
 
     Parameters
     ----------
-    n_poles, n_zeros, n_integrators, delay, max_delay, delay_step, refine_delay, offset, n_samples, hold, \
-oversample, max_iter, tol, svf_bandwidth, polish
-        As in :func:`agents.twin.identify.identify_linear` (same defaults and allowed ranges).
+    options : IdentifyOptions, default IdentifyOptions()
+        The model structure (``n_poles``, ``n_zeros``, ``n_integrators``) and the settings of
+        the identification (delay search, decimation, SRIVC iterations), as for
+        :func:`agents.twin.identify.identify` (:class:`agents.twin.identify.IdentifyOptions`; same
+        defaults and allowed ranges, checked at ``fit``). Default: ``IdentifyOptions()``. As a
+        scikit-learn parameter each setting is also ``options__<name>``
+        (``set_params(options__n_zeros=1)``, a grid search over ``options__n_poles``).
     output : {"speed", "position"}, default "speed"
         What ``y`` measures; copied to :attr:`plant_`.
     warm_start : bool, default False
@@ -83,34 +90,18 @@ oversample, max_iter, tol, svf_bandwidth, polish
     >>> twin = LinearTwin().fit([info])
     >>> bool(np.allclose(twin.params_, (9.544, 4.145, 4.199), rtol=1e-3))
     True
+    >>> LinearTwin(IdentifyOptions(n_samples=100), warm_start=True).get_params()["options__n_samples"]
+    100
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {**linear_constraints(),
+    _parameter_constraints: ClassVar[dict[str, list]] = {"options": [InstanceOf((IdentifyOptions,))],
                                                           "output": [Options(("speed", "position"))],
                                                           "warm_start": [Boolean()]}
 
-    def __init__(self, *, n_poles: int = 2, n_zeros: int = 0, n_integrators: int = 0, delay: float | None = None,
-                 max_delay: float | None = None, delay_step: float | None = None, refine_delay: bool = True,
-                 offset: bool = True, n_samples: int | None = None, hold: str = "auto", oversample: int = 10,
-                 max_iter: int = 50, tol: float = 1e-8, svf_bandwidth: float | None = None, output: str = "speed",
-                 warm_start: bool = False, polish: bool = False) -> None:
-        self.n_poles = n_poles
-        self.n_zeros = n_zeros
-        self.n_integrators = n_integrators
-        self.delay = delay
-        self.max_delay = max_delay
-        self.delay_step = delay_step
-        self.refine_delay = refine_delay
-        self.offset = offset
-        self.n_samples = n_samples
-        self.hold = hold
-        self.oversample = oversample
-        self.max_iter = max_iter
-        self.tol = tol
-        self.svf_bandwidth = svf_bandwidth
+    def __init__(self, options: IdentifyOptions = _OPTIONS, *, output: str = "speed", warm_start: bool = False) -> None:
+        self.options = options
         self.output = output
         self.warm_start = warm_start
-        self.polish = polish
 
     def fit(self, records, y=None) -> LinearTwin:
         """Identify the plant from closed-loop step records.
@@ -131,9 +122,8 @@ oversample, max_iter, tol, svf_bandwidth, polish
         ValueError
             A parameter outside its allowed range (named), or bad records.
         """
-        params = self._validate_params()
-        orders = check_orders(params["n_poles"], params["n_zeros"], params["n_integrators"])
-        options = IdentifyOptions(**{name: params[name] for name in linear_constraints()})
+        params, options = self._checked()
+        orders = check_orders(options.n_poles, options.n_zeros, options.n_integrators)
         with single_thread():  # tiny matrices: BLAS threads only contend
             fit = identify(_batch(records), options, start=self._warm_start_point(orders))
         self.num_ = fit.num
@@ -165,10 +155,10 @@ oversample, max_iter, tol, svf_bandwidth, polish
         list of ndarray of shape (n_steps,)
             ``y_sim`` in the units of ``y`` at the (decimated) sample times.
         """
-        orders, signals, groups = self._prepared(records)
+        orders, signals, groups, offset = self._prepared(records)
         out: list[np.ndarray | None] = [None] * sum(rows.size for rows in groups)
         for rows, sig in zip(groups, signals):
-            y_sim = srivc.simulate(orders, self._theta(orders), self.delay_, sig, self.offset)[0]
+            y_sim = srivc.simulate(orders, self._theta(orders), self.delay_, sig, offset)[0]
             for row, idx in enumerate(rows):
                 out[idx] = y_sim[row]
         return out
@@ -185,16 +175,22 @@ oversample, max_iter, tol, svf_bandwidth, polish
         float
             Dimensionless, ``<= 0``.
         """
-        orders, signals, _ = self._prepared(records)
-        return -simulation_error(orders, self._theta(orders), self.delay_, signals, self.offset)[0]
+        orders, signals, _, offset = self._prepared(records)
+        return -simulation_error(orders, self._theta(orders), self.delay_, signals, offset)[0]
 
     def _prepared(self, records):
         check_is_fitted(self)
+        _, options = self._checked()
+        orders = check_orders(options.n_poles, options.n_zeros, options.n_integrators)
+        _, groups, signals = prepare_signals(_batch(records), orders, options.n_samples, options.hold,
+                                             options.oversample, options.offset)
+        return orders, signals, groups, options.offset
+
+    def _checked(self) -> tuple[dict, IdentifyOptions]:
+        """The parameters and the identification settings, checked (:mod:`agents.parameters`) and converted."""
         params = self._validate_params()
-        orders = check_orders(params["n_poles"], params["n_zeros"], params["n_integrators"])
-        _, groups, signals = prepare_signals(_batch(records), orders, params["n_samples"], params["hold"],
-                                             params["oversample"], params["offset"])
-        return orders, signals, groups
+        options = params["options"]
+        return params, checked_options({f.name: getattr(options, f.name) for f in fields(options)}, "LinearTwin")
 
     def _theta(self, orders: srivc.Orders) -> np.ndarray:
         return np.concatenate([self.den_[1 : orders.n - orders.k + 1], self.num_])

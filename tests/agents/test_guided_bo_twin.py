@@ -14,7 +14,7 @@ import gbo_envs  # noqa: F401
 from agents import twin_keeper
 from agents.guidance import TwinIterations
 from agents.guided_bo import GuidedBO
-from agents.twin import GreyBoxTwin, LinearTwin, make_twin_env
+from agents.twin import GreyBoxTwin, IdentifyOptions, LinearTwin, make_twin_env
 from agents.twin_keeper import TwinKeeper
 from tests.support import flexible_coupling_env
 
@@ -233,7 +233,7 @@ def test_a_refit_that_no_longer_makes_the_broken_promise_restores_trust():
 def _wrong_twin():
     """A fitted LinearTwin of another plant: DCMotor-v0 behind a 60 ms dead time and a 120-unit drive limit."""
     other = gym.make("gbo_envs/DCMotor-v0", effects={"time_delay": {"delay": 0.06}, "saturation": {"limit": 120.0}})
-    return LinearTwin(n_samples=100).fit(_records(other, [[0.5, 1.2], [0.9, 1.6]]))
+    return LinearTwin(IdentifyOptions(n_samples=100)).fit(_records(other, [[0.5, 1.2], [0.9, 1.6]]))
 
 
 @pytest.mark.slow
@@ -298,7 +298,7 @@ def test_a_non_finite_twin_cost_enters_the_gp_as_the_unstable_cost(monkeypatch):
 def test_a_perfect_twin_reaches_ratio_105_within_five_experiments():
     # the plant's own noise-free model: SRIVC on noise-free records of the same structure (RMSE ~ 1e-7)
     quiet = gym.make("gbo_envs/DCMotor-v0", noise=False)
-    perfect = LinearTwin(n_poles=2, n_zeros=0).fit(_records(quiet, [[0.5, 1.2], [0.9, 1.6]]))
+    perfect = LinearTwin(IdentifyOptions(n_poles=2, n_zeros=0)).fit(_records(quiet, [[0.5, 1.2], [0.9, 1.6]]))
     assert perfect.rmse_ < 1e-5
     optimum = gbo_envs.ground_truth("gbo_envs/DCMotor-v0", noise=False).cost
     for seed in range(5):

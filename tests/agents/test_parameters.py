@@ -10,7 +10,7 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from agents.parameters import ArrayLike, Boolean, InstanceOf, Interval, Options, check_fields, validated
+from agents.parameters import ArrayLike, Boolean, InstanceOf, Interval, Options, check_fields
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -54,21 +54,6 @@ def test_check_fields_converts_and_names_the_field():
         _Settings(mode="c")
 
 
-def test_validated_checks_defaults_and_passes_converted_values():
-    @validated({"n": [Interval(int, 1, None)], "flag": [Boolean()]})
-    def f(data, n=2, *, flag=False, other=None):
-        return n, flag, other
-
-    assert f(None, np.int64(4), flag=np.True_, other="x") == (4, True, "x")
-    assert type(f(None, np.int64(4))[0]) is int
-    with pytest.raises(ValueError, match=r"n: must be an int in \[1, inf\), got 0"):
-        f(None, n=0)
-    with pytest.raises(ValueError, match="flag: must be a bool, got 'yes'"):
-        f(None, flag="yes")
-    with pytest.raises(ValueError, match=r"\['m'\] are not parameters of"):
-        validated({"m": [Boolean()]})(f.__wrapped__)
-
-
 def test_no_module_uses_scikit_learns_private_validation():
     """One validation system: the tuners' and the twins' parameters are both checked by agents.parameters."""
     users = []
@@ -77,3 +62,16 @@ def test_no_module_uses_scikit_learns_private_validation():
             if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("sklearn.utils._param_validation"):
                 users.append(str(path.relative_to(ROOT)))
     assert users == []
+
+
+def test_identify_linear_names_a_bad_setting_and_converts_the_good_ones():
+    from agents.twin.identify import checked_options
+
+    options = checked_options({"n_poles": np.int64(3), "delay": 0, "start": None, "rest_levels": None}, "f")
+    assert type(options.n_poles) is int and type(options.delay) is float and options.delay == 0.0
+    with pytest.raises(ValueError, match=r"max_delay: must be None or a finite float in \[0, inf\), got -1"):
+        checked_options({"max_delay": -1}, "f")
+    with pytest.raises(ValueError, match=r"start: must be None or an instance of tuple, got \[1\]"):
+        checked_options({"start": [1]}, "f")
+    with pytest.raises(TypeError, match=r"f\(\) got unexpected keyword argument\(s\) \['n_pole'\]"):
+        checked_options({"n_pole": 2}, "f")
