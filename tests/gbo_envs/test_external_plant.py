@@ -202,7 +202,8 @@ def test_argument_errors(dc_motor):
     (lambda: PlantStructure(n_integrators=-1), "output, n_integrators"),
     (lambda: CostSpec(weights=(1, 1, 1)), "weights: expected 4 finite numbers"),
     (lambda: CostSpec(normalizers=(1, 1, 1, 0)), r"normalizers: every entry must be > 0"),
-    (lambda: CostSpec(unstable_cost=np.inf), "unstable_cost: must be finite, got inf"),
+    (lambda: CostSpec(unstable_cost=np.inf), r"unstable_cost: must be a finite number > 0 .*, got inf"),
+    (lambda: CostSpec(unstable_cost=0.0), r"unstable_cost: must be a finite number > 0 .*, got 0.0"),
 ])
 def test_option_objects_check_their_settings(make, message):
     with pytest.raises(ValueError, match=message):
