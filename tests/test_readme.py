@@ -20,8 +20,9 @@ The pages are :data:`PAGES`; each is tested on its own, its blocks in order:
 Besides: the README stays a 10-minute read (:data:`README_MAX_LINES` lines of at most
 :data:`README_MAX_WIDTH` characters), benchmarks/README.md stays a reference
 (:data:`BENCHMARKS_README_MAX_LINES` lines) whose generated tables are what
-``benchmarks/readme_tables.py`` renders from the committed results, and every relative link
-of the pages points at a file (and heading) that exists.
+``benchmarks/readme_tables.py`` renders from the committed results, CHANGELOG.md stays short
+(:data:`CHANGELOG_MAX_LINES` lines), and every relative link of the pages points at a file (and
+heading) that exists.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ LINKED_PAGES = (*PAGES, "docs/real-data.md", "docs/surfaces.md", "docs/design.md
                 "CHANGELOG.md")
 README_MAX_LINES, README_MAX_WIDTH = 250, 120
 BENCHMARKS_README_MAX_LINES = 300
+CHANGELOG_MAX_LINES = 150
 FLAGS = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
 LANGUAGES = ("pycon", "python", "console", "text")
 
@@ -86,6 +88,13 @@ def test_benchmarks_readme_is_a_reference():
     lines = _text("benchmarks/README.md").splitlines()
     assert len(lines) <= BENCHMARKS_README_MAX_LINES, \
         f"benchmarks/README.md has {len(lines)} lines (at most {BENCHMARKS_README_MAX_LINES})"
+
+
+def test_changelog_is_short():
+    lines = _text("CHANGELOG.md").splitlines()
+    assert len(lines) <= CHANGELOG_MAX_LINES, \
+        f"CHANGELOG.md has {len(lines)} lines (at most {CHANGELOG_MAX_LINES}: one to five lines an issue)"
+    assert lines[0] == "# Changelog" and "## [Unreleased]" in lines
 
 
 def _readme_tables():
