@@ -33,8 +33,9 @@ from agents.run_display import progress_bar
 from agents.twin.csvio import read_csv
 from agents.twin.fits import fit_structure
 from agents.twin.identify import check_orders
-from agents.twin.ladder_text import advice, unobservable_lines
+from agents.twin.ladder_text import advice, number, unobservable_lines
 from agents.twin.model import ModelSpec
+from agents.twin.ranking import ORDER_RULE
 from agents.twin.record_checks import NonCausalRecordWarning, check_poles
 from agents.twin.records import Batch
 from agents.twin.report import compare_figure, residual_figure, write_report
@@ -241,11 +242,14 @@ def _diagnose(args) -> int:
           f"(fit to all data); held-out RMSE {payload['heldout_rmse']:.4g} {y}")
     for line in data.initial.describe(data.numbers):
         print(f"starts: {line}")
-    print(f"{result.noise_label}: " + ("n/a" if noise is None else f"{noise:.4g} {y}"))
-    print(f"ranking ({payload['validation']}):")
-    print(f"{'effect':>18} {'held-out RMSE':>14} {'delta BIC':>12}  evidence")
+    print(f"{result.noise_label}: {number(noise)} {y}")
+    print(f"ranking ({payload['validation']}); {ORDER_RULE}:")
+    width = max(len("verdict"), *(len(c["verdict"]) for c in payload["candidates"]))
+    print(f"{'effect':>18} {'verdict':<{width}} {'held-out RMSE':>14} {'delta BIC':>10}  evidence")
+    print(f"{'':>18} {'':<{width}} {f'({y})':>14} {'(-)':>10}")
     for c in payload["candidates"]:
-        print(f"{c['effect']:>18} {c['rmse']:14.5g} {c['delta_bic']:12.1f}  {c['evidence']}")
+        print(f"{c['effect']:>18} {c['verdict']:<{width}} {number(c['rmse'], 5):>14} {c['delta_bic']:10.1f}  "
+              f"{c['evidence']}")
     print(f"best: {step['text']}" if step else "best: none (no effect improves the held-out error beyond its "
                                                "complexity cost)")
     _print_unobservable(result)
@@ -271,8 +275,7 @@ def _report(args) -> int:
     print("error ladder (RMSE and fit % of the fit to all data; held-out RMSE ranks the effects):")
     for r in rungs:
         print(f"  {r['text']}; held-out RMSE {r['heldout_rmse']:.4g} {y}")
-    noise = last.noise_rmse
-    print(f"{last.noise_label}: " + ("n/a" if noise is None else f"{noise:.4g} {y}"))
+    print(f"{last.noise_label}: {number(last.noise_rmse)} {y}")
     _print_unobservable(last)
     print(advice(last, last.current.spec.effect_names, args.data,
                  stopped_at_max=last.best is not None, units=_units(args)))

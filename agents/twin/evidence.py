@@ -223,21 +223,48 @@ def order_change(name: str, current: GreyFit, fit: GreyFit) -> dict[str, dict]:
     return {}
 
 
+#: The unit of a position in the evidence texts, by what ``y`` measures (cogging's period is one).
+POSITION_UNITS = {"speed": "(units of y times s: the position of a speed loop, rad for y in rad/s)",
+                  "position": "(units of y)"}
+#: Damping ratios below this ring visibly: called a resonance.
+RESONANT_DAMPING = 0.3
+
+
+def mode_text(what: str, frequency: float, damping: float) -> str:
+    """A second-order mode ``what`` (a noun phrase) in words that match its damping ratio ``damping`` (-) at
+    ``frequency`` (rad/s).
+
+    Below :data:`RESONANT_DAMPING` it resonates; up to 1 it is damped; from 1 on its two poles are real and
+    nothing oscillates, so it is not called a resonance (a "resonance with damping 2" contradicts itself).
+    """
+    if damping < RESONANT_DAMPING:
+        return f"{what} resonating at {frequency:.3g} rad/s with damping {damping:.2g}"
+    if damping < 1.0:
+        return f"{what} at {frequency:.3g} rad/s, damped (damping {damping:.2g})"
+    return f"{what} at {frequency:.3g} rad/s, overdamped (damping {damping:.2g} >= 1: no resonance)"
+
+
+def zero_text(tau: float) -> str:
+    """A zero of time constant ``tau`` (s) in words: ``tau < 0`` is a right-half-plane zero, which makes the response
+    first move the wrong way (an inverse response, a lag, not a lead); ``tau > 0`` a lead."""
+    if tau < 0:
+        return (f"the response first moves against the step: an inverse response (a right-half-plane zero of time "
+                f"constant {abs(tau):.3g} s)")
+    return f"the response leads the model: a zero of time constant {tau:.3g} s"
+
+
 def _order_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit, tail: str) -> str:
     change = order_change(name, current, fit)
     if name == "pole_pair" and change:
         w, zeta = change["frequency"]["value"], change["damping"]["value"]
         rings = residual_frequencies(data, current, n_peaks=1)
         seen = f"residual rings at {rings[0]:.3g} rad/s" if rings else "residual oscillates"
-        kind = "a resonance" if zeta < 0.3 else "a second, damped mode"
-        return f"{seen}: {kind}, poles at {w:.3g} rad/s with damping {zeta:.2g}" + tail
+        return f"{seen}: {mode_text('a second mode of the linear part', w, zeta)}" + tail
     if name == "pole" and change:
         return f"the response lags the model: an extra lag of time constant {change['time_constant']['value']:.3g} s" \
             + tail
     if name == "zero" and change:
-        tau = change["time_constant"]["value"]
-        kind = "an inverse response (a right-half-plane zero)" if tau < 0 else "a lead"
-        return f"the response leads the model: {kind}, a zero of time constant {abs(tau):.3g} s" + tail
+        return zero_text(change["time_constant"]["value"]) + tail
     return f"a {name.replace('_', ' ')} in the linear part" + tail
 
 
@@ -315,10 +342,11 @@ def effect_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit) -> s
     if name == "offset":
         return f"constant bias: no signature beyond the per-experiment rest levels (r={r:.2f})" + tail
     if name == "cogging":
-        return f"residual periodic in position with period {params.get('period', 0.0):.4g} (r={r:.2f})" + tail
+        return (f"residual periodic in position with period {params.get('period', 0.0):.4g} "
+                f"{POSITION_UNITS[current.spec.output]} (r={r:.2f})") + tail
     if name == "compliance":
         rings = residual_frequencies(data, current, n_peaks=1)
         seen = f"residual rings at {rings[0]:.3g} rad/s" if rings else "residual oscillates"
-        return (f"{seen}: a flexible coupling resonating at {params.get('frequency', 0.0):.3g} rad/s with damping "
-                f"{params.get('damping', 0.0):.2g} (r={r:.2f})") + tail
+        mode = mode_text("a flexible coupling", params.get("frequency", 0.0), params.get("damping", 0.0))
+        return f"{seen}: {mode} (r={r:.2f})" + tail
     return f"r={r:.2f}" + tail

@@ -35,8 +35,8 @@ from agents.twin.uncertainty import parameter_intervals
 from agents.twin.workers import map_independent
 from gbo_envs.physics.effects import EFFECTS, describe_effect
 
-__all__ = ["CLEAR_HELDOUT_GAIN", "DEFAULT_FOLDS", "NUISANCE_REFIT_ITER", "Ranking", "effect_intervals", "effect_size",
-           "heldout_rss", "rank", "validated_folds"]
+__all__ = ["CLEAR_HELDOUT_GAIN", "DEFAULT_FOLDS", "NUISANCE_REFIT_ITER", "ORDER_RULE", "Ranking", "effect_intervals",
+           "effect_size", "heldout_rss", "rank", "validated_folds"]
 
 #: Folds of the cross-validation over experiments when none are given (fewer with fewer experiments).
 DEFAULT_FOLDS = 4
@@ -210,7 +210,8 @@ class Ranking:
     candidates : list of dict
         Per candidate, best first: ``effect, rmse`` (held-out), ``delta_bic, params, evidence,
         train_rmse, share`` (% of the current model's residual power the candidate's fit
-        explains), ``extra_params, effect_rms, fitted, intervals`` and ``note`` where the data
+        explains), ``extra_params, effect_rms, fitted, intervals``, ``verdict`` (``"selected"``,
+        ``"passes"`` or the first rule it fails, :data:`ORDER_RULE`) and ``note`` where the data
         cannot show the effect.
     best : str or None
         The candidate the rules select.
@@ -285,14 +286,14 @@ def rank(data: Batch, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_f
                       "extra_params": extra, "effect_rms": 0.0, "note": plan.notes[name], "fitted": False})
     cands.sort(key=lambda c: c["delta_bic"])
     floor = noise.rmse
-    good = [c for c in cands if c["delta_bic"] < -bic_margin and c["rmse"] < (1.0 - min_gain) * cur_rmse
-            and (floor is None or cur_rmse - c["rmse"] >= noise_gain * floor)
-            and c["train_rmse"] < current.rmse
-            and c["effect_rms"] >= 0.2 * np.sqrt(max(current.rmse**2 - c["train_rmse"] ** 2, 0.0))
-            and (data.n_records >= 2 or c["kind"] != "order")]  # no structure grown on one record's training error
-    good = _physics_first(_by_share(good))
+    for c in cands:
+        c["verdict"] = _failed_rule(c, cur_rmse, current.rmse, floor, data.n_records, bic_margin, min_gain,
+                                    noise_gain) or "passes"
+    good = _physics_first(_by_share([c for c in cands if c["verdict"] == "passes"]))
     cands = good + [c for c in cands if c not in good]
     best = good[0]["effect"] if good else None
+    if good:
+        good[0]["verdict"] = "selected"
     pairs = []
     for i, a in enumerate(good):
         for b in good[i + 1 :]:
@@ -307,6 +308,32 @@ def rank(data: Batch, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_f
     if blind_pairs and suggestion is None:
         suggestion = REVEALING_EXPERIMENTS.get(blind_pairs[0][0], separating_experiment(*blind_pairs[0]))
     return Ranking(cands, best, cur_rmse, validation, pairs + blind_pairs, suggestion)
+
+
+#: How :func:`rank` orders its candidates, in the words of the printout (the ``verdict`` and ``delta_bic`` columns).
+ORDER_RULE = ("order: the candidates that pass every rule first (verdict 'selected', then 'passes'; effects of the "
+              "catalogue before grown orders, each by delta BIC, except that one explaining a much larger share of "
+              "the residual moves ahead), then the rest by delta BIC (lowest first)")
+
+
+def _failed_rule(c: dict, cur_heldout: float, cur_train: float, floor: float | None, n_records: int,
+                 bic_margin: float, min_gain: float, noise_gain: float) -> str | None:
+    """The first rule of :func:`rank` that candidate ``c`` fails, in words (None: it passes them all)."""
+    if not c.get("fitted", True):
+        return "not fitted"
+    if not c["delta_bic"] < -bic_margin:
+        return f"delta BIC not below -{bic_margin:g}"
+    if not c["rmse"] < (1.0 - min_gain) * cur_heldout:
+        return f"held-out gain under {100 * min_gain:g} %"
+    if floor is not None and cur_heldout - c["rmse"] < noise_gain * floor:
+        return f"held-out gain under {100 * noise_gain:g} % of the noise floor"
+    if not c["train_rmse"] < cur_train:
+        return "fits all data worse than the current model"
+    if not c["effect_rms"] >= 0.2 * np.sqrt(max(cur_train**2 - c["train_rmse"] ** 2, 0.0)):
+        return "its effect is too small for the error it removes"
+    if n_records < 2 and c["kind"] == "order":
+        return "no order grown on one record's training error"
+    return None
 
 
 def _described(data: Batch, current: GreyFit, fit: GreyFit, name: str) -> tuple:

@@ -19,6 +19,7 @@ import numpy as np
 from agents.html_page import image_tag, page, scrolling
 from agents.twin.ladder_text import advice, number, pairs_text, params_text, unobservable_lines
 from agents.twin.model import GreyFit
+from agents.twin.ranking import ORDER_RULE
 from agents.twin.records import Batch
 from agents.twin.workbench import Diagnosis, ResidualAnalysis, compare
 from gbo_envs.atomic_write import atomic_write
@@ -314,12 +315,12 @@ def write_report(out_dir: str | Path, data: Batch, rungs: Sequence[dict], diagno
     parts += [
         "<h2>Ranking of the effects (first diagnosis)</h2>",
         f"<p>Model: {html.escape(first.current.spec.label)}; best: <b>{html.escape(str(first.best))}</b>; "
-        f"validation: {html.escape(first.validation)}.</p>",
+        f"validation: {html.escape(first.validation)}; {html.escape(ORDER_RULE)}.</p>",
         _table([{**c, "params": candidate_params(c)} for c in first.candidates],
-               [("effect", "effect"), ("rmse", f"held-out RMSE ({y})"), ("train_rmse", f"RMSE of the fit ({y})"),
-                ("delta_bic", "ΔBIC (-)"), ("params", "fitted parameters"), ("evidence", "evidence"),
-                ("note", "note")], table_id="ranking", formats={"delta_bic": lambda v: f"{v:.1f}",
-                                                                 "note": lambda v: v or ""}, wrap=True),
+               [("effect", "effect"), ("verdict", "verdict"), ("rmse", f"held-out RMSE ({y})"),
+                ("train_rmse", f"RMSE of the fit ({y})"), ("delta_bic", "delta BIC (-)"),
+                ("params", "fitted parameters"), ("evidence", "evidence"), ("note", "note")], table_id="ranking",
+               formats={"delta_bic": lambda v: f"{v:.1f}", "note": lambda v: v or ""}, wrap=True),
     ]
     if last.unobservable:
         parts += ["<h3>Not observable in this data</h3>",

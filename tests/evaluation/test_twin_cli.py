@@ -16,6 +16,7 @@ import pytest
 
 from agents.twin.candidates import ORDER_CANDIDATES
 from agents.twin.csvio import write_csv
+from agents.twin.ranking import ORDER_RULE
 from evaluation.cli import main
 from gbo_envs.physics import EFFECT_NAMES
 from tests.support import loop_records
@@ -62,6 +63,20 @@ def test_diagnose_text_says_what_it_found_and_what_to_do_next(csv_path, capsys):
     assert best.startswith("best: + saturation (limit ") and " V, 95 % CI [" in best and " rad/s (-" in best
     assert "fit " in best and " % → " in best
     assert "not observable in this data:" in out and "coulomb_friction is not observable here (no speed reversal" in out
+    # the ranking says what orders it, and its order follows the printed verdict, then delta BIC
+    lines = out.splitlines()
+    head = next(i for i, line in enumerate(lines) if line.startswith("ranking ("))
+    assert lines[head].endswith(f"{ORDER_RULE}:") and lines[head + 2].split() == ["(rad/s)", "(-)"]
+    rows = lines[head + 3:head + 3 + len(EFFECT_NAMES) + len(ORDER_CANDIDATES)]
+    header = lines[head + 1]
+    verdict_at, rmse_at, bic_end = header.index("verdict"), header.index("held-out RMSE") - 1, header.index(
+        "delta BIC") + len("delta BIC")
+    verdicts = [row[verdict_at:rmse_at].strip() for row in rows]
+    assert verdicts[0] == "selected" and rows[0].split()[0] == "saturation"
+    passing = sum(v in ("selected", "passes") for v in verdicts)
+    assert all(v not in ("selected", "passes") for v in verdicts[passing:])
+    bics = [float(row[bic_end - 10:bic_end]) for row in rows[passing:]]
+    assert bics == sorted(bics)  # after the candidates that pass, the order is the printed delta BIC's
     assert out.splitlines()[-1] == f"next: add saturation, then look for a further effect: `gbo twin diagnose " \
                                    f"{csv_path} --effects saturation`"
 

@@ -58,14 +58,15 @@ def saturated():
 def _diagnosis(fit, sat):
     candidates = [
         {"effect": "saturation", "kind": "effect", "rmse": 0.0855, "train_rmse": 0.0844, "delta_bic": -12776.8,
-         "params": {"limit": sat.effect_params["saturation"]["limit"]},
+         "params": {"limit": sat.effect_params["saturation"]["limit"]}, "verdict": "selected",
          "intervals": {"limit": {"value": 150.0, "unit": "input units"}}, "evidence": "command exceeds 150 V"},
         {"effect": "pole_pair", "kind": "order", "rmse": 1.9, "train_rmse": 1.8, "delta_bic": -336.4,
-         "params": {"frequency": 66.7, "damping": 0.36},
+         "params": {"frequency": 66.7, "damping": 0.36}, "verdict": "passes",
          "intervals": {"frequency": {"value": 66.7, "unit": "rad/s"}, "damping": {"value": 0.36, "unit": "1"}},
          "evidence": "residual rings"},
         {"effect": "dead_zone", "kind": "effect", "rmse": 2.07, "train_rmse": 1.2, "delta_bic": 7.6, "params": {},
-         "evidence": "not fitted", "note": "the input never crosses zero and no experiment shows its rest: " * 4}]
+         "verdict": "not fitted", "evidence": "not fitted",
+         "note": "the input never crosses zero and no experiment shows its rest: " * 4}]
     return SimpleNamespace(current=fit, noise_rmse=0.09285, noise_label="noise floor (not a lower bound)",
                            best="saturation", candidates=candidates, validation="held-out: 2-fold", unobservable=[],
                            indistinguishable=[["zero", "pole_pair"], ["coulomb_friction", "stiction"]],
@@ -91,11 +92,12 @@ def test_the_report_speaks_in_words_units_and_fixed_point(saturated, tmp_path):
     ladder, ranking = parser.tables[0], parser.tables[1]
     assert ladder["head"] == ["model", "effect added", "RMSE of the fit (rad/s)", "held-out RMSE (rad/s)", "fit (%)",
                               "effect parameters"]
-    assert ranking["head"] == ["effect", "held-out RMSE (rad/s)", "RMSE of the fit (rad/s)", "ΔBIC (-)",
+    assert ranking["head"] == ["effect", "verdict", "held-out RMSE (rad/s)", "RMSE of the fit (rad/s)", "delta BIC (-)",
                                "fitted parameters", "evidence", "note"]
-    assert ranking["rows"][1][3] == "-12776.8" and ranking["rows"][1][4].startswith("limit = 1")
-    assert ranking["rows"][1][4].endswith(" V")
-    assert ranking["rows"][2][4] == "frequency = 66.7 rad/s, damping = 0.36"
+    assert ranking["rows"][1][4] == "-12776.8" and ranking["rows"][1][5].startswith("limit = 1")
+    assert ranking["rows"][1][5].endswith(" V") and ranking["rows"][1][1] == "selected"
+    assert ranking["rows"][2][5] == "frequency = 66.7 rad/s, damping = 0.36"
+    assert "order: the candidates that pass every rule first" in page
     assert ladder["rows"][2][5] == "saturation: limit = 159.9 V"
     cells = [cell for table in parser.tables for row in table["rows"] for cell in row]
     assert not [cell for cell in cells if "e+" in cell or "e-0" in cell]
