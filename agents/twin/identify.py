@@ -334,7 +334,8 @@ def identify(batch: Batch, options: IdentifyOptions | None = None, *, start: tup
     Raises
     ------
     ValueError
-        A setting outside its allowed range (named), or records too short or malformed.
+        ``n_zeros`` or ``n_integrators`` out of range, ``rest_levels`` of another shape, or records without
+        excitation or with too few samples for the model (each named).
     RuntimeError
         SRIVC diverged at every delay.
 
