@@ -64,8 +64,8 @@ def test_the_classifier_tells_the_outcomes_apart(attack, tmp_path, expect, retur
 def test_a_timeout_is_a_hang_when_blocked_and_a_runaway_when_computing(attack, tmp_path):
     case = attack.Case("c", 11, "t", ("x",), needles=("x",))
     fx = attack.Fixtures(tmp_path)
-    blocked = attack.Run(None, "", "", 30.0, timed_out=True, cpu_seconds=0.5)
-    busy = attack.Run(None, "", "", 30.0, timed_out=True, cpu_seconds=29.0)
+    blocked = attack.Run(None, "", "", 31.0, timed_out=True, cpu_seconds=0.0)  # in the second after the limit
+    busy = attack.Run(None, "", "", 31.0, timed_out=True, cpu_seconds=0.4)  # a CPU shared with others
     assert attack.classify(case, blocked, tmp_path, fx) == "hang"
     assert attack.classify(case, busy, tmp_path, fx) == "runaway"
 
