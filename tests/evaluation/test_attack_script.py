@@ -1,8 +1,8 @@
 """Smoke test of ``benchmarks/attack.py``: a handful of its fast cases, run in this process, come out clear.
 
-The whole attack (over 90 cases in fresh interpreters under time and memory
+The whole attack (130 cases in fresh interpreters under time, memory and process
 limits) is a benchmark: ``python benchmarks/attack.py --out benchmarks/results/attack.md``.
-Here: the cases exist for every item of issue 19, the classifier tells the
+Here: the cases exist for every item of issues 19 and 57, the classifier tells the
 outcomes apart, and a few fast cases give a clear error.
 """
 
