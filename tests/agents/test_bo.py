@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.stats import norm
+from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
 
 import agents
@@ -253,7 +256,13 @@ def test_likelihood_maximisation_is_as_good_as_sklearns():
     gp = GPSurrogate(min_fit_points=1, n_restarts=3, warm_start=False).fit(X, y, seed=7)
     y_std = (y - gp.y_mean_) / gp.y_scale_
     reference = GaussianProcessRegressor(gp._prior_kernel(2), alpha=1e-8, n_restarts_optimizer=3,
-                                         random_state=np.random.RandomState(7)).fit(X, y_std)
+                                         random_state=np.random.RandomState(7))
+    with warnings.catch_warnings():
+        # expected: on this data the likelihood's optimum lies on the prior's upper length-scale bound (0.5 of the
+        # unit box), which scikit-learn reports as a ConvergenceWarning; the optima are compared below
+        warnings.filterwarnings("ignore", message=".*length_scale is close to the specified upper bound",
+                                category=ConvergenceWarning)
+        reference.fit(X, y_std)
     ours = reference.log_marginal_likelihood(gp.kernel_.theta)
     assert ours >= reference.log_marginal_likelihood_value_ - 1e-6
     np.testing.assert_allclose(gp.kernel_.theta, reference.kernel_.theta, atol=1e-3)
