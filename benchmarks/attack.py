@@ -684,6 +684,45 @@ def api_non_causal(name: str) -> Callable:
     return run
 
 
+def all_true(*keys: str) -> Callable:
+    """Every one of ``keys`` is ``true`` in the API case's JSON result (a report that says what holds)."""
+    def check(folder: Path, fx: Fixtures, run: Run) -> str | None:
+        failed = [key for key in keys if f'"{key}": true' not in run.stdout]
+        if failed:
+            run.notes.append("not so: " + ", ".join(failed))
+            return "silently wrong"
+        return None
+    return check
+
+
+def api_leaderboard_words(folder: Path, fx: Fixtures):
+    """A leaderboard of counts 1, 1, 41 (budget 40) and of a tuner that solves nothing with the lowest ratio."""
+    import pandas as pd
+
+    from evaluation.leaderboard import RANKING_RULE, Leaderboard, PlantTarget, leaderboard_markdown
+
+    def curve(at):
+        return [1.5 if k + 1 < at else 1.0 for k in range(40)]
+    runs = [("bo", "A", s, at) for s, at in enumerate([1, 1, 41])] + [("never", "B", s, 41) for s in range(3)]
+    runs += [("bo", "B", s, 41) for s in range(3)] + [("some", "A", s, at) for s, at in enumerate([30, 41, 41])]
+    frame = pd.DataFrame([{"tuner": t, "plant": p, "seed": s, "curve": curve(at), "instant": curve(at)}
+                          for t, p, s, at in runs])
+    board = Leaderboard(n_bootstrap=200).fit(frame, [PlantTarget("A", 1.05, 40), PlantTarget("B", 1.05, 40)])
+    row = board.table_[(board.table_["tuner"] == "bo") & (board.table_["plant"] == "A")].iloc[0]
+    md = "\n".join(leaderboard_markdown(board, "T", [], {}, [], highlight="some"))
+    return {"interval_in_range": bool(row["ci_low"] >= 1 and row["ci_high"] <= 41),
+            "solved_first": board.tuners_[-1] == "never", "rule_printed": RANKING_RULE.split(",")[0] in md,
+            "own_tuner_marked": "**some**" in md}
+
+
+def api_evidence_words(folder: Path, fx: Fixtures):
+    """The evidence sentences of an overdamped coupling and of a right-half-plane zero."""
+    from agents.twin.evidence import mode_text, zero_text
+
+    return {"no_overdamped_resonance": "resonat" not in mode_text("a flexible coupling", 157.0, 2.0),
+            "inverse_response_does_not_lead": "lead" not in zero_text(-0.0194)}
+
+
 def api_twin_effects_twice(folder: Path, fx: Fixtures):
     from agents.twin.csvio import read_csv
     from agents.twin.workbench import GreyBoxTwin
@@ -803,6 +842,12 @@ def _issue_57_cases(tune: tuple[str, ...]) -> list[Case]:
         # 15. the newcomer's path
         Case("sessions-leaves-no-wal", 15, "gbo sessions leaves no runs.sqlite-wal / -shm behind",
              ("sessions", "--db", "runs.sqlite"), expect="ok", needs=("db",), setup=copy_db, check=no_companions),
+        Case("leaderboard-words", 15, "the leaderboard: count intervals in range, solved first, its rule, your tuner",
+             api=api_leaderboard_words, expect="ok", fast=True,
+             check=all_true("interval_in_range", "solved_first", "rule_printed", "own_tuner_marked")),
+        Case("evidence-words", 15, "evidence: no resonance with damping 2, no inverse response that leads",
+             api=api_evidence_words, expect="ok", fast=True,
+             check=all_true("no_overdamped_resonance", "inverse_response_does_not_lead")),
     ]
 
 
