@@ -182,7 +182,8 @@ def ladder_figure(rungs: Sequence[dict], noise_rmse: float | None = None, y_unit
 
 
 def saturation_figure(data: Batch, fit: GreyFit, u_unit: str = "", max_experiments: int = 4):
-    """The commanded input u(t) of each shown experiment against the fitted saturation limit ``±limit``.
+    """The commanded input u(t) of each shown experiment against the fitted saturation limit (``-limit`` too when a
+    command goes negative).
 
     The evidence of a drive limit: where the command goes beyond the band (shaded) the plant gets the limit,
     not the command. Axes: time since the step t (s); commanded input u in ``u_unit``.
@@ -206,11 +207,17 @@ def saturation_figure(data: Batch, fit: GreyFit, u_unit: str = "", max_experimen
         for i, k in enumerate(shown_experiments(data, max_experiments)):
             m = data.mask[k]
             ax.plot(data.t[k][m], data.u[k][m], color=f"C{i}", lw=1.2, label=f"u, experiment {int(data.numbers[k])}")
-        ax.axhline(limit, color="k", ls="--", lw=1.4, label=f"fitted limit ±{number(limit, 4)} {u_unit}".rstrip())
-        ax.axhline(-limit, color="k", ls="--", lw=1.4)
-        low, high = ax.get_ylim()
-        ax.axhspan(limit, max(high, limit), color="tab:red", alpha=0.12, label="beyond the limit: clipped")
-        ax.axhspan(min(low, -limit), -limit, color="tab:red", alpha=0.12)
+        u = data.u[data.mask]
+        levels = [limit] + ([-limit] if u.min() < 0 else [])  # the lower limit only where commands go negative
+        span = [min(u.min(), *levels), max(u.max(), *levels)]
+        pad = 0.08 * (span[1] - span[0] or abs(limit) or 1.0)
+        low, high = span[0] - pad, span[1] + pad
+        for i, level in enumerate(levels):
+            ax.axhline(level, color="k", ls="--", lw=1.4,
+                       label=f"fitted limit ±{number(limit, 4)} {u_unit}".rstrip() if i == 0 else None)
+        ax.axhspan(limit, high, color="tab:red", alpha=0.12, label="beyond the limit: clipped")
+        if len(levels) > 1:
+            ax.axhspan(low, -limit, color="tab:red", alpha=0.12)
         ax.set_ylim(low, high)
         ax.set_xlabel(axis_label("time since step t", "s"))
         ax.set_ylabel(axis_label("commanded input u", u_unit))

@@ -114,7 +114,9 @@ def test_the_input_is_drawn_against_the_fitted_limit_with_units(saturated):
     ax = saturation_figure(data, sat, u_unit="V").axes[0]
     assert ax.get_xlabel() == "time since step t (s)" and ax.get_ylabel() == "commanded input u (V)"
     levels = sorted({line.get_ydata()[0] for line in ax.get_lines() if line.get_linestyle() == "--"})
-    assert levels == pytest.approx([-limit, limit])
+    assert levels == pytest.approx([limit])  # every command is positive: the upper limit only
+    low, high = ax.get_ylim()
+    assert low <= data.u[data.mask].min() and high >= max(limit, data.u[data.mask].max()) and low > 0
     assert sum(line.get_label().startswith("u, experiment") for line in ax.get_lines()) == 2
     pyplot().close(ax.figure)
     with pytest.raises(ValueError, match="fit: a model with the saturation effect"):
