@@ -55,7 +55,7 @@ def params_text(effect: str, params: Mapping, units: Mapping[str, str] | None = 
     for name, value in params.items():
         unit = (intervals or {}).get(name, {}).get("unit") or catalogue.get(name, "")
         text = unit_text(unit, units, output) if unit else ""
-        cells.append(f"{name} = {number(value, 4)}" + (f" {text}" if text else ""))
+        cells.append(f"{name.replace('_', ' ')} = {number(value, 4)}" + (f" {text}" if text else ""))
     return ", ".join(cells)
 
 

@@ -333,8 +333,9 @@ def write_report(out_dir: str | Path, data: Batch, rungs: Sequence[dict], diagno
         parts += ["<h3>Not observable in this data</h3>",
                   "<ul>" + "".join(f"<li>{html.escape(line)}</li>" for line in unobservable_lines(last)) + "</ul>"]
     if first.indistinguishable:
+        suggestion = str(first.suggested_experiment or "")
         parts.append(f"<p>Indistinguishable on this data: {html.escape(pairs_text(first.indistinguishable))}. "
-                     f"{html.escape(str(first.suggested_experiment or ''))}</p>")
+                     f"{html.escape(suggestion[:1].upper() + suggestion[1:])}</p>")
     for analysis, fit in zip(analyses, fits):
         parts += [f"<h2>Residuals of {html.escape(fit.spec.label)}</h2>",
                   _grid(image_tag(residual_figure(analysis, y_unit=y_unit, u_unit=u_unit, panels=[panel]),

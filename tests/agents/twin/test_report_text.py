@@ -85,7 +85,7 @@ def test_the_report_speaks_in_words_units_and_fixed_point(saturated, tmp_path):
     path = write_report(tmp_path, data, rungs, [diagnosis, last], [residuals(data, fit), residuals(data, sat)],
                         source="rig.csv", y_unit="rad/s", u_unit="V")
     page = path.read_text()
-    assert "Indistinguishable on this data: zero and pole pair; coulomb friction and stiction." in page
+    assert "Indistinguishable on this data: zero and pole pair; coulomb friction and stiction. A wider" in page
     assert "[[" not in page and "['" not in page
     parser = Tables()
     parser.feed(page)
@@ -127,5 +127,7 @@ def test_numbers_parameters_and_pairs_read_as_text():
     assert number(-12776.8, 5) == "-12777" and number(0.09285) == "0.0929" and number(1.2e-5) == "0.000012"
     assert number(float("nan")) == "n/a" and number(3) == "3"
     assert params_text("cogging", {"period": 82.39}, UNITS) == "period = 82.39 rad"
+    assert params_text("zero", {"time_constant": -0.0194}, intervals={"time_constant": {"unit": "s"}}) == \
+        "time constant = -0.0194 s"
     assert params_text("saturation", {"limit": 159.935}) == "limit = 159.9 input units"
     assert pairs_text([["zero", "pole_pair"]]) == "zero and pole pair"
