@@ -15,23 +15,14 @@ from __future__ import annotations
 
 from evaluation.sessions.export import export_csv, load_result, sessions_table
 from evaluation.sessions.recorder import CRASH_POLICIES, ReplayMismatch, SessionRecorder, env_state, restore_env_state
-from evaluation.sessions.store import (
-    ExperimentRow,
-    NotASessionDatabase,
-    SessionBusy,
-    SessionInfo,
-    SessionStore,
-    session_key,
-)
+from evaluation.sessions.store import NotASessionDatabase, SessionBusy, SessionStore, session_key
 from evaluation.sessions.tuning_session import TuningSession, session_spec
 
 __all__ = [
     "CRASH_POLICIES",
-    "ExperimentRow",
     "NotASessionDatabase",
     "ReplayMismatch",
     "SessionBusy",
-    "SessionInfo",
     "SessionRecorder",
     "SessionStore",
     "TuningSession",

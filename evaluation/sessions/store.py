@@ -29,6 +29,14 @@ Tables
     Per session, the tuner as it was when the last plant experiment finished
     (a pickle, :mod:`evaluation.sessions.snapshot`), committed with that
     experiment; a resume loads it instead of replaying the history.
+
+Rows
+----
+:meth:`SessionStore.sessions` returns :class:`SessionInfo` (a ``sessions`` row with its
+experiment counts, as ``gbo sessions`` lists them) and :meth:`SessionStore.experiments`
+:class:`ExperimentRow` (an ``experiments`` row). Only the store builds them, one per SQL row,
+and callers read them: they are importable from this module
+(``from evaluation.sessions.store import ExperimentRow``) but not part of the package's ``__all__``.
 """
 
 from __future__ import annotations
@@ -54,8 +62,8 @@ from agents.jsonable import to_json
 from evaluation.sessions.identity import APPLICATION_ID, SCHEMA_VERSION, NotASessionDatabase, identify
 from gbo_envs.experiment import SIGNALS, Experiment
 
-__all__ = ["ARRAY_FIELDS", "PLANT_STATUSES", "DamagedDatabase", "ExperimentRow", "NotASessionDatabase", "SessionBusy",
-           "SessionInfo", "SessionStore", "array_from_blob", "array_to_blob", "check_sound", "session_key"]
+__all__ = ["ARRAY_FIELDS", "PLANT_STATUSES", "DamagedDatabase", "NotASessionDatabase", "SessionBusy", "SessionStore",
+           "array_from_blob", "array_to_blob", "check_sound", "session_key"]
 
 #: Status values of an experiment row.
 PLANT_STATUSES = ("running", "ok", "failed", "lost-in-crash", "interrupted")
