@@ -10,6 +10,12 @@ samples, 2 s per record, and one hidden effect each:
 * ``dead_zone``: a dead band 0.16 wide (the second level, 0.05, inside it: the motor coasts);
 * ``time_delay``: 30 ms of dead time.
 
+and records like other machines (issue 56), each from its generator here:
+
+* ``foc_staircase``: :func:`foc_staircase_records`, a BLDC motor under field-oriented control driven by a
+  q-axis current staircase from standstill (4 steps, the first with the first sample), 10 ms samples,
+  Coulomb friction 0.1 A (:data:`FOC_FRICTION`).
+
 Each set is written as a workbench CSV and diagnosed by the command a user runs, ``gbo twin diagnose FILE
 --json --quiet``; one JSON line per set: the best candidate, the RMSE before and after it, the noise floor and
 the ratio of the two, and the command's wall time. Run from the repository root::
@@ -30,14 +36,59 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # the generator lives in the test suite
     sys.path.insert(0, str(REPO))
 
+import numpy as np  # noqa: E402
+
 from agents.twin.csvio import write_csv  # noqa: E402
+from agents.twin.open_loop import simulate_open_loop  # noqa: E402
+from gbo_envs import ContinuousPlant, Experiment  # noqa: E402
+from gbo_envs.physics.effects import build_effects  # noqa: E402
 from tests.support import real_like_records  # noqa: E402
 
+#: The FOC drive's speed loop seen from the q-axis current: 20 rad/s per A, 50 ms mechanical time constant.
+FOC_PLANT = ContinuousPlant((400.0,), (1.0, 20.0))
+#: The FOC set's hidden friction (``coulomb_friction`` parameters, in A of q-axis current).
+FOC_FRICTION = {"torque": 0.1}
+
+
+def foc_staircase_records(friction: dict | None = None, *, n_records: int = 4, stairs: int = 4,
+                          stair_s: float = 0.5, dt: float = 0.01, noise: float = 0.3, seed: int = 0) -> list:
+    """Speed staircases from standstill as an FOC drive logs them: the current on from the first sample.
+
+    Each record holds ``stairs`` q-axis current levels (A) of ``stair_s`` s each, rising from 40 % to 100 %
+    of about 1 A (+-10 % per record), the first from ``t = 0``; the motor (:data:`FOC_PLANT`, with Coulomb
+    friction ``friction``, default :data:`FOC_FRICTION`) is at standstill before it, so the speed (rad/s,
+    Gaussian noise of std ``noise``) is 0 at ``t = 0``. Records alternate in sign; ``r`` equals ``u``.
+    Sampled every ``dt`` s.
+
+    Returns
+    -------
+    list of gbo_envs.Experiment
+    """
+    rng = np.random.default_rng(seed)
+    per = int(round(stair_s / dt))
+    t = np.arange(stairs * per) * dt
+    records = []
+    for k in range(n_records):
+        sign = 1.0 if k % 2 == 0 else -1.0
+        u = np.repeat(sign * np.linspace(0.4, 1.0, stairs) * rng.uniform(0.9, 1.1), per)
+        blocks = build_effects({"coulomb_friction": dict(FOC_FRICTION if friction is None else friction)})
+        speed = simulate_open_loop(FOC_PLANT, u[None], dt, blocks, y0=0.0, bias=0.0).y_true[0]
+        y = speed + noise * rng.standard_normal(speed.size)
+        records.append(Experiment(gains=(), t=t, r=u.copy(), u=u, y=y, index=k))
+    return records
+
+def _servo(effects: dict, levels: tuple[float, float]):
+    """The servo set with ``effects`` hidden, at the two input ``levels``."""
+    return effects, lambda: real_like_records(effects, levels=levels)
+
+
+#: set name -> (hidden effects, generator of its records)
 SETS = {
-    "asymmetric_friction": ({"coulomb_friction": {"torque": 0.1, "asymmetry": -0.2}}, (0.3, 0.6)),
-    "saturation": ({"saturation": {"limit": 0.45}}, (0.3, 0.6)),
-    "dead_zone": ({"dead_zone": {"width": 0.16}}, (0.5, 0.05)),
-    "time_delay": ({"time_delay": {"delay": 0.03}}, (0.3, 0.6)),
+    "asymmetric_friction": _servo({"coulomb_friction": {"torque": 0.1, "asymmetry": -0.2}}, (0.3, 0.6)),
+    "saturation": _servo({"saturation": {"limit": 0.45}}, (0.3, 0.6)),
+    "dead_zone": _servo({"dead_zone": {"width": 0.16}}, (0.5, 0.05)),
+    "time_delay": _servo({"time_delay": {"delay": 0.03}}, (0.3, 0.6)),
+    "foc_staircase": ({"coulomb_friction": FOC_FRICTION}, foc_staircase_records),
 }
 
 
@@ -48,8 +99,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     out = Path(args.out)
     for name in args.sets:
-        effects, levels = SETS[name]
-        path = write_csv(real_like_records(effects, levels=levels), out / f"{name}.csv")
+        effects, generate = SETS[name]
+        path = write_csv(generate(), out / f"{name}.csv")
         start = time.perf_counter()
         done = subprocess.run([sys.executable, "-m", "evaluation.cli", "twin", "diagnose", str(path), "--json",
                                "--quiet"], capture_output=True, text=True, cwd=REPO, check=True)

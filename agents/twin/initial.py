@@ -8,10 +8,13 @@ A record's model needs its initial state. Real data start in three ways:
   rest level ``y0`` and the rest command ``u0`` are then *measured*, and the model
   is pinned there, with no free level per record. A load or a friction that acts
   at rest must then be explained by the model itself (an ``offset``, a
-  ``coulomb_friction``), which is what makes them observable. An open-loop record
-  whose input is on from its first sample, with its output flat at zero at the
-  start, is a step from standstill with the drive off before it: rest at
-  ``u0 = 0`` (``assumed`` says so; ``initial="steady"`` overrides it).
+  ``coulomb_friction``), which is what makes them observable. A record whose
+  input is on from its first sample (a step at ``t = 0``, or the first level of a
+  staircase that the output already answers before the input's first change),
+  with its output at zero at the start (within its noise and quantum), is a step
+  from standstill with the drive off before it: rest at ``u0 = 0`` (``assumed``
+  says so; ``initial="steady"`` overrides it). The output, not the input's first
+  change, tells that start.
 * ``"steady"``: the excitation starts with the first sample (a closed-loop step
   at ``t = 0``, as the envs record it) and the output starts flat: the record
   starts at a rest it does not show. Its rest level and the command that held it
@@ -156,16 +159,16 @@ def initial_conditions(r: np.ndarray, u: np.ndarray, y: np.ndarray, mask: np.nda
         if j >= n and not _flat(yi, yi):
             j = 0  # one level throughout, and the output moves: the step came with the first sample, or before
         quiet[i] = min(j, n)
-        if j >= 1:
-            if _flat(yi[: max(j, 2)], yi):
-                mode[i], y0[i], u0[i] = "rest", float(np.mean(yi[:j])), float(np.mean(ui[:j]))
-            else:
-                mode[i] = "moving"
+        if j >= 1 and _flat(yi[: max(j, 2)], yi):
+            mode[i], y0[i], u0[i] = "rest", float(np.mean(yi[:j])), float(np.mean(ui[:j]))
             continue
-        start = yi[:START_SAMPLES]
-        if open_loop[i] and _flat(np.array([yi[0], 0.0]), yi):  # from standstill at zero, the drive just on
-            mode[i], y0[i], u0[i], assumed[i] = "rest", float(yi[0]), 0.0, True
-        elif not _flat(start, yi, relative=1e-3):  # moves in its first sample: it was moving before the record
+        # the excitation is on from the first sample (j = 0), or the output answers the first input level
+        # before the input's first change (a staircase whose first step came with the first sample): the start
+        # is judged by the output, at standstill when it sits at zero there
+        driven = j == 0 or abs(float(ui[0])) > 1e-6 * max(float(np.max(np.abs(ui))), 1e-300)
+        if driven and _flat(np.array([yi[0], 0.0]), yi):  # from standstill at zero, the drive just on
+            mode[i], y0[i], u0[i], assumed[i], quiet[i] = "rest", float(yi[0]), 0.0, True, 0
+        elif j >= 1 or not _flat(yi[:START_SAMPLES], yi, relative=1e-3):  # moving before the record
             mode[i] = "moving"
     return InitialConditions(mode.astype(str), y0, u0, quiet, assumed)
 
