@@ -485,10 +485,12 @@ def api_identify_zero(folder: Path, fx: Fixtures):
 
 def _batch(records):
     """The records stacked for the twin: ``Batch`` (``GreyData`` in the code before the records' one form)."""
-    try:
-        from agents.twin.records import Batch
-    except ImportError:
+    from agents.twin import records as module
+
+    if not hasattr(getattr(module, "Batch", None), "from_records"):  # an older Batch was SRIVC's stack only
         from agents.twin.data import GreyData as Batch
+    else:
+        Batch = module.Batch
     return Batch.from_records(records)
 
 
