@@ -14,7 +14,9 @@ and records like other machines (issue 56), each from its generator here:
 
 * ``foc_staircase``: :func:`foc_staircase_records`, a BLDC motor under field-oriented control driven by a
   q-axis current staircase from standstill (4 steps, the first with the first sample), 10 ms samples,
-  Coulomb friction 0.1 A (:data:`FOC_FRICTION`).
+  Coulomb friction 0.1 A (:data:`FOC_FRICTION`);
+* ``speed_rig``: :func:`speed_rig_records`, a lab DC motor speed rig under PID steps from rest, 10 ms
+  samples, a 40 ms dead time and a 25 rpm encoder quantum whose levels jitter with the timer.
 
 Each set is written as a workbench CSV and diagnosed by the command a user runs, ``gbo twin diagnose FILE
 --json --quiet``; one JSON line per set: the best candidate, the RMSE before and after it, the noise floor and
@@ -40,7 +42,7 @@ import numpy as np  # noqa: E402
 
 from agents.twin.csvio import write_csv  # noqa: E402
 from agents.twin.open_loop import simulate_open_loop  # noqa: E402
-from gbo_envs import ContinuousPlant, Experiment  # noqa: E402
+from gbo_envs import ClosedLoop, ContinuousPlant, Experiment, PIDController  # noqa: E402
 from gbo_envs.physics.effects import build_effects  # noqa: E402
 from tests.support import real_like_records  # noqa: E402
 
@@ -77,6 +79,39 @@ def foc_staircase_records(friction: dict | None = None, *, n_records: int = 4, s
         records.append(Experiment(gains=(), t=t, r=u.copy(), u=u, y=y, index=k))
     return records
 
+#: The speed rig's motor: 150 rpm per V, 0.15 s mechanical time constant.
+RIG_PLANT = ContinuousPlant((1000.0,), (1.0, 6.667))
+#: The speed rig's hidden dead time (s) and its encoder quantum (rpm).
+RIG_DELAY, RIG_QUANTUM = 0.04, 25.0
+
+
+def speed_rig_records(*, n_records: int = 6, duration: float = 2.0, dt: float = 0.01, jitter: float = 1e-3,
+                      seed: int = 0) -> list:
+    """PID speed steps of a lab DC motor rig as its logger writes them, with a known dead time.
+
+    Each record steps the reference from rest (0 rpm) to a level drawn from 600-1500 rpm at ``t = 0`` under a
+    PID (``Kp`` 0.004-0.008 V/rpm, ``Ki`` 0.03-0.06 V/(rpm s), ``Kd`` 2e-4 V s/rpm, drawn per record); the
+    motor (:data:`RIG_PLANT`) acts :data:`RIG_DELAY` s after its command, and the speed is read as whole
+    encoder counts per sample (:data:`RIG_QUANTUM` rpm, in the loop), logged over a timed interval whose
+    length jitters (relative std ``jitter``: the logged level is ``n q (1 + eps)``). Sampled every ``dt`` s.
+
+    Returns
+    -------
+    list of gbo_envs.Experiment
+    """
+    rng = np.random.default_rng(seed)
+    blocks = build_effects({"time_delay": {"delay": RIG_DELAY}, "quantization": {"step": RIG_QUANTUM, "mode": "floor"}})
+    records = []
+    for k in range(n_records):
+        loop = ClosedLoop(RIG_PLANT, PIDController(), dt=dt, duration=duration, r1=0.0, r2=rng.uniform(600.0, 1500.0),
+                          effects=blocks)
+        gains = np.array([rng.uniform(0.004, 0.008), rng.uniform(0.03, 0.06), 2e-4])
+        res = loop.simulate(gains[None], rng=rng)
+        y = res.y[0] * (1.0 + jitter * rng.standard_normal(res.y[0].size))
+        records.append(Experiment(gains=gains, t=res.t, r=res.r, u=res.u[0], y=y, index=k))
+    return records
+
+
 def _servo(effects: dict, levels: tuple[float, float]):
     """The servo set with ``effects`` hidden, at the two input ``levels``."""
     return effects, lambda: real_like_records(effects, levels=levels)
@@ -89,6 +124,7 @@ SETS = {
     "dead_zone": _servo({"dead_zone": {"width": 0.16}}, (0.5, 0.05)),
     "time_delay": _servo({"time_delay": {"delay": 0.03}}, (0.3, 0.6)),
     "foc_staircase": ({"coulomb_friction": FOC_FRICTION}, foc_staircase_records),
+    "speed_rig": ({"time_delay": {"delay": RIG_DELAY}, "quantization": {"step": RIG_QUANTUM}}, speed_rig_records),
 }
 
 

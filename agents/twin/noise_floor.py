@@ -35,6 +35,9 @@ _CHI2_MEDIAN = 0.4549
 MIN_SETTLED = 20
 #: A change of the output counts as a whole multiple of the quantum within this fraction of it.
 QUANTUM_TOLERANCE = 0.05
+#: A quantized output whose levels jitter (:func:`_jittered_step`): changes below this fraction of the quantum
+#: are jitter about a level, and a step is a whole multiple within half of it.
+JITTER_SHARE = 0.25
 
 #: What :func:`noise_floor` measured, by method: the label printed next to its value.
 NOISE_FLOOR_LABELS = {
@@ -119,7 +122,32 @@ def quantization_step(y: np.ndarray, mask: np.ndarray | None = None) -> tuple[fl
     q = float(np.median(near)) if near.size else float(low)
     ratio = d[d <= 10.5 * q] / q
     share = float(np.mean(np.abs(ratio - np.round(ratio)) < QUANTUM_TOLERANCE))
-    return (q if share > 0.8 else None), share
+    if share > 0.8:
+        return q, share
+    return _jittered_step(d, share)
+
+
+def _jittered_step(d: np.ndarray, share: float) -> tuple[float | None, float]:
+    """The quantum of sorted changes ``d`` whose levels jitter in proportion to the level (a speed from whole
+    counts over a timed interval: ``n q (1 + eps)``), where no factor-10 gap parts the jitter from the steps.
+
+    A candidate step ``q`` (the median of the changes within 20 % of each of the changes' upper percentiles)
+    counts when no change lies between :data:`JITTER_SHARE` ``q`` and ``(1 - JITTER_SHARE) q`` (the jitter stays
+    well below a step, steps are whole multiples: the gap a continuous noise fills), and more than 80 % of
+    the changes from ``(1 - JITTER_SHARE) q`` up to ``10.5 q``, at least 20, lie within ``JITTER_SHARE / 2 q``
+    of a whole multiple. The smallest such ``q`` is returned with that share; ``(None, share)`` when none.
+    """
+    for q0 in np.unique(np.percentile(d, np.arange(50, 100))):
+        q = float(np.median(d[(d > 0.8 * q0) & (d < 1.2 * q0)]))
+        if np.mean((d > JITTER_SHARE * q) & (d < (1.0 - JITTER_SHARE) * q)) > 0.01:
+            continue
+        steps = d[(d >= (1.0 - JITTER_SHARE) * q) & (d <= 10.5 * q)] / q
+        if steps.size < 20:
+            continue
+        fraction = float(np.mean(np.abs(steps - np.round(steps)) < 0.5 * JITTER_SHARE))
+        if fraction > 0.8:
+            return q, fraction
+    return None, share
 
 
 def white_noise(y: np.ndarray, mask: np.ndarray) -> float | None:

@@ -35,8 +35,8 @@ from agents.twin.uncertainty import parameter_intervals
 from agents.twin.workers import map_independent
 from gbo_envs.physics.effects import EFFECTS, describe_effect
 
-__all__ = ["CLEAR_HELDOUT_GAIN", "DEFAULT_FOLDS", "NUISANCE_REFIT_ITER", "ORDER_RULE", "Ranking", "effect_intervals",
-           "effect_size", "heldout_rss", "rank", "validated_folds"]
+__all__ = ["CLEAR_HELDOUT_GAIN", "DEFAULT_FOLDS", "NUISANCE_REFIT_ITER", "ORDER_RULE", "REFIT_RATIO", "REFIT_SHARE",
+           "Ranking", "effect_intervals", "effect_size", "heldout_rss", "rank", "validated_folds"]
 
 #: Folds of the cross-validation over experiments when none are given (fewer with fewer experiments).
 DEFAULT_FOLDS = 4
@@ -65,7 +65,15 @@ def _folds(data: Batch, n_folds: int) -> list[np.ndarray]:
     return [order[i::k] for i in range(k)]
 
 
-def heldout_rss(data: Batch, fits: Sequence[GreyFit], n_folds: int = 4, max_iter: int = 6) -> np.ndarray:
+#: A candidate whose fit to all data explains more than this share (%) of the current model's residual power ...
+REFIT_SHARE = 30.0
+#: ... and whose held-out RMSE on a fold is more than this many times the current model's there has a failed
+#: fold refit: that fold is predicted from the all-data parameters instead (:func:`heldout_rss`).
+REFIT_RATIO = 2.0
+
+
+def heldout_rss(data: Batch, fits: Sequence[GreyFit], n_folds: int = 4, max_iter: int = 6,
+                refits: dict | None = None) -> np.ndarray:
     """Held-out residual sum of squares of each model, cross-validated over experiments.
 
     Each fold's experiments are left out, every model is refitted on the others
@@ -73,6 +81,14 @@ def heldout_rss(data: Batch, fits: Sequence[GreyFit], n_folds: int = 4, max_iter
     left-out experiments with only their rest levels and biases fitted. An effect
     parameter that the fold's experiments do not determine keeps its full-data value
     (:func:`_keep_undetermined`).
+
+    With ``refits`` (a dict, filled in place) ``fits[0]`` is the reference (the current model), and a
+    fold refit cannot fail silently: where a model's fit to all data explains more than
+    :data:`REFIT_SHARE` % of the reference's residual power but its held-out RMSE on a fold is more than
+    :data:`REFIT_RATIO` times the reference's there (a dead time whose fold refit slid into another
+    minimum of its multimodal cost), that fold is predicted from the model's all-data parameters (the
+    left-out experiments' rest levels and biases fitted), kept where it predicts better;
+    ``refits[m]`` lists ``(fold, failed RMSE, RMSE from the all-data parameters, reference RMSE)``.
 
     Returns
     -------
@@ -93,10 +109,35 @@ def heldout_rss(data: Batch, fits: Sequence[GreyFit], n_folds: int = 4, max_iter
         fit = fits[m]
         tests.append(refit_problem(data, fit, test, False, theta=p.theta[: p.n_global], tag=(m, f)))
     fit_problems(data, tests, max_iter=4)
-    rss = np.zeros(len(fits))
+    costs = np.zeros((len(fits), len(folds)))
     for p in tests:
-        rss[p.tag[0]] += p.cost
-    return rss
+        costs[p.tag] = p.cost
+    if refits is not None:
+        _refit_failed_folds(data, fits, folds, costs, refits)
+    return costs.sum(axis=1)
+
+
+def _refit_failed_folds(data: Batch, fits: Sequence[GreyFit], folds: list[np.ndarray], costs: np.ndarray,
+                        refits: dict) -> None:
+    """The guard of :func:`heldout_rss` (``refits``): refit the failed folds from the all-data parameters.
+
+    Changes ``costs`` (models by folds, held-out residual sums of squares) in place and fills ``refits``.
+    """
+    reference = fits[0].rmse ** 2
+    failed = [(m, f) for m in range(1, len(fits)) for f in range(len(folds))
+              if 100.0 * (1.0 - fits[m].rmse**2 / max(reference, 1e-300)) > REFIT_SHARE
+              and costs[m, f] > REFIT_RATIO**2 * costs[0, f]]
+    if not failed:
+        return
+    trials = [refit_problem(data, fits[m], folds[f], False, tag=(m, f)) for m, f in failed]
+    fit_problems(data, trials, max_iter=4)
+    for p in trials:
+        m, f = p.tag
+        n_fold = int(data.mask[folds[f]].sum())
+        if p.cost < costs[m, f]:
+            refits.setdefault(m, []).append((f, float(np.sqrt(costs[m, f] / n_fold)), float(np.sqrt(p.cost / n_fold)),
+                                             float(np.sqrt(costs[0, f] / n_fold))))
+            costs[m, f] = p.cost
 
 
 def _keep_undetermined(data: Batch, train: list[Problem], fits: Sequence[GreyFit]) -> None:
@@ -258,8 +299,9 @@ def rank(data: Batch, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_f
     n = data.n_samples
     if progress is not None:
         progress.set_postfix_str("cross-validation over experiments")
+    refits: dict = {}
     if data.n_records >= 2:
-        rss = heldout_rss(data, models, n_folds=n_folds)
+        rss = heldout_rss(data, models, n_folds=n_folds, refits=refits)
         validation = f"held-out: {min(n_folds, data.n_records)}-fold cross-validation over experiments"
     else:
         rss = np.array([m.rmse**2 * n for m in models])
@@ -274,8 +316,11 @@ def rank(data: Batch, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_f
                  "evidence": evidence, "train_rmse": float(fit.rmse),
                  "share": _share(current, fit), "extra_params": int(fit.n_params - current.n_params),
                  "effect_rms": float(size) if np.isfinite(size) else 0.0, "fitted": True, "intervals": intervals}
-        if name in plan.notes:
-            entry["note"] = plan.notes[name]
+        notes = [plan.notes[name]] if name in plan.notes else []
+        if i in refits:
+            notes.append(_refit_note(refits[i], min(n_folds, data.n_records)))
+        if notes:
+            entry["note"] = "; ".join(notes)
         cands.append(entry)
     cur_rmse = float(np.sqrt(rss[0] / n))
     for name in plan.skipped:  # not fitted: absorbed by the rest levels, so its fit is the current model's
@@ -334,6 +379,15 @@ def _failed_rule(c: dict, cur_heldout: float, cur_train: float, floor: float | N
     if n_records < 2 and c["kind"] == "order":
         return "no order grown on one record's training error"
     return None
+
+
+def _refit_note(refitted: list, n_folds: int) -> str:
+    """The ranking's note on a candidate whose failed fold refits were predicted from its all-data parameters."""
+    folds = ", ".join(str(f + 1) for f, *_ in refitted)
+    worst = max(refitted, key=lambda r: r[1])
+    return (f"held-out fold{'s' if len(refitted) > 1 else ''} {folds} of {n_folds} refitted from the all-data "
+            f"parameters: the fold refit failed (held-out RMSE {worst[1]:.3g} against {worst[3]:.3g} for the current "
+            f"model; {worst[2]:.3g} from the all-data parameters)")
 
 
 def _described(data: Batch, current: GreyFit, fit: GreyFit, name: str) -> tuple:
