@@ -87,7 +87,8 @@ class NoiseFloor:
                 "white": self.white, "settled": self.settled}
 
 
-def quantization_step(y: np.ndarray, mask: np.ndarray | None = None) -> tuple[float | None, float]:
+def quantization_step(y: np.ndarray, mask: np.ndarray | None = None,
+                      jitter: bool = False) -> tuple[float | None, float]:
     """Resolution of a quantized measurement from the histogram of its sample-to-sample changes.
 
     The non-zero changes of a quantized output are whole multiples of its quantum ``q``
@@ -98,7 +99,10 @@ def quantization_step(y: np.ndarray, mask: np.ndarray | None = None) -> tuple[fl
     of 10.47): when the changes fall into two groups more than a factor 10 apart, the small
     ones are that jitter and ``q`` is read from the large ones. ``q`` is the median of the
     smallest steps (those within a factor of 1.5 of their 5th percentile); the test counts
-    the steps up to 10 ``q`` (a relative jitter grows with the multiple).
+    the steps up to 10 ``q`` (a relative jitter grows with the multiple). With ``jitter``, levels
+    that jitter in proportion to themselves, with no factor-10 gap between the jitter and the
+    steps, count too (:func:`_jittered_step`): the resolution the noise floor takes, while a
+    quantization candidate's step stays a fitted parameter there.
 
     Returns
     -------
@@ -122,8 +126,8 @@ def quantization_step(y: np.ndarray, mask: np.ndarray | None = None) -> tuple[fl
     q = float(np.median(near)) if near.size else float(low)
     ratio = d[d <= 10.5 * q] / q
     share = float(np.mean(np.abs(ratio - np.round(ratio)) < QUANTUM_TOLERANCE))
-    if share > 0.8:
-        return q, share
+    if share > 0.8 or not jitter:
+        return (q if share > 0.8 else None), share
     return _jittered_step(d, share)
 
 
@@ -220,7 +224,7 @@ def noise_floor_estimate(data: Batch) -> NoiseFloor:
     The floor is an estimate of the measurement noise, not a lower bound of a model's error: a
     model that reproduces a quantized or coloured measurement can fit below it.
     """
-    quantum = quantization_step(data.y, data.mask)[0]
+    quantum = quantization_step(data.y, data.mask, jitter=True)[0]
     white = white_noise(data.y, data.mask)
     settled = settled_noise(data)
     rounding = None if quantum is None else quantum / np.sqrt(12.0)

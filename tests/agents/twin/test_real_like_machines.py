@@ -53,7 +53,7 @@ def test_continuous_noise_is_not_a_quantum():
     """A smooth signal with white noise has no quantum (the jitter rule wants an empty gap below the step)."""
     rng = np.random.default_rng(3)
     y = np.cumsum(rng.standard_normal((4, 500)), axis=1) + 0.3 * rng.standard_normal((4, 500))
-    assert quantization_step(y)[0] is None
+    assert quantization_step(y, jitter=True)[0] is None
 
 
 def test_failed_fold_refit_is_redone_from_the_all_data_parameters(speed_rig, monkeypatch):
