@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from agents.twin import ranking
+from agents.twin.diagnose import diagnose
 from agents.twin.evidence import excitation_notes
 from agents.twin.fits import fit_structure
 from agents.twin.noise_floor import noise_floor_estimate, quantization_step
@@ -79,3 +80,20 @@ def test_failed_fold_refit_is_redone_from_the_all_data_parameters(speed_rig, mon
     assert guarded[1] < guarded[0]  # the dead time predicts the held-out experiments better than the linear model
     note = ranking._refit_note(refits[1], 4)
     assert "fold 1 of 4 refitted from the all-data parameters" in note
+
+
+def test_speed_rig_dead_time_named_with_the_refit_note(speed_rig, monkeypatch):
+    """End to end: with the dead time's refit on one fold failing, the diagnosis still names the dead time,
+    and its row in the ranking says that fold was refitted from the all-data parameters."""
+    keep = ranking._keep_undetermined
+
+    def failing(data_, train, fits):
+        keep(data_, train, fits)
+        for p in train:
+            if p.tag[1] == 0 and "time_delay" in p.spec.effect_names:  # the dead time's refit without fold 1
+                p.theta[p.spec.n_linear + 1] = 0.0
+    monkeypatch.setattr(ranking, "_keep_undetermined", failing)
+    diagnosis = diagnose(speed_rig[0], candidates=["time_delay", "compliance"])
+    assert diagnosis.best == "time_delay"
+    row = next(c for c in diagnosis.candidates if c["effect"] == "time_delay")
+    assert "fold 1 of 4 refitted from the all-data parameters" in row["note"]
