@@ -24,7 +24,7 @@ chromium:
 # torch first, pinned to the CPU build, so that stable-baselines3 never pulls a CUDA build; then the project's
 # bytecode, as pip writes it for a regular install: where PYTHONDONTWRITEBYTECODE is set (Docker images, CI) every
 # command would otherwise compile the project's modules again (0.17 s of each gbo twin diagnose); then the compiled
-# simulation, into numba's cache beside the package (gbo_envs/physics/kernels.py): compiled once here (8 s), not
+# simulation, into numba's cache beside the package (gbo_envs/physics/kernels.py): compiled once here (it prints the seconds), not
 # by the first command, nor by each process of make test that needs it first
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
