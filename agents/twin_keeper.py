@@ -45,7 +45,7 @@ from sklearn.base import clone
 
 from agents.parameters import HasMethods, Interval, Options, validate_params
 from agents.twin import make_twin_env
-from agents.twin.identify import IdentifyOptions
+from agents.twin.identify import IdentifyOptions, SrivcOptions
 from agents.twin.linear_twin import LinearTwin
 from agents.twin.model import ModelSpec
 from agents.twin.prior import TwinMetrics
@@ -506,7 +506,7 @@ class TwinKeeper:
 
     def _default_twin(self) -> LinearTwin:
         options = IdentifyOptions(n_poles=self.twin_poles, n_zeros=0, n_integrators=self._integrators(),
-                                  n_samples=self.n_samples)
+                                  solver=SrivcOptions(n_samples=self.n_samples))
         return LinearTwin(options, output=self._env.loop.plant.output, warm_start=True)
 
     # -- what the run shows -----------------------------------------------------------------------------

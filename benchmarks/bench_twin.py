@@ -29,7 +29,7 @@ import numpy as np
 from timing import median_time
 
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin import GreyBoxTwin, IdentifyOptions, LinearTwin, TwinEnv, make_twin_env
+from agents.twin import GreyBoxTwin, IdentifyOptions, LinearTwin, SrivcOptions, TwinEnv, make_twin_env
 from agents.twin.csvio import read_csv
 from gbo_envs.gain_grid import grid_axes, grid_points
 
@@ -58,10 +58,11 @@ def main() -> dict:
         fit_s[label] = {}
         for n in (1, 5, 35):
             start = time.perf_counter()
-            twin = LinearTwin(IdentifyOptions(n_samples=n_samples)).fit(records[:n])
+            twin = LinearTwin(IdentifyOptions(solver=SrivcOptions(n_samples=n_samples))).fit(records[:n])
             fit_s[label][str(n)] = time.perf_counter() - start
         twins[label] = twin
-        warm = LinearTwin(IdentifyOptions(n_samples=n_samples), warm_start=True).fit(records[:34])
+        warm = LinearTwin(IdentifyOptions(solver=SrivcOptions(n_samples=n_samples)), warm_start=True)
+        warm.fit(records[:34])
         start = time.perf_counter()
         warm.fit(records)
         fit_s[label]["35_warm_start"] = time.perf_counter() - start

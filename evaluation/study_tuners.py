@@ -23,7 +23,7 @@ import agents
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.guided_bo import GuidedBO
 from agents.mf_bo import MultiFidelityBO
-from agents.twin import IdentifyOptions, LinearTwin
+from agents.twin import IdentifyOptions, LinearTwin, SrivcOptions
 
 __all__ = ["NoiseTwinMFBO", "OracleTwin", "OracleTwinGuidedBO", "WrongTwinGuidedBO", "wrong_twin"]
 
@@ -34,7 +34,7 @@ def wrong_twin():
     other = gym.make("gbo_envs/DCMotor-v0", effects={"time_delay": {"delay": 0.06}, "saturation": {"limit": 120.0}})
     other.reset(seed=0)
     records = [other.step(np.array(gains))[4] for gains in ([0.5, 1.2], [0.9, 1.6])]
-    return LinearTwin(IdentifyOptions(n_samples=100)).fit(records)
+    return LinearTwin(IdentifyOptions(solver=SrivcOptions(n_samples=100))).fit(records)
 
 
 class WrongTwinGuidedBO(GuidedBO):

@@ -19,7 +19,7 @@ from agents.twin.diagnose import diagnose
 from agents.twin.diagnosis_options import CandidateSearch, DiagnosisRules
 from agents.twin.env import TwinEnv, make_twin_env
 from agents.twin.fits import fit_model
-from agents.twin.identify import IdentifyOptions, identify_linear
+from agents.twin.identify import DelaySearch, IdentifyOptions, SrivcOptions, identify_linear
 from agents.twin.ladder import error_ladder
 from agents.twin.model import GreyFit, ModelSpec
 from agents.twin.records import Batch
@@ -32,7 +32,7 @@ _ESTIMATORS = {"GreyBoxTwin": "agents.twin.greybox_twin", "LinearTwin": "agents.
 __all__ = ["GreyBoxTwin", "LinearTwin", "TwinEnv", "identify_linear", "make_twin_env"]
 __all__ += ["Batch", "GreyFit", "ModelSpec", "compare", "diagnose", "error_ladder", "fit_model", "read_csv",
             "residuals", "write_csv"]
-__all__ += ["CandidateSearch", "DiagnosisRules", "IdentifyOptions"]
+__all__ += ["CandidateSearch", "DelaySearch", "DiagnosisRules", "IdentifyOptions", "SrivcOptions"]
 
 
 def __getattr__(name: str):

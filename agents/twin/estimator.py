@@ -20,7 +20,8 @@ class TwinEstimator(BaseEstimator):
     A parameter that is an option object (a frozen dataclass, e.g. ``options=IdentifyOptions(...)``)
     shows its fields as nested parameters, as scikit-learn shows a nested estimator's:
     ``get_params()["options__n_poles"]``, ``set_params(options__n_zeros=1)`` (a copy with the field
-    replaced, :func:`dataclasses.replace`).
+    replaced, :func:`dataclasses.replace`), and an option object within it (a group) its own:
+    ``set_params(options__solver__n_samples=100)``.
     """
 
     _parameter_constraints: ClassVar[dict[str, list]] = {}
@@ -37,16 +38,17 @@ class TwinEstimator(BaseEstimator):
         return validate_params(self._parameter_constraints, self.get_params(deep=False))
 
     def get_params(self, deep: bool = True) -> dict[str, Any]:
-        """The constructor's parameters; with ``deep``, also ``<option>__<field>`` of each option object."""
+        """The constructor's parameters; with ``deep``, also ``<option>__<field>`` of each option object, and
+        ``<option>__<group>__<field>`` of each option object within it."""
         params = super().get_params(deep=False)
         if deep:
             for name, value in list(params.items()):
-                if dataclasses.is_dataclass(value) and not isinstance(value, type):
-                    params.update({f"{name}__{f.name}": getattr(value, f.name) for f in dataclasses.fields(value)})
+                params.update(_fields(name, value))
         return params
 
     def set_params(self, **params) -> TwinEstimator:
-        """Set parameters; ``<option>__<field>=value`` replaces one field of an option object.
+        """Set parameters; ``<option>__<field>=value`` replaces one field of an option object (and
+        ``<option>__<group>__<field>=value`` one field of a group within it).
 
         Raises
         ------
@@ -58,15 +60,50 @@ class TwinEstimator(BaseEstimator):
             name, field = key.split("__", 1)
             nested.setdefault(name, {})[field] = params.pop(key)
         for name, changes in nested.items():
-            option = params.get(name, getattr(self, name, None))
-            if not dataclasses.is_dataclass(option) or isinstance(option, type):
-                raise ValueError(f"{name}__{next(iter(changes))}: {name} is not an option object of "
-                                 f"{type(self).__name__} (got {option!r})")
-            unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(option)})
-            if unknown:
-                raise ValueError(f"{name}__{unknown[0]}: {type(option).__name__} has no field {unknown[0]!r}")
-            params[name] = dataclasses.replace(option, **changes)
+            params[name] = _replaced(name, params.get(name, getattr(self, name, None)), changes, type(self).__name__)
         return super().set_params(**params)
 
     def __sklearn_is_fitted__(self) -> bool:
         return hasattr(self, "plant_")
+
+
+def _is_option(value) -> bool:
+    return dataclasses.is_dataclass(value) and not isinstance(value, type)
+
+
+def _fields(name: str, value) -> dict[str, Any]:
+    """``{name__field: value}`` of an option object, its groups' fields included (``name__group__field``)."""
+    if not _is_option(value):
+        return {}
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(value):
+        out[f"{name}__{f.name}"] = getattr(value, f.name)
+        out.update(_fields(f"{name}__{f.name}", getattr(value, f.name)))
+    return out
+
+
+def _replaced(name: str, option, changes: dict[str, Any], owner: str):
+    """``option`` with ``changes`` (``field`` or ``group__field`` keys) applied: a whole field first, then a
+    group's fields (:func:`dataclasses.replace`).
+
+    Raises
+    ------
+    ValueError
+        Naming the parameter, for an option that is no option object or a field it does not have.
+    """
+    if not _is_option(option):
+        raise ValueError(f"{name}__{next(iter(changes))}: {name} is not an option object of {owner} (got {option!r})")
+    own = {f.name for f in dataclasses.fields(option)}
+    unknown = sorted({key.split("__", 1)[0] for key in changes} - own)
+    if unknown:
+        raise ValueError(f"{name}__{unknown[0]}: {type(option).__name__} has no field {unknown[0]!r}")
+    groups: dict[str, dict[str, Any]] = {}
+    for key in [key for key in changes if "__" in key]:
+        field, rest = key.split("__", 1)
+        groups.setdefault(field, {})[rest] = changes[key]
+    option = dataclasses.replace(option, **{key: value for key, value in changes.items() if "__" not in key})
+    if not groups:
+        return option
+    return dataclasses.replace(option, **{field: _replaced(f"{name}__{field}", getattr(option, field), group,
+                                                           type(option).__name__)
+                                          for field, group in groups.items()})

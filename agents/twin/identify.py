@@ -22,24 +22,18 @@ from agents.twin.fidelity import rmse
 from agents.twin.records import Batch
 from gbo_envs import ContinuousPlant
 
-__all__ = ["IdentifyOptions", "LinearIdentification", "check_orders", "identify", "identify_linear",
-           "linear_constraints", "prepare_signals", "simulation_error"]
+__all__ = ["DelaySearch", "IdentifyOptions", "LinearIdentification", "SrivcOptions", "check_orders", "identify",
+           "identify_linear", "linear_constraints", "prepare_signals", "simulation_error"]
 
 SCAN_ITER = 8  # SRIVC iterations per delay while scanning the delay grid
 
 
 @dataclass(frozen=True, kw_only=True)
-class IdentifyOptions:
-    """The settings of :func:`identify` (their allowed values: :func:`linear_constraints`).
+class DelaySearch:
+    """How :func:`identify` finds the input delay (an :class:`IdentifyOptions` group).
 
     Attributes
     ----------
-    n_poles : int, default 2
-        Degree ``n`` of ``A(s)``.
-    n_zeros : int, default 0
-        Degree ``m < n`` of ``B(s)``.
-    n_integrators : int, default 0
-        Known poles at ``s = 0`` (1 for a position loop such as the linear motor).
     delay : float, optional
         Known input delay in s; ``None`` searches it.
     max_delay : float, optional
@@ -49,9 +43,21 @@ class IdentifyOptions:
         Spacing of the delay grid in s (default: one sample of the fitted data).
     refine_delay : bool, default True
         Refine the best grid delay by a bounded scalar search (fractional delays).
-    offset : bool, default True
-        Estimate each record's rest levels ``(y0, u0)`` (the pre-step equilibrium);
-        ``False`` takes ``y0 = y[0]`` and ``u0 = 0`` (records already in deviations).
+    """
+
+    delay: float | None = None
+    max_delay: float | None = None
+    delay_step: float | None = None
+    refine_delay: bool = True
+
+
+@dataclass(frozen=True, kw_only=True)
+class SrivcOptions:
+    """The SRIVC solver of :func:`identify`: the samples it fits, its prefilters and iterations (an
+    :class:`IdentifyOptions` group).
+
+    Attributes
+    ----------
     n_samples : int, optional
         Keep this many uniformly spaced samples per record, the paper's sampling
         length ``n_tilde`` of eq. (Ds) (paper: 100). Default ``None`` uses the
@@ -80,14 +86,6 @@ class IdentifyOptions:
         decimated records; on full records SRIVC is already at the minimum).
     """
 
-    n_poles: int = 2
-    n_zeros: int = 0
-    n_integrators: int = 0
-    delay: float | None = None
-    max_delay: float | None = None
-    delay_step: float | None = None
-    refine_delay: bool = True
-    offset: bool = True
     n_samples: int | None = None
     hold: str = "auto"
     oversample: int = 10
@@ -95,6 +93,67 @@ class IdentifyOptions:
     tol: float = 1e-8
     svf_bandwidth: float | None = None
     polish: bool = False
+
+
+#: The groups of :class:`IdentifyOptions`: field name and type.
+_GROUPS = {"delay_search": DelaySearch, "solver": SrivcOptions}
+
+
+@dataclass(frozen=True, kw_only=True)
+class IdentifyOptions:
+    """The settings of :func:`identify`: the model structure, the delay search and the SRIVC solver.
+
+    The structure's settings are fields of their own; the delay search and the solver are groups
+    (:class:`DelaySearch`, :class:`SrivcOptions`). :meth:`settings` lists every setting by its name,
+    the keywords of :func:`identify_linear`; their allowed values are :func:`linear_constraints`.
+
+    Attributes
+    ----------
+    n_poles : int, default 2
+        Degree ``n`` of ``A(s)``.
+    n_zeros : int, default 0
+        Degree ``m < n`` of ``B(s)``.
+    n_integrators : int, default 0
+        Known poles at ``s = 0`` (1 for a position loop such as the linear motor).
+    offset : bool, default True
+        Estimate each record's rest levels ``(y0, u0)`` (the pre-step equilibrium);
+        ``False`` takes ``y0 = y[0]`` and ``u0 = 0`` (records already in deviations).
+    delay_search : DelaySearch, default DelaySearch()
+        The input delay: known, or searched on a grid and refined.
+    solver : SrivcOptions, default SrivcOptions()
+        Decimation, prefilters and iterations of SRIVC.
+
+    Examples
+    --------
+    >>> options = IdentifyOptions(n_poles=3, delay_search=DelaySearch(max_delay=0.01),
+    ...                           solver=SrivcOptions(n_samples=100))
+    >>> options.settings()["max_delay"], options.solver.n_samples
+    (0.01, 100)
+    """
+
+    n_poles: int = 2
+    n_zeros: int = 0
+    n_integrators: int = 0
+    offset: bool = True
+    delay_search: DelaySearch = DelaySearch()
+    solver: SrivcOptions = SrivcOptions()
+
+    def settings(self) -> dict:
+        """Every setting by its name (``n_poles``, ``max_delay``, ``n_samples``, ...), the groups flattened.
+
+        Raises
+        ------
+        ValueError
+            If a group is not of its type (``delay_search`` a :class:`DelaySearch`, ``solver`` a
+            :class:`SrivcOptions`).
+        """
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in _GROUPS}
+        for name, kind in _GROUPS.items():
+            group = getattr(self, name)
+            if not isinstance(group, kind):
+                raise ValueError(f"{name}: must be an instance of {kind.__name__}, got {group!r}")
+            out.update({f.name: getattr(group, f.name) for f in dataclasses.fields(group)})
+        return out
 
 
 @functools.cache
@@ -215,8 +274,12 @@ def prepare_signals(batch: Batch, orders: srivc.Orders, n_samples: int | None = 
     batch : Batch
         The validated records (:meth:`agents.twin.records.Batch.from_records`).
     orders : srivc.Orders
-    n_samples, hold, oversample, offset, rest_levels
-        As in :func:`identify` (:class:`IdentifyOptions`).
+    n_samples, hold, oversample
+        As in :class:`SrivcOptions`.
+    offset
+        As in :class:`IdentifyOptions`.
+    rest_levels
+        As in :func:`identify`.
 
     Returns
     -------
@@ -350,15 +413,17 @@ def identify(batch: Batch, options: IdentifyOptions | None = None, *, start: tup
     True
     """
     o = IdentifyOptions() if options is None else options
-    delay, max_delay, delay_step, offset = o.delay, o.max_delay, o.delay_step, o.offset
-    max_iter, tol = o.max_iter, o.tol
+    search, solver, offset = o.delay_search, o.solver, o.offset
+    delay, max_delay, delay_step = search.delay, search.max_delay, search.delay_step
+    max_iter, tol = solver.max_iter, solver.tol
     orders = check_orders(o.n_poles, o.n_zeros, o.n_integrators)
-    data, groups, signals = prepare_signals(batch, orders, o.n_samples, o.hold, o.oversample, offset, rest_levels)
+    data, groups, signals = prepare_signals(batch, orders, solver.n_samples, solver.hold, solver.oversample, offset,
+                                            rest_levels)
     batch_index = np.concatenate(groups)  # record of each row of the signals, group after group
     dt = min(data.record_dt(k) for k in range(data.n_records))
     horizon = min(data.span(k) for k in range(data.n_records))
 
-    bandwidth = o.svf_bandwidth if o.svf_bandwidth is not None else 10.0 / horizon
+    bandwidth = solver.svf_bandwidth if solver.svf_bandwidth is not None else 10.0 / horizon
     theta0 = None
     if delay is not None:
         grid = np.array([float(delay)])
@@ -390,7 +455,7 @@ def identify(batch: Batch, options: IdentifyOptions | None = None, *, start: tup
         scores.append(evaluate(tau, theta0, scan_iter))
         theta0 = cache[float(tau)][1].theta if np.isfinite(scores[-1]) else None
     best = int(np.argmin(scores))
-    if delay is None and o.refine_delay and grid.size > 1:
+    if delay is None and search.refine_delay and grid.size > 1:
         lo = grid[max(best - 1, 0)]
         hi = grid[min(best + 1, grid.size - 1)]
         warm = cache[float(grid[best])][1].theta
@@ -411,7 +476,7 @@ def identify(batch: Batch, options: IdentifyOptions | None = None, *, start: tup
         raise RuntimeError("identify_linear: SRIVC diverged at every delay; check the data or the model orders")
 
     theta = result.theta
-    if o.polish:
+    if solver.polish:
         bounds = (float(grid[0]), float(grid[-1])) if delay is None else None
         theta, tau_best = _polish(orders, theta, tau_best, signals, score, bounds, offset)
     fit_rmse, fit_rmse_abs, levels = simulation_error(orders, theta, tau_best, signals, offset)
@@ -436,8 +501,8 @@ def identify_linear(records, *, start: tuple | None = None, rest_levels=None, **
     start, rest_levels
         As in :func:`identify`.
     **settings
-        The fields of :class:`IdentifyOptions` (``n_poles``, ``max_delay``, ...), each checked against
-        :func:`linear_constraints`.
+        The settings of :class:`IdentifyOptions` by name (:meth:`IdentifyOptions.settings`: ``n_poles``,
+        ``max_delay``, ``n_samples``, ...), each checked against :func:`linear_constraints`.
 
     Returns
     -------
@@ -448,7 +513,7 @@ def identify_linear(records, *, start: tuple | None = None, rest_levels=None, **
     ValueError
         A setting outside its allowed range (named), or bad records.
     TypeError
-        A setting that :class:`IdentifyOptions` does not have.
+        A setting that :class:`IdentifyOptions` and its groups do not have.
     """
     options = checked_options({**settings, "start": start, "rest_levels": rest_levels}, "identify_linear")
     check_orders(options.n_poles, options.n_zeros, options.n_integrators)
@@ -456,17 +521,21 @@ def identify_linear(records, *, start: tuple | None = None, rest_levels=None, **
 
 
 def checked_options(settings: dict, caller: str) -> IdentifyOptions:
-    """``settings`` as :class:`IdentifyOptions`, each checked against :func:`linear_constraints` and converted
+    """``settings`` (flat, as :meth:`IdentifyOptions.settings` names them) as :class:`IdentifyOptions`, each
+    checked against :func:`linear_constraints` and converted
     (:func:`agents.parameters.validate_params`: a setting out of range raises ``ValueError`` naming it and its
     range); ``start`` (a tuple) and ``rest_levels`` (array-like) are checked too and left out of the options;
     an unknown setting raises ``TypeError`` naming ``caller``."""
-    fields = {f.name for f in dataclasses.fields(IdentifyOptions)}
-    unknown = sorted(set(settings) - fields - {"start", "rest_levels"})
+    groups = {name: {f.name for f in dataclasses.fields(kind)} for name, kind in _GROUPS.items()}
+    fields = {f.name for f in dataclasses.fields(IdentifyOptions)} - set(groups)
+    unknown = sorted(set(settings) - fields - set().union(*groups.values()) - {"start", "rest_levels"})
     if unknown:
         raise TypeError(f"{caller}() got unexpected keyword argument(s) {unknown}")
     constraints = {"start": [None, InstanceOf((tuple,))], "rest_levels": [None, ArrayLike()], **linear_constraints()}
     checked = validate_params(constraints, settings)
-    return IdentifyOptions(**{name: value for name, value in checked.items() if name in fields})
+    grouped = {name: _GROUPS[name](**{key: value for key, value in checked.items() if key in keys})
+               for name, keys in groups.items()}
+    return IdentifyOptions(**{name: value for name, value in checked.items() if name in fields}, **grouped)
 
 
 def _polish(orders, theta, tau, signals, score, delay_bounds, offset):

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from agents.thread_limits import single_thread
-from agents.twin.identify import IdentifyOptions, LinearIdentification, identify
+from agents.twin.identify import DelaySearch, IdentifyOptions, LinearIdentification, SrivcOptions, identify
 from agents.twin.least_squares import Problem, fit_problems, make_problem
 from agents.twin.model import GreyFit, ModelSpec, effect_offset
 from agents.twin.records import Batch
@@ -40,7 +40,7 @@ def linear_fit(data: Batch, spec: ModelSpec | None = None, refine: bool = True) 
     """
     spec = ModelSpec() if spec is None else ModelSpec(spec.n_poles, spec.n_zeros, spec.n_integrators, spec.output)
     options = IdentifyOptions(n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
-                              max_delay=data.dt, refine_delay=False)
+                              delay_search=DelaySearch(max_delay=data.dt, refine_delay=False))
     try:
         fit = identify(data, options, rest_levels=data.initial.rest_levels)
     except RuntimeError:  # SRIVC diverged at every delay
@@ -200,8 +200,8 @@ def profile(data: Batch, spec: ModelSpec, theta: np.ndarray, max_delay: float | 
         if int(data.lengths.max()) > PROFILE_SAMPLES:  # the mean input over each hold: the same impulse
             records = records.thinned(PROFILE_SAMPLES, mean_input=True)
         options = IdentifyOptions(n_poles=spec.n_poles, n_zeros=spec.n_zeros, n_integrators=spec.n_integrators,
-                                  delay=delay, max_delay=max_delay, max_iter=max_iter, tol=tol, hold="zoh",
-                                  delay_step=delay_step)
+                                  delay_search=DelaySearch(delay=delay, max_delay=max_delay, delay_step=delay_step),
+                                  solver=SrivcOptions(max_iter=max_iter, tol=tol, hold="zoh"))
         fit: LinearIdentification = identify(records, options, rest_levels=rest, start=_srivc_start(spec, warm, delay))
     except (ValueError, RuntimeError, np.linalg.LinAlgError):
         return np.inf, theta, np.zeros(data.n_records), np.zeros(data.n_records)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import fields
 from typing import ClassVar
 
 import numpy as np
@@ -38,12 +37,13 @@ class LinearTwin(TwinEstimator):
     Parameters
     ----------
     options : IdentifyOptions, default IdentifyOptions()
-        The model structure (``n_poles``, ``n_zeros``, ``n_integrators``) and the settings of
-        the identification (delay search, decimation, SRIVC iterations), as for
-        :func:`agents.twin.identify.identify` (:class:`agents.twin.identify.IdentifyOptions`; same
-        defaults and allowed ranges, checked at ``fit``). Default: ``IdentifyOptions()``. As a
-        scikit-learn parameter each setting is also ``options__<name>``
-        (``set_params(options__n_zeros=1)``, a grid search over ``options__n_poles``).
+        The model structure (``n_poles``, ``n_zeros``, ``n_integrators``, ``offset``) and the
+        settings of the identification (``delay_search``, :class:`agents.twin.identify.DelaySearch`;
+        ``solver``, :class:`agents.twin.identify.SrivcOptions`), as for
+        :func:`agents.twin.identify.identify` (same defaults and allowed ranges, checked at ``fit``).
+        Default: ``IdentifyOptions()``. As a scikit-learn parameter each setting is also
+        ``options__<name>``, a group's ``options__<group>__<name>`` (``set_params(options__n_zeros=1)``,
+        a grid search over ``options__n_poles`` or ``options__solver__n_samples``).
     output : {"speed", "position"}, default "speed"
         What ``y`` measures; copied to :attr:`plant_`.
     warm_start : bool, default False
@@ -90,7 +90,8 @@ class LinearTwin(TwinEstimator):
     >>> twin = LinearTwin().fit([info])
     >>> bool(np.allclose(twin.params_, (9.544, 4.145, 4.199), rtol=1e-3))
     True
-    >>> LinearTwin(IdentifyOptions(n_samples=100), warm_start=True).get_params()["options__n_samples"]
+    >>> from agents.twin import SrivcOptions
+    >>> LinearTwin(IdentifyOptions(solver=SrivcOptions(n_samples=100))).get_params()["options__solver__n_samples"]
     100
     """
 
@@ -182,15 +183,16 @@ class LinearTwin(TwinEstimator):
         check_is_fitted(self)
         _, options = self._checked()
         orders = check_orders(options.n_poles, options.n_zeros, options.n_integrators)
-        _, groups, signals = prepare_signals(_batch(records), orders, options.n_samples, options.hold,
-                                             options.oversample, options.offset)
+        solver = options.solver
+        _, groups, signals = prepare_signals(_batch(records), orders, solver.n_samples, solver.hold, solver.oversample,
+                                             options.offset)
         return orders, signals, groups, options.offset
 
     def _checked(self) -> tuple[dict, IdentifyOptions]:
         """The parameters and the identification settings, checked (:mod:`agents.parameters`) and converted."""
         params = self._validate_params()
         options = params["options"]
-        return params, checked_options({f.name: getattr(options, f.name) for f in fields(options)}, "LinearTwin")
+        return params, checked_options(options.settings(), "LinearTwin")
 
     def _theta(self, orders: srivc.Orders) -> np.ndarray:
         return np.concatenate([self.den_[1 : orders.n - orders.k + 1], self.num_])

@@ -14,7 +14,7 @@ import gbo_envs  # noqa: F401
 from agents import twin_keeper
 from agents.guidance import TwinIterations
 from agents.guided_bo import GuidedBO
-from agents.twin import GreyBoxTwin, IdentifyOptions, LinearTwin, make_twin_env
+from agents.twin import GreyBoxTwin, IdentifyOptions, LinearTwin, SrivcOptions, make_twin_env
 from agents.twin_keeper import TwinKeeper
 from tests.support import flexible_coupling_env
 
@@ -233,7 +233,8 @@ def test_a_refit_that_no_longer_makes_the_broken_promise_restores_trust():
 def _wrong_twin():
     """A fitted LinearTwin of another plant: DCMotor-v0 behind a 60 ms dead time and a 120-unit drive limit."""
     other = gym.make("gbo_envs/DCMotor-v0", effects={"time_delay": {"delay": 0.06}, "saturation": {"limit": 120.0}})
-    return LinearTwin(IdentifyOptions(n_samples=100)).fit(_records(other, [[0.5, 1.2], [0.9, 1.6]]))
+    twin = LinearTwin(IdentifyOptions(solver=SrivcOptions(n_samples=100)))
+    return twin.fit(_records(other, [[0.5, 1.2], [0.9, 1.6]]))
 
 
 @pytest.mark.slow

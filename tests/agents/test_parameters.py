@@ -68,7 +68,8 @@ def test_identify_linear_names_a_bad_setting_and_converts_the_good_ones():
     from agents.twin.identify import checked_options
 
     options = checked_options({"n_poles": np.int64(3), "delay": 0, "start": None, "rest_levels": None}, "f")
-    assert type(options.n_poles) is int and type(options.delay) is float and options.delay == 0.0
+    assert type(options.n_poles) is int and type(options.delay_search.delay) is float
+    assert options.delay_search.delay == 0.0
     with pytest.raises(ValueError, match=r"max_delay: must be None or a finite float in \[0, inf\), got -1"):
         checked_options({"max_delay": -1}, "f")
     with pytest.raises(ValueError, match=r"start: must be None or an instance of tuple, got \[1\]"):

@@ -14,7 +14,7 @@ import pytest
 
 import agents.twin
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin.identify import IdentifyOptions, identify, identify_linear
+from agents.twin.identify import DelaySearch, IdentifyOptions, SrivcOptions, checked_options, identify, identify_linear
 from agents.twin.records import Batch
 from gbo_envs.experiment import Experiment, RecordError
 
@@ -31,11 +31,13 @@ def records():
 
 def test_identify_takes_the_batch_and_an_option_object(records):
     batch = Batch.from_records(records)
-    options = IdentifyOptions(max_delay=0.006, n_samples=200)
+    options = IdentifyOptions(delay_search=DelaySearch(max_delay=0.006), solver=SrivcOptions(n_samples=200))
     fit = identify(batch, options)
     assert fit.n_records == 3 and fit.n_samples < batch.u.shape[1]  # decimated inside, from the batch
     np.testing.assert_array_equal(fit.params, identify_linear(records, max_delay=0.006, n_samples=200).params)
     assert len(inspect.signature(identify).parameters) <= 12
+    assert checked_options(options.settings(), "f") == options  # the flat names, grouped back
+    assert options.settings()["max_delay"] == 0.006 and options.settings()["n_samples"] == 200
     with pytest.raises(dataclasses.FrozenInstanceError):
         options.n_poles = 3  # type: ignore[misc]
     with pytest.raises(TypeError):

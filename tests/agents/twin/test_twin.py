@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -9,11 +11,12 @@ from sklearn.base import clone
 from sklearn.exceptions import NotFittedError
 from sklearn.model_selection import GridSearchCV
 
-from agents.twin import IdentifyOptions, LinearTwin, TwinEnv, make_twin_env
+from agents.twin import DelaySearch, IdentifyOptions, LinearTwin, SrivcOptions, TwinEnv, make_twin_env
 from gbo_envs import ClosedLoop, ContinuousPlant, ControllerTuningEnv, CostSpec, PDT1Controller
 from tests.support import DC_MOTOR_PARAMS, gain_grid
 
 TRUE = DC_MOTOR_PARAMS
+KNOWN_DELAY = IdentifyOptions(delay_search=DelaySearch(delay=0.002))  # the DC motor's delay, 2 ms
 
 
 def _records(n: int, seed: int = 0, **kwargs) -> tuple[gym.Env, list[dict]]:
@@ -83,7 +86,8 @@ def test_delay_is_recovered_within_one_sample():
 
 def test_fixed_delay_and_decimated_records(clean):
     _, records, _ = clean
-    twin = LinearTwin(IdentifyOptions(delay=0.002, n_samples=100)).fit(records)
+    twin = LinearTwin(IdentifyOptions(delay_search=DelaySearch(delay=0.002), solver=SrivcOptions(n_samples=100)))
+    twin.fit(records)
     assert twin.delay_ == 0.002 and twin.n_samples_ == 100
     assert twin.dt_ == pytest.approx(0.05)
     np.testing.assert_allclose(twin.params_, TRUE, rtol=1e-2)
@@ -92,7 +96,7 @@ def test_fixed_delay_and_decimated_records(clean):
 
 def test_sensor_noise_gives_noise_floor_rmse():
     _, records = _records(5, seed=2, output_noise_std=0.5)
-    twin = LinearTwin(IdentifyOptions(max_delay=0.01)).fit(records)
+    twin = LinearTwin(IdentifyOptions(delay_search=DelaySearch(max_delay=0.01))).fit(records)
     np.testing.assert_allclose(twin.params_, TRUE, rtol=0.03)
     assert twin.rmse_ == pytest.approx(0.5 / 61.0, rel=0.1)  # white noise of 0.5 rad/s on a 61 rad/s step
     assert twin.rmse_abs_ == pytest.approx(0.5, rel=0.1)
@@ -106,7 +110,8 @@ def test_position_loop_with_integrator():
                               reference_gains=np.linspace(low, high, 5))
     env.reset(seed=0)
     records = [env.step(g)[4] for g in np.linspace(low, high, 2)]
-    twin = LinearTwin(IdentifyOptions(n_integrators=1, max_delay=0.005), output="position").fit(records)
+    options = IdentifyOptions(n_integrators=1, delay_search=DelaySearch(max_delay=0.005))
+    twin = LinearTwin(options, output="position").fit(records)
     np.testing.assert_allclose(twin.params_, (0.44262 / 0.070983, 15.0), rtol=1e-3)
     assert twin.den_[-1] == 0.0 and twin.delay_ == pytest.approx(0.001, abs=1e-4)
     twin_env = TwinEnv(env, twin)
@@ -121,16 +126,17 @@ def test_warm_start_refit_and_polish_safeguard(clean):
     assert est.fit(records) is est and est.n_records_ == 3
     np.testing.assert_allclose(est.params_, TRUE, rtol=1e-3)
     _, noisy = _records(2, seed=4, output_noise_std=0.5)
-    plain = LinearTwin(IdentifyOptions(max_delay=0.006)).fit(noisy)
-    polished = LinearTwin(IdentifyOptions(max_delay=0.006, polish=True)).fit(noisy)
+    options = IdentifyOptions(delay_search=DelaySearch(max_delay=0.006))
+    plain = LinearTwin(options).fit(noisy)
+    polished = LinearTwin(dataclasses.replace(options, solver=SrivcOptions(polish=True))).fit(noisy)
     assert polished.rmse_ <= plain.rmse_
 
 
 # -- scikit-learn conventions -----------------------------------------------------------------------
 def test_sklearn_conventions(clean):
     _, records, _ = clean
-    est = LinearTwin(IdentifyOptions(n_poles=2, max_delay=0.004))
-    assert est.get_params()["options__n_poles"] == 2 and est.get_params()["options__max_delay"] == 0.004
+    est = LinearTwin(IdentifyOptions(n_poles=2, delay_search=DelaySearch(max_delay=0.004)))
+    assert est.get_params()["options__n_poles"] == 2 and est.get_params()["options__delay_search__max_delay"] == 0.004
     assert set(est.get_params(deep=False)) == {"options", "output", "warm_start"}
     assert not hasattr(est, "params_")
     with pytest.raises(NotFittedError):
@@ -139,28 +145,54 @@ def test_sklearn_conventions(clean):
         est.score(records)
     assert est.fit(records) is est
     assert clone(est).get_params() == est.get_params() and not hasattr(clone(est), "plant_")
-    assert est.set_params(options__n_zeros=1) is est and est.options == IdentifyOptions(n_zeros=1, max_delay=0.004)
+    assert est.set_params(options__n_zeros=1) is est
+    assert est.options == IdentifyOptions(n_zeros=1, delay_search=DelaySearch(max_delay=0.004))
     with pytest.raises(ValueError, match="options__n_zero: IdentifyOptions has no field 'n_zero'"):
         est.set_params(options__n_zero=1)
     with pytest.raises(ValueError, match="output__x: output is not an option object"):
         est.set_params(output__x=1)
     with pytest.raises(ValueError, match="options: must be an instance of IdentifyOptions"):
         LinearTwin({"n_poles": 2}).fit(records)
-    search = GridSearchCV(LinearTwin(IdentifyOptions(max_delay=0.004)), {"options__n_poles": [1, 2]}, cv=2)
+    search = GridSearchCV(LinearTwin(IdentifyOptions(delay_search=DelaySearch(max_delay=0.004))),
+                          {"options__n_poles": [1, 2]}, cv=2)
     assert search.fit(records + records).best_params_ == {"options__n_poles": 2}  # sklearn's nested parameters
     with pytest.raises(ValueError, match="not fitted"):
         TwinEnv(gym.make("gbo_envs/DCMotor-v0"), LinearTwin())
 
 
+def test_option_groups_are_nested_sklearn_parameters(clean):
+    _, records, _ = clean
+    est = LinearTwin(IdentifyOptions(delay_search=DelaySearch(max_delay=0.004)))
+    params = est.get_params()
+    assert params["options__delay_search"] == DelaySearch(max_delay=0.004)
+    assert params["options__solver__n_samples"] is None and params["options__solver__hold"] == "auto"
+    est.set_params(options__solver__n_samples=100, options__n_poles=3)
+    assert est.options == IdentifyOptions(n_poles=3, delay_search=DelaySearch(max_delay=0.004),
+                                          solver=SrivcOptions(n_samples=100))
+    est.set_params(options__delay_search=DelaySearch(delay=0.002), options__delay_search__refine_delay=False)
+    assert est.options.delay_search == DelaySearch(delay=0.002, refine_delay=False)  # the group, then its field
+    assert clone(est).get_params() == est.get_params()
+    with pytest.raises(ValueError, match="options__solver__n_sample: SrivcOptions has no field 'n_sample'"):
+        est.set_params(options__solver__n_sample=1)
+    with pytest.raises(ValueError, match="options__n_poles__x: options__n_poles is not an option object"):
+        est.set_params(options__n_poles__x=1)
+    with pytest.raises(ValueError, match="solver: must be an instance of SrivcOptions, got {'n_samples': 100}"):
+        LinearTwin(IdentifyOptions(solver={"n_samples": 100})).fit(records)  # type: ignore[arg-type]
+    search = GridSearchCV(LinearTwin(IdentifyOptions(delay_search=DelaySearch(max_delay=0.004))),
+                          {"options__solver__n_samples": [50, 200]}, cv=2).fit(records + records)
+    assert list(search.cv_results_["param_options__solver__n_samples"]) == [50, 200]
+    assert search.best_estimator_.options.solver.n_samples == search.best_params_["options__solver__n_samples"]
+
+
 def test_fit_accepts_arrays_and_dataframes(clean):
     _, records, twin = clean
     arrays = [np.column_stack([rec["t"], rec["r"], rec["u"], rec["y"]]) for rec in records]
-    np.testing.assert_allclose(LinearTwin(IdentifyOptions(delay=0.002)).fit(arrays).params_, twin.params_, rtol=1e-6)
+    np.testing.assert_allclose(LinearTwin(KNOWN_DELAY).fit(arrays).params_, twin.params_, rtol=1e-6)
     pd = pytest.importorskip("pandas")
     frame = pd.concat([pd.DataFrame({"experiment": i, "t": r["t"], "r": r["r"], "u": r["u"], "y": r["y"]})
                        for i, r in enumerate(records)])
-    np.testing.assert_allclose(LinearTwin(IdentifyOptions(delay=0.002)).fit(frame).params_, twin.params_, rtol=1e-6)
-    assert -1e-6 < LinearTwin(IdentifyOptions(delay=0.002)).fit(frame).score(records) <= 0.0
+    np.testing.assert_allclose(LinearTwin(KNOWN_DELAY).fit(frame).params_, twin.params_, rtol=1e-6)
+    assert -1e-6 < LinearTwin(KNOWN_DELAY).fit(frame).score(records) <= 0.0
 
 
 # -- bad input --------------------------------------------------------------------------------------
@@ -182,7 +214,7 @@ def test_bad_records_raise_clear_value_errors(clean, mutate, message):
     rec = _one(clean)
     mutate(rec)
     with pytest.raises(ValueError, match=message):
-        LinearTwin(IdentifyOptions(delay=0.002)).fit([rec])
+        LinearTwin(KNOWN_DELAY).fit([rec])
 
 
 def test_empty_and_malformed_input_raise(clean):
@@ -193,7 +225,7 @@ def test_empty_and_malformed_input_raise(clean):
     with pytest.raises(ValueError, match="n_zeros"):
         LinearTwin(IdentifyOptions(n_zeros=2)).fit(clean[1])
     with pytest.raises(ValueError, match="hold"):
-        LinearTwin(IdentifyOptions(hold="spline")).fit(clean[1])
+        LinearTwin(IdentifyOptions(solver=SrivcOptions(hold="spline"))).fit(clean[1])
 
 
 
@@ -250,7 +282,7 @@ def test_a_pole_run_off_to_infinity_is_divergence_not_a_nan_in_lapack(gains, cap
     from tests.support import FlexibleCouplingRig
 
     t, r, u, y = FlexibleCouplingRig(omega=15.0, zeta=0.06, noise_std=0.05, seed=0)(np.array(gains))
-    twin = LinearTwin(IdentifyOptions(n_poles=2, n_samples=100), warm_start=True)
+    twin = LinearTwin(IdentifyOptions(n_poles=2, solver=SrivcOptions(n_samples=100)), warm_start=True)
     twin.fit([{"t": t, "r": r, "u": u, "y": y}])
     assert np.all(np.isfinite(twin.params_)) and np.isfinite(twin.delay_) and twin.rmse_ < 0.01
     assert "DLASCL" not in "".join(capfd.readouterr())

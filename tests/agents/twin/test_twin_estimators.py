@@ -3,6 +3,8 @@ against a plain ``scipy.optimize.least_squares`` call."""
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -11,7 +13,7 @@ from sklearn.base import clone
 from sklearn.exceptions import NotFittedError
 
 import gbo_envs  # noqa: F401  (registers the envs)
-from agents.twin import GreyBoxTwin, IdentifyOptions, LinearTwin, TwinEnv, identify_linear
+from agents.twin import DelaySearch, GreyBoxTwin, IdentifyOptions, LinearTwin, SrivcOptions, TwinEnv, identify_linear
 from agents.twin.csvio import records_from_loop
 from agents.twin.fidelity import rmse
 from agents.twin.least_squares import fit_problems, make_problem, residual
@@ -40,9 +42,17 @@ def saturating():
     return env, records, GreyBoxTwin(effects=["saturation"]).fit(records[:2])
 
 
+def _options(**settings) -> IdentifyOptions:
+    """The flat settings (:func:`identify_linear`'s keywords) in their groups, unchecked."""
+    groups = {name: {key: settings.pop(key) for key in list(settings) if key in {f.name for f in fields(kind)}}
+              for name, kind in (("delay_search", DelaySearch), ("solver", SrivcOptions))}
+    return IdentifyOptions(**settings, delay_search=DelaySearch(**groups["delay_search"]),
+                           solver=SrivcOptions(**groups["solver"]))
+
+
 def test_identify_linear_is_what_linear_twin_fits(clean_records):
     fit = identify_linear(clean_records, max_delay=0.006)
-    twin = LinearTwin(IdentifyOptions(max_delay=0.006)).fit(clean_records)
+    twin = LinearTwin(IdentifyOptions(delay_search=DelaySearch(max_delay=0.006))).fit(clean_records)
     np.testing.assert_allclose(fit.params, TRUE, rtol=1e-3)
     np.testing.assert_array_equal(twin.params_, fit.params)
     assert twin.delay_ == fit.delay and twin.rmse_ == fit.rmse and fit.param_names == ("b0", "a1", "a2")
@@ -61,7 +71,7 @@ def test_identify_linear_is_what_linear_twin_fits(clean_records):
 ])
 def test_bad_settings_name_the_parameter_and_its_range(clean_records, kwargs, message):
     with pytest.raises(ValueError, match=message):
-        LinearTwin(IdentifyOptions(**kwargs)).fit(clean_records)
+        LinearTwin(_options(**kwargs)).fit(clean_records)
     with pytest.raises(ValueError, match=message):
         identify_linear(clean_records, **kwargs)
 
@@ -75,7 +85,7 @@ def test_score_is_the_negative_normalised_rmse(clean_records):
     env = gym.make("gbo_envs/DCMotor-v0", output_noise_std=0.5)
     env.reset(seed=3)
     noisy = [env.step(np.array(g))[4] for g in ([0.5, 1.2], [0.9, 2.0], [0.7, 1.0])]
-    twin = LinearTwin(IdentifyOptions(max_delay=0.006)).fit(noisy[:2])
+    twin = LinearTwin(IdentifyOptions(delay_search=DelaySearch(max_delay=0.006))).fit(noisy[:2])
     assert twin.score(noisy[:2]) == pytest.approx(-twin.rmse_, rel=1e-12)
     held_out = twin.score(noisy[2:])
     assert -0.02 < held_out < -0.004  # white noise of 0.5 rad/s on a step of about 61 rad/s
