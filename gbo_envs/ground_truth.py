@@ -15,6 +15,7 @@ import numpy as np
 from joblib import Parallel, delayed
 from tqdm.auto import tqdm
 
+from gbo_envs.constraints import Constraints
 from gbo_envs.gain_grid import grid_axes, grid_points
 from gbo_envs.ground_truth_tables import load_search_table, load_table
 from gbo_envs.optimum_search import SearchDisagreement, certified_minimum, default_points
@@ -59,6 +60,11 @@ class GroundTruth:
         Search: ``(check_cost - cost) / cost``, certified when ``<= tolerance``.
     evaluations : int or None
         Search: cost evaluations of both searches.
+    constraints : dict or None
+        ``{name: limit}`` of the constraints the optimum keeps (``None``: unconstrained); ``gains``
+        and ``cost`` are then the best *feasible* grid cell.
+    feasible : ndarray of bool of shape (resolution,) * n_gains or None
+        With constraints: which grid cells keep every limit (and are stable).
     """
 
     gains: np.ndarray
@@ -73,6 +79,13 @@ class GroundTruth:
     check_cost: float | None = None
     disagreement: float | None = None
     evaluations: int | None = None
+    constraints: dict | None = None
+    feasible: np.ndarray | None = None
+
+    @property
+    def feasible_share(self) -> float | None:
+        """With constraints: the share of the grid's cells that keep every limit (``None`` without)."""
+        return None if self.feasible is None else float(np.mean(self.feasible))
 
     @property
     def certified(self) -> bool | None:
@@ -144,7 +157,8 @@ class GroundTruth:
 
 def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: int = -1, progress: bool = False,
                  use_table: bool = True, method: str = "auto", n_points: int | None = None, n_starts: int = 16,
-                 tolerance: float = 1e-3, seeds: tuple[int, int] = (0, 1), **make_kwargs) -> GroundTruth:
+                 tolerance: float = 1e-3, seeds: tuple[int, int] = (0, 1), constraints=None,
+                 **make_kwargs) -> GroundTruth:
     """Ground-truth minimum of the cost ``J(theta)`` over the feasible set: a grid (two gains) or a search.
 
     Up to two gains (``method="auto"``): ``J`` on a ``resolution``-point-per-gain
@@ -204,12 +218,24 @@ def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: in
         Search: largest admitted relative difference of the two searches' minima, ``> 0``.
     seeds : (int, int), default (0, 1)
         Search: the Sobol seeds of the two searches.
+    constraints : mapping, optional
+        Limits the optimum must keep (:class:`~gbo_envs.constraints.Constraints`); default: the
+        env's own (``gym.make(id, constraints=...)``), ``{}`` for none. With constraints the grid
+        is computed live and the result is its best feasible cell, each cell judged on the
+        noise-free experiment (:meth:`~gbo_envs.ControllerTuningEnv.evaluate_constraints`: the
+        expected metrics, ``peak_u`` on the record of noise draw 0, unstable cells infeasible).
+        Needs the grid (``method="grid"`` from three gains up: ``resolution ** n_gains`` cells).
     **make_kwargs
         Passed to ``gym.make`` when an id is given.
 
     Returns
     -------
     GroundTruth
+
+    Raises
+    ------
+    ValueError
+        With constraints: no grid cell is feasible, or the method is the search.
     """
     if int(resolution) < 2:
         raise ValueError(f"resolution: must be an integer >= 2, got {resolution}")
@@ -218,6 +244,12 @@ def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: in
     env = gym.make(env_or_id, **make_kwargs) if isinstance(env_or_id, str) else env_or_id
     plant_env = env.unwrapped
     dim = plant_env.action_space.shape[0]
+    limits = getattr(plant_env, "constraints", Constraints()) if constraints is None else Constraints(constraints)
+    if limits:
+        if method == "search" or (method == "auto" and dim > GRID_MAX_GAINS):
+            raise ValueError(f"constraints: the certified search is unconstrained; for {dim} gains pass "
+                             f"method='grid' (resolution ** {dim} cells)")
+        return _constrained_grid(plant_env, limits, int(resolution), int(chunk), n_jobs, progress)
     if method == "search" or (method == "auto" and dim > GRID_MAX_GAINS):
         return _search(env, search_settings(dim, n_points, n_starts, tolerance, seeds), int(chunk), progress,
                        use_table)
@@ -276,6 +308,32 @@ def _search(env, search: dict, chunk: int, progress: bool, use_table: bool) -> G
                        tolerance=search["tolerance"], check_gains=np.asarray(stored["check_gains"], dtype=float),
                        check_cost=float(stored["check_cost"]), disagreement=float(stored["disagreement"]),
                        evaluations=int(stored["evaluations"]))
+
+
+def _constrained_grid(plant, limits: Constraints, resolution: int, chunk: int, n_jobs: int,
+                      progress: bool) -> GroundTruth:
+    """The grid's best feasible cell under ``limits`` (computed live: the tables hold costs only)."""
+    axes = grid_axes(plant.action_space.low, plant.action_space.high, resolution)
+    grid = grid_points(axes)
+    parts = np.array_split(grid, max(1, grid.shape[0] // max(1, chunk)))
+    tasks = Parallel(n_jobs=n_jobs, return_as="generator")(
+        delayed(_constrained_part)(plant, limits, part) for part in parts)
+    done = list(tqdm(tasks, total=len(parts), desc="ground truth", unit="task", disable=not progress))
+    shape = [axis.size for axis in axes]
+    costs = np.concatenate([d[0] for d in done]).reshape(shape)
+    feasible = np.concatenate([d[1] for d in done]).reshape(shape)
+    if not feasible.any():
+        raise ValueError(f"constraints: no gain of the {resolution}-point grid keeps {limits!r}; loosen a limit")
+    best = np.unravel_index(int(np.argmin(np.where(feasible, costs, np.inf))), costs.shape)
+    return GroundTruth(gains=np.array([axis[i] for axis, i in zip(axes, best)]), cost=float(costs[best]),
+                       gain_names=plant.gain_names, axes=tuple(axes), costs=costs, gain_units=plant.gain_units,
+                       constraints=limits.to_spec(), feasible=feasible)
+
+
+def _constrained_part(env, limits: Constraints, gains: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``J`` and feasibility at ``gains`` for one task (module level for the worker processes)."""
+    cost, _, feasible = env.evaluate_constraints(gains, experiment_index=0, constraints=limits)
+    return cost, feasible
 
 
 def _evaluate_part(env, gains: np.ndarray) -> np.ndarray:

@@ -15,6 +15,7 @@ from gymnasium import spaces
 
 from gbo_envs import plotting
 from gbo_envs.closed_loop import ClosedLoop, StepResponse
+from gbo_envs.constraints import Constraints
 from gbo_envs.envs.cost_spec import CostSpec, is_complex, validated_vector
 from gbo_envs.experiment import Experiment
 from gbo_envs.metrics import METRIC_NAMES, weighted_cost
@@ -26,6 +27,10 @@ __all__ = ["ControllerTuningEnv", "OUT_OF_BOUNDS_POLICIES", "expected_outcome"]
 OUT_OF_BOUNDS_POLICIES = ("raise", "clip", "allow")
 #: Smallest normaliser computed from the reference gains (a metric they never show, e.g. no overshoot).
 NORMALIZER_FLOOR = 1e-9
+
+
+#: The constraints of an env that has none.
+_NO_CONSTRAINTS = Constraints()
 
 
 class ControllerTuningEnv(gym.Env):
@@ -73,6 +78,12 @@ class ControllerTuningEnv(gym.Env):
     best_cost : float
         Lowest cost measured since the last :meth:`reset` (``inf`` before the first
         experiment), part of the observation; a resumed session restores both.
+    constraints : gbo_envs.constraints.Constraints
+        Upper limits the experiments must keep; empty by default. Assigning a mapping sets them
+        (``env.constraints = {"overshoot_pct": 2.0, "peak_u": 140.0}``, or ``{"name": (function,
+        limit)}`` for a function of the record; the built-in envs take it as ``gym.make(id,
+        constraints=...)``). Every :meth:`step` reports ``info["constraints"]`` (name -> value -
+        limit, ``<= 0`` kept) and ``info["feasible"]`` (without constraints: ``not unstable``).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 1}
@@ -207,6 +218,7 @@ class ControllerTuningEnv(gym.Env):
         info["experiment"] = Experiment(gains=gains, t=response.t, r=response.r, u=response.u[0], y=response.y[0],
                                         cost=cost, metrics=info["metrics"], source=self.experiment_source,
                                         index=self.experiment_index)
+        info.update(self.constraints.judge(info["experiment"], unstable))
         info.update(self.extra_info(self.experiment_index))
         self.experiment_index += 1
         self._last_obs = self._observation(gains, metrics, cost)
@@ -295,6 +307,52 @@ class ControllerTuningEnv(gym.Env):
         index = self.experiment_index if experiment_index is None else experiment_index
         metrics, cost, _ = self._expected(self.loop_for_experiment(index), np.atleast_2d(gains), record=False)
         return metrics, cost
+
+    @property
+    def constraints(self) -> Constraints:
+        """The limits of every experiment (see the class doc); assign a mapping to set them."""
+        return getattr(self, "_constraints", _NO_CONSTRAINTS)
+
+    @constraints.setter
+    def constraints(self, spec) -> None:
+        self._constraints = Constraints(spec)
+
+    def evaluate_constraints(self, gains: np.ndarray, experiment_index: int | None = None,
+                             constraints: Constraints | None = None) -> tuple[np.ndarray, ...]:
+        """Ground truth with :attr:`constraints`: cost, ``value - limit`` and feasibility of a batch of gains.
+
+        Each gain is judged as ``noise=False`` :meth:`step` judges it: the expected metrics and
+        cost of :meth:`evaluate`, ``peak_u`` and user functions on the record of noise draw 0
+        (the noise-free experiment of a noise-free loop), an unstable one infeasible.
+
+        Parameters
+        ----------
+        gains : ndarray of shape (batch, n_gains)
+        experiment_index : int, optional
+            As in :meth:`evaluate`.
+        constraints : Constraints, optional
+            The limits to judge by (default: :attr:`constraints`).
+
+        Returns
+        -------
+        cost : ndarray of shape (batch,)
+        slacks : ndarray of shape (batch, n_constraints)
+            ``value - limit`` in the constraints' order.
+        feasible : ndarray of bool, shape (batch,)
+        """
+        gains = np.atleast_2d(np.asarray(gains, dtype=float))
+        index = self.experiment_index if experiment_index is None else experiment_index
+        metrics, cost, response = self._expected(self.loop_for_experiment(index), gains, record=True)
+
+        def record(i: int) -> Experiment:
+            return Experiment(gains=gains[i], t=response.t, r=response.r, u=response.u[i], y=response.y[i],
+                              cost=float(cost[i]), metrics=dict(zip(METRIC_NAMES, map(float, metrics[i]))),
+                              source=self.experiment_source)
+
+        limits = self.constraints if constraints is None else Constraints(constraints)
+        slacks = limits.batch_slacks(metrics, response.u, record)
+        feasible = ~np.asarray(response.unstable, dtype=bool) & np.all(slacks <= 0.0, axis=1)
+        return cost, slacks, feasible
 
     def _expected(self, loop: ClosedLoop, gains: np.ndarray, record: bool = True):
         """:func:`expected_outcome` of this env's cost on ``loop`` (the record of draw 0 if ``record``)."""

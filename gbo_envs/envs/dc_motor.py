@@ -118,6 +118,8 @@ class DCMotorEnv(ControllerTuningEnv):
     * ``expectation_draws``, ``expectation_seed``: the ``K`` fixed noise draws
       (and their seed) over which the ground truth averages when the
       measurement is noisy (``output_noise_std > 0``); unused otherwise.
+    * ``constraints``: upper limits the experiments must keep, e.g. ``{"overshoot_pct": 2.0,
+      "peak_u": 140.0}`` (:mod:`gbo_envs.constraints`); ``info["constraints"]`` and ``info["feasible"]``.
 
     ## Version History
 
@@ -143,6 +145,7 @@ class DCMotorEnv(ControllerTuningEnv):
         normalizers=None,
         expectation_draws: int = 16,
         expectation_seed: int = 0,
+        constraints=None,
     ) -> None:
         cost_noise_std = DC_MOTOR["cost_noise_std"] if cost_noise_std is None else cost_noise_std
         output_noise_std = DC_MOTOR["output_noise_std"] if output_noise_std is None else output_noise_std
@@ -176,6 +179,7 @@ class DCMotorEnv(ControllerTuningEnv):
             expectation_draws=expectation_draws,
             expectation_seed=expectation_seed,
         )
+        self.constraints = constraints
 
 
 def dc_motor_plant(gain: float, tau1: float, tau2: float, delay: float) -> ContinuousPlant:

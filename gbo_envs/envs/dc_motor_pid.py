@@ -162,6 +162,7 @@ class DCMotorPIDEnv(ControllerTuningEnv):
         normalizers=None,
         expectation_draws: int = 16,
         expectation_seed: int = 0,
+        constraints=None,
     ) -> None:
         cost_noise_std = DC_MOTOR_PID["cost_noise_std"] if cost_noise_std is None else cost_noise_std
         output_noise_std = DC_MOTOR["output_noise_std"] if output_noise_std is None else output_noise_std
@@ -193,3 +194,4 @@ class DCMotorPIDEnv(ControllerTuningEnv):
             expectation_draws=expectation_draws,
             expectation_seed=expectation_seed,
         )
+        self.constraints = constraints

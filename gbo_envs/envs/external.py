@@ -252,6 +252,11 @@ class ExternalPlantEnv(ControllerTuningEnv):
       twin's model structure (:class:`PlantStructure`).
     * ``max_experiments``, ``out_of_bounds``: as in :class:`ControllerTuningEnv`.
 
+    The machine's limits are set after construction, ``env.constraints = {"overshoot_pct": 2.0,
+    "peak_u": 140.0}`` (:attr:`ControllerTuningEnv.constraints`); every step then reports
+    ``info["constraints"]`` and ``info["feasible"]``, and a failed experiment is infeasible (its
+    values are NaN).
+
     Examples
     --------
     >>> import numpy as np
@@ -347,6 +352,7 @@ class ExternalPlantEnv(ControllerTuningEnv):
             metrics, cost = np.zeros(len(METRIC_NAMES)), self.failure_cost
             info["cost"] = cost
         info["experiment"] = Experiment.from_mapping(info, source=self.experiment_source)
+        info.update(self.constraints.judge(None if info["failed"] else info["experiment"], info["unstable"]))
         self.best_cost = min(self.best_cost, cost)
         self._last_obs = self._observation(gains, metrics, cost)
         return self._last_obs.copy(), -cost, False, False, info

@@ -171,6 +171,8 @@ class LinearMotorEnv(ControllerTuningEnv):
     * ``expectation_draws``, ``expectation_seed``: the ``K`` fixed noise draws
       (and their seed) over which the ground truth averages when the
       measurement is noisy (``output_noise_std > 0``); unused otherwise.
+    * ``constraints``: upper limits the experiments must keep, e.g. ``{"overshoot_pct": 2.0,
+      "peak_u": 140.0}`` (:mod:`gbo_envs.constraints`); ``info["constraints"]`` and ``info["feasible"]``.
     * ``normalizers``: explicit cost normalisers (a digital twin reuses its plant's).
 
     ## Version History
@@ -199,6 +201,7 @@ class LinearMotorEnv(ControllerTuningEnv):
         normalizers=None,
         expectation_draws: int = 16,
         expectation_seed: int = 0,
+        constraints=None,
     ) -> None:
         cost_noise_std = LINEAR_MOTOR["cost_noise_std"] if cost_noise_std is None else cost_noise_std
         output_noise_std = LINEAR_MOTOR["output_noise_std"] if output_noise_std is None else output_noise_std
@@ -232,6 +235,7 @@ class LinearMotorEnv(ControllerTuningEnv):
             expectation_draws=expectation_draws,
             expectation_seed=expectation_seed,
         )
+        self.constraints = constraints
 
 
 def linear_motor_plant(gain: float, inertia: float, damping: float, delay: float) -> ContinuousPlant:

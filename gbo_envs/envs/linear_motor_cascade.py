@@ -206,6 +206,7 @@ class LinearMotorCascadeEnv(ControllerTuningEnv):
         normalizers=None,
         expectation_draws: int = 16,
         expectation_seed: int = 0,
+        constraints=None,
     ) -> None:
         cost_noise_std = LINEAR_MOTOR["cost_noise_std"] if cost_noise_std is None else cost_noise_std
         output_noise_std = LINEAR_MOTOR["output_noise_std"] if output_noise_std is None else output_noise_std
@@ -244,3 +245,4 @@ class LinearMotorCascadeEnv(ControllerTuningEnv):
             expectation_draws=expectation_draws,
             expectation_seed=expectation_seed,
         )
+        self.constraints = constraints
