@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from agents.recorder import ExperimentRecorder, InMemory
-from agents.result import TuningResult
+from agents.result import TuningResult, constraint_columns, env_constraints
 from agents.run_display import env_id, progress_bar
 from agents.space import GainSpace
 from gbo_envs.envs.external import ExperimentFailed
@@ -276,7 +276,8 @@ class Tuner(abc.ABC):
         told, skips = recorder.resume(self, env)
         name = env_id(env)
         result = TuningResult(tuner=self.name, env_id=name, gain_names=space.names, seed=seed,
-                              info={"params": self.get_params()}, gain_units=space.units)
+                              info={"params": self.get_params()}, gain_units=space.units,
+                              constraints=env_constraints(env))
         start = time.perf_counter()
         best = np.inf
         bar = progress_bar(budget, f"{self.name} on {name}", progress, initial=told)
@@ -324,13 +325,15 @@ class Tuner(abc.ABC):
                 for twin in proposing + learning:
                     result.add(Experiment.from_mapping(twin, source="twin", index=experiment - 1), experiment,
                                np.nan, time.perf_counter() - start, twin)
-                best = min(best, cost)
+                judged = constraint_columns(info, failed)
+                if judged["feasible"] or not result.constraints:  # with limits: the best feasible cost so far
+                    best = min(best, cost)
                 record = Experiment.from_mapping(info)
                 if record.cost != cost:  # a wrapper edited info["cost"]: the row shows the cost the tuner was told
                     record = record.replace(cost=cost)
                 row = result.add(record, experiment, best, time.perf_counter() - start,
                                  {"true_cost": info.get("true_cost", np.nan),
-                                  "unstable": bool(info.get("unstable", False))})
+                                  "unstable": bool(info.get("unstable", False)), **judged})
                 if callback is not None:
                     callback(row)
                 bar.update(1)

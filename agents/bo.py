@@ -17,6 +17,7 @@ from scipy.stats import qmc
 
 from agents.acquisition import ExpectedImprovement, maximize_multistart, maximize_on_grid
 from agents.base import Tuner
+from agents.feasibility import ConstrainedAcquisition, ConstraintModel, constraint_set
 from agents.metric_surrogate import CompositeSurrogate, MetricSurrogate
 from agents.parameters import Interval, Options, validate_params
 from agents.result import METRIC_COLUMNS
@@ -122,6 +123,19 @@ class BayesianOptimization(Tuner):
         the env's step (``env.unwrapped.loop.r1``, ``.r2``, ``.duration``) and the records' ``t``
         and ``y``, else the GP is used. It needs fewer experiments but makes ``ask()`` slower
         (benchmarks/README.md has the figures).
+    safe : bool, default False
+        Safe mode: every proposal keeps the env's constraints with probability ``PF >= 1 - delta``
+        under the constraint GPs (the *lower-confidence-bound safe set*: the gains whose
+        ``PF(theta) = prod_j Phi(-mu_j / sigma_j)`` is at least ``1 - delta``, with the acquisition
+        ``EI x PF`` maximised inside it; not SafeOpt's expanders and maximisers, which
+        ``agents.make("safeopt")`` implements). The first experiments are ``safe_start``; the
+        safe set grows from them as the constraint GPs learn. If no candidate is safe, the best
+        feasible gains measured are run again. Needs an env with constraints and ``safe_start``.
+    safe_start : array_like of shape (m, n_gains) or (n_gains,), optional
+        Gains known to keep every constraint, in the env's units (the first ``m`` experiments of
+        safe mode, in place of the Latin hypercube).
+    delta : float, default 0.05
+        Safe mode: the admitted probability that a proposal breaks a constraint, in ``(0, 1)``.
 
     Attributes
     ----------
@@ -139,6 +153,18 @@ class BayesianOptimization(Tuner):
 
     Notes
     -----
+    On an env with constraints (``gym.make(id, constraints=...)``, read from
+    ``env.unwrapped.constraints`` at :meth:`setup`, or from the first record carrying
+    ``record["constraints"]`` when driven by ``ask``/``tell``), one GP per constraint models
+    its scaled slack (:class:`agents.feasibility.ConstraintModel`; the cost's metric GPs are not
+    reused, since an unstable experiment must enter the constraint GPs as a violation while the
+    metric GPs leave it out), and the next gains maximise Gardner et al.'s (2014) constrained EI::
+
+        a(theta) = EI(theta; J+_feasible) x PF(theta),   PF(theta) = prod_j Phi(-mu_j(theta) / sigma_j(theta))
+
+    with ``J+_feasible`` the best cost among the experiments that kept every limit; before the
+    first feasible experiment, ``PF`` alone is maximised. Without constraints nothing changes.
+
     The measured data efficiency of these choices (and of the variants that were
     tried and removed: output transforms, hyperparameter priors, other constant
     means, trust-region steps) is in benchmarks/README.md.
@@ -161,15 +187,26 @@ class BayesianOptimization(Tuner):
         "optimizer": [Options(OPTIMIZERS)],
         "n_candidates": [Interval(int, 1, None)],
         "n_starts": [Interval(int, 1, None)],
+        "delta": [Interval(float, 0.0, 1.0, closed="neither")],
     }
 
     def __init__(self, *, n_initial: int = 1, grid_points: int = 100, noise_std: float | None = None,
                  model: str = "metrics", settling_model: str = "gp", optimizer: str = "auto",
-                 n_candidates: int = 2048, n_starts: int = 8) -> None:
+                 n_candidates: int = 2048, n_starts: int = 8, safe: bool = False, safe_start=None,
+                 delta: float = 0.05) -> None:
         self._params = validate_params(self._parameter_constraints, {
             "n_initial": n_initial, "grid_points": grid_points, "noise_std": noise_std, "model": model,
             "settling_model": settling_model, "optimizer": optimizer, "n_candidates": n_candidates,
             "n_starts": n_starts})
+        if not isinstance(safe, bool | np.bool_):
+            raise ValueError(f"safe: must be True or False, got {safe!r}")
+        self.safe, self.delta = bool(safe), validate_params(self._parameter_constraints, {"delta": delta})["delta"]
+        self.safe_start = _safe_start(safe_start) if safe_start is not None else None
+        if self.safe and self.safe_start is None:
+            raise ValueError("safe_start: safe=True needs gains known to keep every constraint, e.g. "
+                             "safe_start=[[0.3, 1.0]]; without them no experiment is known to be safe")
+        if self.safe:  # only what differs from the defaults: unconstrained specs keep their parameters
+            self._params.update({"safe": True, "safe_start": self.safe_start.tolist(), "delta": self.delta})
         self.n_initial = self._params["n_initial"]
         self.grid_points = self._params["grid_points"]
         self.noise_std = self._params["noise_std"]
@@ -216,10 +253,24 @@ class BayesianOptimization(Tuner):
         self._fitted_version = -1
         self._optimize_hyperparameters = True  # guided BO holds them fixed during twin iterations
         self.last_ei_ = self.last_std_ = self.last_mean_ = float("nan")
+        self._plant_feasible: list[bool | None] = []
+        known = constraint_set(self.env)
+        self.constraint_model = None if known is None else ConstraintModel(*known)
+        if self.safe:
+            if self.constraint_model is None:
+                raise ValueError("safe: safe=True needs an env with constraints, e.g. "
+                                 "gym.make(id, constraints={'overshoot_pct': 2.0})")
+            if self.safe_start.shape[1] != dim:
+                raise ValueError(f"safe_start: need gains of {dim} values each, got shape {self.safe_start.shape}")
+            for row in self.safe_start:
+                self.space.check(row, name="safe_start")
 
     def _ask(self) -> np.ndarray:
         n = len(self._plant_y)
-        if n < self.n_initial:
+        if self.safe and n < self.safe_start.shape[0]:
+            self.last_ei_ = self.last_std_ = self.last_mean_ = float("nan")
+            return self.safe_start[n].copy()
+        if n < self.n_initial and not self.safe:
             self.last_ei_ = self.last_std_ = self.last_mean_ = float("nan")
             return self.space.from_unit(self._initial[n])
         with single_thread():  # small matrices: BLAS threads would only contend (and spin)
@@ -234,6 +285,12 @@ class BayesianOptimization(Tuner):
         self._plant_y.append(cost)
         self._plant_F.append(_record_metrics(record))
         self._plant_E.append(self._record_envelope(record))
+        if self.constraint_model is None and record and record.get("constraints"):  # ask/tell without an env
+            names = tuple(record["constraints"])
+            self.constraint_model = ConstraintModel(names, np.zeros(len(names)))
+        feasible = None if self.constraint_model is None else \
+            self.constraint_model.add(self.space.to_unit(gains), record)
+        self._plant_feasible.append(feasible)
         self._version += 1
 
     def run_summary(self) -> dict[str, Any]:
@@ -366,15 +423,29 @@ class BayesianOptimization(Tuner):
         """``J+`` of EI over the current training set, by :attr:`incumbent_rule` (see the class doc)."""
         model = self.fit_surrogate()
         X, y = self.training_set()
+        kept = self._kept_mask(y.size)
         if self.incumbent_rule == "observed":
             if self._model_in_use == "metrics":
                 # J_hat of the measured metrics, sum w f / n: the best observed noise-free-ish cost
                 # (the cost noise epsilon is not in the metrics the composite model is fitted on),
                 # with the envelope model's own settling time where it models it
                 X_metrics, metrics, _ = self.metric_training_set()
-                return float(np.min(self.metric_surrogate.observed_cost(model, X_metrics, metrics)))
-            return float(np.min(y))  # J+_n, best observed cost (paper, eq. (LCB))
-        return float(np.min(model.predict(X)[0]))
+                return float(np.min(self.metric_surrogate.observed_cost(model, X_metrics, metrics)[kept]))
+            return float(np.min(y[kept]))  # J+_n, best observed cost (paper, eq. (LCB))
+        return float(np.min(model.predict(X)[0][kept]))
+
+    def _kept_mask(self, n: int) -> np.ndarray:
+        """Training points that count for the incumbent: with constraints, the feasible plant experiments
+        (extra points count as kept); all points without constraints."""
+        mask = np.ones(n, dtype=bool)
+        if self.constraint_model is not None:
+            mask[: len(self._plant_feasible)] = [bool(f) for f in self._plant_feasible]
+        return mask
+
+    @property
+    def constrained(self) -> bool:
+        """Whether the proposals model constraints (the env has them and an experiment reported them)."""
+        return self.constraint_model is not None and self.constraint_model.n_observations > 0
 
     def propose(self) -> tuple[np.ndarray, float, float]:
         """Next query ``theta_{n+1} = argmax_theta a_EI(theta)`` (eq. (EI)), without side effects.
@@ -392,8 +463,10 @@ class BayesianOptimization(Tuner):
             Posterior std of ``J_hat`` at ``gains``, cost units.
         """
         model = self.fit_surrogate()
-        best = self.incumbent()
-        acquisition = ExpectedImprovement(model, best)
+        if self.constrained:
+            acquisition = self._constrained_acquisition(model)
+        else:
+            acquisition = ExpectedImprovement(model, self.incumbent())
         unit_box = np.column_stack([np.zeros(self.space.dim), np.ones(self.space.dim)])
         if self._optimizer_in_use == "grid":
             x, ei = maximize_on_grid(acquisition, self._unit_grid, polish=self.polish, bounds=unit_box)
@@ -401,8 +474,26 @@ class BayesianOptimization(Tuner):
             rng = np.random.default_rng([self._fit_seed, self._version, 1])
             x, ei = maximize_multistart(acquisition, unit_box, rng, n_candidates=self.n_candidates,
                                         n_starts=self.n_starts)
+        if self.safe and ei < 0.0:  # no candidate in the safe set: repeat the best feasible experiment
+            x = self._best_kept_point()
+            ei = float(acquisition(x[None, :])[0])
         std = float(model.predict(x[None, :])[1][0])
         return self.space.from_unit(x), float(ei), std
+
+    def _constrained_acquisition(self, model) -> ConstrainedAcquisition:
+        """``EI x PF`` over the best feasible cost, ``PF`` alone before a feasible experiment (class doc)."""
+        self.constraint_model.fit(seed=int(np.random.default_rng([self._fit_seed, self._version, 2]).integers(2**31)))
+        any_kept = bool(np.any(self._kept_mask(self.training_set()[1].size)))
+        ei = ExpectedImprovement(model, self.incumbent()) if any_kept else None
+        return ConstrainedAcquisition(ei, self.constraint_model, 1.0 - self.delta if self.safe else None)
+
+    def _best_kept_point(self) -> np.ndarray:
+        """Unit-box gains of the lowest-cost feasible plant experiment."""
+        kept = [i for i, f in enumerate(self._plant_feasible) if f]
+        if not kept:
+            raise RuntimeError(f"{self.name}: no experiment kept the constraints, so none is known to be safe; "
+                               "check that safe_start keeps every limit")
+        return self._plant_X[min(kept, key=lambda i: self._plant_y[i])].copy()
 
     def posterior(self, gains) -> tuple[np.ndarray, np.ndarray]:
         """GP mean and std of ``J_hat`` at gains of shape (m, n_gains) (physical units); each (m,)."""
@@ -482,6 +573,17 @@ def _record_metrics(record: dict | None) -> np.ndarray | None:
         return None
     metrics = np.array([float(values[name]) for name in METRIC_COLUMNS])
     return metrics if np.all(np.isfinite(metrics)) else None
+
+
+def _safe_start(values) -> np.ndarray:
+    """``safe_start`` as finite gains of shape (m, n_gains)."""
+    try:
+        start = np.atleast_2d(np.asarray(values, dtype=float))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"safe_start: expected gains of shape (m, n_gains), got {values!r}") from exc
+    if start.ndim != 2 or start.size == 0 or not np.all(np.isfinite(start)):
+        raise ValueError(f"safe_start: expected finite gains of shape (m, n_gains), got {values!r}")
+    return start
 
 
 def _unit_candidates(dim: int, points_per_gain: int, rng: np.random.Generator) -> np.ndarray:

@@ -13,12 +13,16 @@ from gbo_envs.lazy_pyplot import pyplot
 from gbo_envs.metrics import METRIC_NAMES
 from gbo_envs.plotting import COST_LABEL, REFERENCE, axis_label, cost_surface, legend_outside, style
 
-__all__ = ["TuningResult", "METRIC_COLUMNS", "SAMPLE_COLUMNS", "TABLE_COLUMNS"]
+__all__ = ["CONSTRAINT_PREFIX", "TuningResult", "METRIC_COLUMNS", "SAMPLE_COLUMNS", "TABLE_COLUMNS",
+           "constraint_columns", "env_constraints"]
 
 #: Metric columns of a result table, in the env's metric order.
 METRIC_COLUMNS = METRIC_NAMES
 #: Leading columns of :meth:`TuningResult.to_pandas` (the gain names follow ``source``).
-TABLE_COLUMNS = ("experiment", "source", "cost", "best_cost", "true_cost", "unstable", *METRIC_COLUMNS, "wall_time")
+TABLE_COLUMNS = ("experiment", "source", "cost", "best_cost", "true_cost", "unstable", "feasible", *METRIC_COLUMNS,
+                 "wall_time")
+#: Prefix of the columns of a constrained run's ``value - limit`` per constraint (``constraint_peak_u``).
+CONSTRAINT_PREFIX = "constraint_"
 #: Columns of :meth:`TuningResult.samples`.
 SAMPLE_COLUMNS = ("experiment", "source", *SIGNALS)
 #: Record fields a row takes from the record itself, never from ``columns``.
@@ -54,6 +58,9 @@ class TuningResult:
         (without signals when none were recorded, e.g. a failed rig experiment).
     gain_units : tuple of str
         Units of the gains (the env's ``gain_units``; empty when unknown).
+    constraints : dict
+        ``{name: limit}`` of the env's constraints (empty without); the best result is then the
+        best *feasible* experiment, and :attr:`violations` counts those that broke a limit.
     """
 
     tuner: str
@@ -65,6 +72,7 @@ class TuningResult:
     info: dict = field(default_factory=dict)
     experiments: list[Experiment] = field(default_factory=list)
     gain_units: tuple[str, ...] = ()
+    constraints: dict = field(default_factory=dict)
 
     def add(self, record: Experiment, experiment: int, best_cost: float, wall_time: float,
             columns: Mapping | None = None) -> dict:
@@ -110,8 +118,11 @@ class TuningResult:
         """The table as a :class:`pandas.DataFrame`, one row per real experiment.
 
         Columns: ``experiment`` (1-based), ``source``, one per gain (e.g. ``Kp,
-        Ki``), ``cost`` (measured), ``best_cost`` (lowest measured so far),
-        ``true_cost`` (noise-free, NaN when unknown), ``unstable``,
+        Ki``), ``cost`` (measured), ``best_cost`` (lowest measured so far; with
+        constraints, over the feasible experiments), ``true_cost`` (noise-free,
+        NaN when unknown), ``unstable``, ``feasible`` (kept every constraint and
+        stable; NaN when unknown), then with constraints ``constraint_<name>``
+        (``value - limit``, ``<= 0`` kept) after the other columns,
         ``overshoot_pct, settling_time, rise_time, itae``, ``wall_time`` (s
         since the run started), then any tuner- or session-specific columns
         (e.g. ``status, reason`` of a session).
@@ -177,17 +188,29 @@ class TuningResult:
         rows = self.plant_rows
         if not rows:
             raise ValueError("result: no plant experiment was run")
-        return min(rows, key=lambda row: row["cost"])
+        kept = [row for row in rows if row.get("feasible") is True]
+        return min(kept if self.constraints and kept else rows, key=lambda row: row["cost"])
+
+    @property
+    def violations(self) -> int:
+        """Plant experiments that broke a constraint or went unstable (``feasible`` false)."""
+        return sum(1 for row in self.plant_rows if row.get("feasible") is False)
+
+    @property
+    def n_feasible(self) -> int:
+        """Plant experiments that kept every constraint."""
+        return sum(1 for row in self.plant_rows if row.get("feasible") is True)
 
     @property
     def best_gains(self) -> np.ndarray:
-        """Gains of the lowest measured cost, shape (n_gains,)."""
+        """Gains of the lowest measured cost, shape (n_gains,); with constraints, of the lowest feasible one
+        (of all experiments if none was feasible)."""
         row = self._best_row()
         return np.array([row[name] for name in self.gain_names])
 
     @property
     def best_cost(self) -> float:
-        """Lowest measured (noisy) cost over the plant experiments."""
+        """Lowest measured (noisy) cost over the plant experiments (the feasible ones, with constraints)."""
         return float(self._best_row()["cost"])
 
     def min_true_cost_curve(self) -> np.ndarray:
@@ -213,12 +236,17 @@ class TuningResult:
         return np.asarray(curve, dtype=float)
 
     def __repr__(self) -> str:
-        """One line: tuner, env, seed, real experiments (and twin evaluations), best gains with units, best cost."""
+        """One line: tuner, env, seed, real experiments (and twin evaluations; with constraints the violations),
+        best (feasible) gains with units, best cost."""
         twin = f" (+{self.twin_evaluations} twin evaluations)" if self.twin_evaluations else ""
         head = (f"TuningResult({self.tuner} on {self.env_id}, seed {self.seed}: {self.n_experiments} real "
                 f"experiments{twin}{', interrupted' if self.interrupted else ''}")
+        if self.constraints:
+            head += f", {self.violations} broke a constraint"
         if not self.n_experiments:
             return head + ")"
+        if self.constraints and not self.n_feasible:
+            return head + "; no feasible experiment)"
         units = self.gain_units if len(self.gain_units) == len(self.gain_names) else ("",) * len(self.gain_names)
         gains = ", ".join(f"{name} = {value:.4g}{'' if unit in ('', '-') else ' ' + unit}"
                           for name, value, unit in zip(self.gain_names, self.best_gains, units))
@@ -310,3 +338,23 @@ class TuningResult:
             ax.figure.colorbar(points, ax=ax, label="fidelity s (plant: 1)")
         else:
             ax.plot(x, cost, "x", ms=4, color="tab:purple", alpha=0.6, label="twin evaluations")
+
+
+def env_constraints(env) -> dict:
+    """``{name: limit}`` of an env's constraints (``env.unwrapped.constraints``), ``{}`` without."""
+    limits = getattr(getattr(env, "unwrapped", env), "constraints", None)
+    return dict(limits.to_spec()) if limits else {}
+
+
+def constraint_columns(info: Mapping, failed: bool = False) -> dict:
+    """The row columns of an experiment's constraints: ``feasible`` and ``constraint_<name>`` per constraint.
+
+    ``feasible`` is ``info["feasible"]`` when the env reports it, else stable and not failed.
+    """
+    feasible = info.get("feasible")
+    if feasible is None:
+        feasible = not failed and not bool(info.get("unstable", False))
+    columns = {"feasible": bool(feasible)}
+    for name, value in (info.get("constraints") or {}).items():
+        columns[CONSTRAINT_PREFIX + name] = float(value)
+    return columns

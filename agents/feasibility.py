@@ -1,0 +1,184 @@
+"""GP models of an env's constraints and the probability that gains keep them (Gardner et al. 2014).
+
+An env with constraints (:mod:`gbo_envs.constraints`) reports for every experiment
+``record["constraints"]``: name -> ``c_j = value_j - limit_j`` (``<= 0`` kept) and
+``record["feasible"]``. :class:`ConstraintModel` fits one GP per constraint on its slack
+``c_j`` in units of the limit, ``c_j / |limit_j|`` (``c_j`` when the limit is 0), where an
+unstable experiment enters with at least ``UNSTABLE_SLACK`` (a violation of the size of the
+limit: its metrics are those of a diverged response), then divided by the median ``|c_j|`` of
+the experiments so far (a slack of typical size is 1, whatever the margin of the limit: a
+command limit of 140 over a steady command of 135 has slacks of a few percent of the limit)
+and clipped to ``[-CLIP, CLIP]``, so that a diverged experiment does not dominate the fit.
+With the GPs independent, the probability of feasibility is
+
+    PF(theta) = prod_j Phi(-mu_j(theta) / sigma_j(theta))
+
+(mu_j, sigma_j: the posterior mean and std of s_j; Gardner et al., "Bayesian Optimization
+with Inequality Constraints", ICML 2014, eq. (5)).
+
+The GP of a constraint has a **zero prior mean** (a gain far from every experiment is taken
+to sit on the limit, ``PF = 1/2`` per constraint, never in a safe set) and a kernel
+amplitude of at least :data:`MIN_AMPLITUDE` (in limits): unlike the cost GP it is not
+standardised, because a standardised GP fitted on a few equal slacks (a safe start measured
+again) becomes certain everywhere and calls the whole box safe. Kernel: ``s^2 Matern_5/2``
+(ARD length scales in ``[0.05, 0.5]`` of the unit box) plus white noise; hyperparameters by
+marginal likelihood from :data:`MIN_FIT_POINTS` experiments on (scikit-learn's
+``GaussianProcessRegressor``, 2 restarts), the prior kernel (amplitude 1, length scales 0.2,
+noise variance 1e-4) below.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+from scipy.special import ndtr
+
+from sklearn.exceptions import ConvergenceWarning
+from sklearn.gaussian_process import GaussianProcessRegressor
+from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
+
+__all__ = ["CLIP", "ConstrainedAcquisition", "ConstraintModel", "UNSTABLE_SLACK", "constraint_set"]
+
+#: Scaled slacks are clipped to ``[-CLIP, CLIP]`` (median slacks).
+CLIP = 5.0
+#: Smallest scaled slack of an unstable experiment.
+UNSTABLE_SLACK = 1.0
+#: Least kernel std of a constraint GP, in median slacks.
+MIN_AMPLITUDE = 0.5
+#: Experiments from which the constraint GPs' hyperparameters are fitted.
+MIN_FIT_POINTS = 5
+
+
+def constraint_set(env) -> tuple[tuple[str, ...], np.ndarray] | None:
+    """``(names, limits)`` of the env's constraints (``env.unwrapped.constraints``), or ``None`` without."""
+    plant = getattr(env, "unwrapped", env)
+    limits = getattr(plant, "constraints", None)
+    if not limits:
+        return None
+    return tuple(limits.names), np.asarray(limits.limits, dtype=float)
+
+
+class ConstraintModel:
+    """One GP per constraint on its scaled slack, and the probability of feasibility of gains.
+
+    Parameters
+    ----------
+    names : sequence of str
+        The constraints, in the order of ``record["constraints"]``.
+    limits : array_like of shape (n_constraints,)
+        Their limits (to scale the slacks).
+    """
+
+    def __init__(self, names, limits) -> None:
+        self.names = tuple(names)
+        limits = np.asarray(limits, dtype=float).ravel()
+        if limits.size != len(self.names):
+            raise ValueError(f"limits: need one per constraint {self.names}, got {limits.size}")
+        self.scales = np.where(np.abs(limits) > 0, np.abs(limits), 1.0)
+        self.models: list[GaussianProcessRegressor] = []
+        self._X: list[np.ndarray] = []
+        self._S: list[np.ndarray] = []
+        self._feasible: list[bool] = []
+        self._version = 0
+        self._fitted = -1
+
+    # -- data ---------------------------------------------------------------------------------------
+    def add(self, x: np.ndarray, record: dict | None) -> bool | None:
+        """Learn the constraints of one experiment at unit-box ``x``; returns its feasibility (``None``: unknown).
+
+        A record without ``constraints`` (a failed experiment) is not learned.
+        """
+        slacks = None if not record else record.get("constraints")
+        if not slacks or any(name not in slacks for name in self.names):
+            return None
+        raw = np.array([float(slacks[name]) for name in self.names])
+        scaled = np.where(np.isnan(raw), UNSTABLE_SLACK, raw / self.scales)
+        if record.get("unstable", False):
+            scaled = np.maximum(scaled, UNSTABLE_SLACK)
+        scaled = np.where(np.isfinite(scaled), scaled, UNSTABLE_SLACK)
+        feasible = bool(record.get("feasible", bool(np.all(raw <= 0.0)) and not record.get("unstable", False)))
+        self._X.append(np.asarray(x, dtype=float).copy())
+        self._S.append(scaled)
+        self._feasible.append(feasible)
+        self._version += 1
+        return feasible
+
+    @property
+    def n_observations(self) -> int:
+        """Experiments learned."""
+        return len(self._S)
+
+    @property
+    def observed_feasible(self) -> np.ndarray:
+        """Feasibility of every learned experiment, shape (n,)."""
+        return np.asarray(self._feasible, dtype=bool)
+
+    # -- posterior ----------------------------------------------------------------------------------
+    def fit(self, seed: int | None = None) -> ConstraintModel:
+        """Fit every constraint GP (only when new data came in); constraint ``j`` gets ``seed + j``."""
+        if not self._S:
+            raise RuntimeError("ConstraintModel: no experiment with constraints learned yet")
+        if self._fitted != self._version:
+            X, S = np.vstack(self._X), np.vstack(self._S)
+            self.unit_ = np.maximum(np.median(np.abs(S), axis=0), 1e-9)
+            S = np.clip(S / self.unit_, -CLIP, CLIP)
+            self.models = [_fit_gp(X, S[:, j], None if seed is None else int(seed) + j) for j in range(S.shape[1])]
+            self._fitted = self._version
+        return self
+
+    def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior mean and std of every scaled slack at unit-box X (m, d), each (m, n_constraints)."""
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        parts = [model.predict(X, return_std=True) for model in self.models]
+        return np.column_stack([p[0] for p in parts]), np.column_stack([p[1] for p in parts])
+
+    def probability(self, X: np.ndarray) -> np.ndarray:
+        """``PF(theta) = prod_j Phi(-mu_j / sigma_j)`` at unit-box X (m, d), shape (m,) (module doc)."""
+        mean, std = self.predict(X)
+        z = np.where(std > 1e-12, -mean / np.maximum(std, 1e-12), np.where(mean <= 0.0, math.inf, -math.inf))
+        return np.prod(ndtr(z), axis=1)
+
+
+class ConstrainedAcquisition:
+    """``EI(theta) x PF(theta)`` (Gardner et al. 2014, eq. (6)), or ``PF`` alone before any feasible experiment.
+
+    In a safe set (``safe_level``) the value is ``-1`` wherever ``PF < safe_level``, below any EI
+    (``>= 0``), so that a maximiser proposes outside it only if nothing inside is a candidate.
+
+    Parameters
+    ----------
+    ei : callable or None
+        ``ei(X) -> values`` (the Expected Improvement over the best feasible cost); ``None``: no
+        feasible experiment yet, maximise ``PF``.
+    constraints : ConstraintModel
+        Fitted.
+    safe_level : float, optional
+        ``1 - delta``: the least ``PF`` of a proposal (safe mode); ``None``: no restriction.
+    """
+
+    def __init__(self, ei, constraints: ConstraintModel, safe_level: float | None = None) -> None:
+        self.ei, self.constraints, self.safe_level = ei, constraints, safe_level
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        X = np.atleast_2d(X)
+        pf = self.constraints.probability(X)
+        value = pf if self.ei is None else np.asarray(self.ei(X), dtype=float) * pf
+        if self.safe_level is not None:
+            value = np.where(pf >= self.safe_level, value, -1.0)
+        return value
+
+
+def _fit_gp(X: np.ndarray, s: np.ndarray, seed: int | None) -> GaussianProcessRegressor:
+    """A zero-mean GP on one constraint's scaled slacks (module doc)."""
+    dim = X.shape[1]
+    few = X.shape[0] < MIN_FIT_POINTS
+    kernel = ConstantKernel(1.0, (MIN_AMPLITUDE**2, 1e2)) * Matern(np.full(dim, 0.2), (0.05, 0.5), nu=2.5) \
+        + WhiteKernel(1e-4, (1e-6, 1e-1))
+    gp = GaussianProcessRegressor(kernel, alpha=1e-8, normalize_y=False, optimizer=None if few else "fmin_l_bfgs_b",
+                                  n_restarts_optimizer=0 if few else 2,
+                                  random_state=None if seed is None else int(seed) % (2**32))
+    with warnings.catch_warnings():  # a hyperparameter at its bound is expected with few points
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        return gp.fit(X, s)
