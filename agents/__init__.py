@@ -42,6 +42,7 @@ _LAZY = {
     "BoTorchTuner": "agents.peers.botorch_tuner",
     "SkoptTuner": "agents.peers.skopt_tuner",
     "BayesOptTuner": "agents.peers.bayes_opt_tuner",
+    "SafeOpt": "agents.safeopt",
 }
 
 #: Registry name -> entry point.
@@ -58,6 +59,7 @@ _TUNERS = {
     "botorch": "agents.peers.botorch_tuner:BoTorchTuner",
     "skopt": "agents.peers.skopt_tuner:SkoptTuner",
     "bayes-opt": "agents.peers.bayes_opt_tuner:BayesOptTuner",
+    "safeopt": "agents.safeopt:SafeOpt",
 }
 
 for _name, _entry in _TUNERS.items():

@@ -17,7 +17,7 @@ from scipy.stats import qmc
 
 from agents.acquisition import ExpectedImprovement, maximize_multistart, maximize_on_grid
 from agents.base import Tuner
-from agents.feasibility import ConstrainedAcquisition, ConstraintModel, constraint_set
+from agents.feasibility import ConstrainedAcquisition, ConstraintModel, constraint_set, validated_safe_start
 from agents.metric_surrogate import CompositeSurrogate, MetricSurrogate
 from agents.parameters import Interval, Options, validate_params
 from agents.result import METRIC_COLUMNS
@@ -201,7 +201,7 @@ class BayesianOptimization(Tuner):
         if not isinstance(safe, bool | np.bool_):
             raise ValueError(f"safe: must be True or False, got {safe!r}")
         self.safe, self.delta = bool(safe), validate_params(self._parameter_constraints, {"delta": delta})["delta"]
-        self.safe_start = _safe_start(safe_start) if safe_start is not None else None
+        self.safe_start = validated_safe_start(safe_start) if safe_start is not None else None
         if self.safe and self.safe_start is None:
             raise ValueError("safe_start: safe=True needs gains known to keep every constraint, e.g. "
                              "safe_start=[[0.3, 1.0]]; without them no experiment is known to be safe")
@@ -573,17 +573,6 @@ def _record_metrics(record: dict | None) -> np.ndarray | None:
         return None
     metrics = np.array([float(values[name]) for name in METRIC_COLUMNS])
     return metrics if np.all(np.isfinite(metrics)) else None
-
-
-def _safe_start(values) -> np.ndarray:
-    """``safe_start`` as finite gains of shape (m, n_gains)."""
-    try:
-        start = np.atleast_2d(np.asarray(values, dtype=float))
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"safe_start: expected gains of shape (m, n_gains), got {values!r}") from exc
-    if start.ndim != 2 or start.size == 0 or not np.all(np.isfinite(start)):
-        raise ValueError(f"safe_start: expected finite gains of shape (m, n_gains), got {values!r}")
-    return start
 
 
 def _unit_candidates(dim: int, points_per_gain: int, rng: np.random.Generator) -> np.ndarray:

@@ -18,12 +18,16 @@ with Inequality Constraints", ICML 2014, eq. (5)).
 
 The GP of a constraint has a **zero prior mean** (a gain far from every experiment is taken
 to sit on the limit, ``PF = 1/2`` per constraint, never in a safe set) and a kernel
-amplitude of at least :data:`MIN_AMPLITUDE` (in limits): unlike the cost GP it is not
+amplitude of at least :data:`MIN_AMPLITUDE` (in median slacks): unlike the cost GP it is not
 standardised, because a standardised GP fitted on a few equal slacks (a safe start measured
 again) becomes certain everywhere and calls the whole box safe. Kernel: ``s^2 Matern_5/2``
-(ARD length scales in ``[0.05, 0.5]`` of the unit box) plus white noise; hyperparameters by
+(ARD length scales in ``[0.05, 0.5]`` of the unit box) plus a linear term ``s_l^2 (x . x' +
+0.01)`` on the gains centred on the box (a slack that grows with a gain, as the peak command
+with ``Kp``, is extrapolated along its trend: a stationary zero-mean GP alone reverts to the
+limit slowly and called gains beyond the trend safe) plus white noise; hyperparameters by
 marginal likelihood from :data:`MIN_FIT_POINTS` experiments on (scikit-learn's
-``GaussianProcessRegressor``, 2 restarts), the prior kernel (amplitude 1, length scales 0.2,
+``GaussianProcessRegressor``, warm-started, :data:`RESTARTS` restarts on every
+:data:`RESTART_EVERY`-th fit), the prior kernel (amplitude 1, length scales 0.2,
 noise variance 1e-4) below.
 """
 
@@ -33,13 +37,14 @@ import math
 import warnings
 
 import numpy as np
+from scipy.optimize import minimize
 from scipy.special import ndtr
-
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
-from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
+from sklearn.gaussian_process.kernels import ConstantKernel, DotProduct, Matern, WhiteKernel
 
-__all__ = ["CLIP", "ConstrainedAcquisition", "ConstraintModel", "UNSTABLE_SLACK", "constraint_set"]
+__all__ = ["CLIP", "ConstrainedAcquisition", "ConstraintModel", "UNSTABLE_SLACK", "constraint_set",
+           "reported_slacks", "validated_safe_start"]
 
 #: Scaled slacks are clipped to ``[-CLIP, CLIP]`` (median slacks).
 CLIP = 5.0
@@ -49,6 +54,11 @@ UNSTABLE_SLACK = 1.0
 MIN_AMPLITUDE = 0.5
 #: Experiments from which the constraint GPs' hyperparameters are fitted.
 MIN_FIT_POINTS = 5
+#: Random restarts of the likelihood optimiser on the first and every :data:`RESTART_EVERY`-th fit
+#: (the others start from the previous fit alone, as :class:`agents.surrogate.GPSurrogate` does).
+RESTARTS, RESTART_EVERY = 2, 5
+#: L-BFGS-B iterations per start.
+MAX_ITER = 60
 
 
 def constraint_set(env) -> tuple[tuple[str, ...], np.ndarray] | None:
@@ -58,6 +68,46 @@ def constraint_set(env) -> tuple[tuple[str, ...], np.ndarray] | None:
     if not limits:
         return None
     return tuple(limits.names), np.asarray(limits.limits, dtype=float)
+
+
+def reported_slacks(record: dict | None, names, limits) -> list[float]:
+    """The ``value - limit`` of every constraint of an experiment, finite, for a peer library's constraint model.
+
+    As the env reports them (``<= 0`` kept), except where they would mislead or break a model:
+    a failed experiment (no record) and an unstable one count each constraint as broken by at
+    least its limit (``|limit|``, 1 for a zero limit), and a non-finite value as broken by 10 limits.
+
+    Parameters
+    ----------
+    record : dict or None
+        The experiment's ``info`` (``record["constraints"]``, ``record["unstable"]``).
+    names : sequence of str
+    limits : array_like of shape (len(names),)
+    """
+    scale = np.where(np.abs(np.asarray(limits, dtype=float)) > 0, np.abs(np.asarray(limits, dtype=float)), 1.0)
+    slacks = (record or {}).get("constraints") or {}
+    values = np.array([float(slacks.get(name, np.nan)) for name in names])
+    if record is None or record.get("unstable", False) or record.get("failed", False):
+        values = np.where(np.isnan(values), scale, np.maximum(values, scale))
+    values = np.where(np.isnan(values), scale, values)
+    return np.where(np.isfinite(values), values, 10.0 * scale).tolist()
+
+
+def validated_safe_start(values) -> np.ndarray:
+    """``safe_start`` (gains known to keep every constraint) as finite gains of shape (m, n_gains).
+
+    Raises
+    ------
+    ValueError
+        Not numbers, empty, or not finite.
+    """
+    try:
+        start = np.atleast_2d(np.asarray(values, dtype=float))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"safe_start: expected gains of shape (m, n_gains), got {values!r}") from exc
+    if start.ndim != 2 or start.size == 0 or not np.all(np.isfinite(start)):
+        raise ValueError(f"safe_start: expected finite gains of shape (m, n_gains), got {values!r}")
+    return start
 
 
 class ConstraintModel:
@@ -83,6 +133,8 @@ class ConstraintModel:
         self._feasible: list[bool] = []
         self._version = 0
         self._fitted = -1
+        self._kernels: dict = {}
+        self._n_fits = 0
 
     # -- data ---------------------------------------------------------------------------------------
     def add(self, x: np.ndarray, record: dict | None) -> bool | None:
@@ -124,14 +176,24 @@ class ConstraintModel:
             X, S = np.vstack(self._X), np.vstack(self._S)
             self.unit_ = np.maximum(np.median(np.abs(S), axis=0), 1e-9)
             S = np.clip(S / self.unit_, -CLIP, CLIP)
-            self.models = [_fit_gp(X, S[:, j], None if seed is None else int(seed) + j) for j in range(S.shape[1])]
+            restarts = RESTARTS if self._n_fits % RESTART_EVERY == 0 else 0
+            self.models = [_fit_gp(self.features(X), S[:, j], None if seed is None else int(seed) + j,
+                                   self._kernels.get(j), restarts) for j in range(S.shape[1])]
+            if X.shape[0] >= MIN_FIT_POINTS:  # warm starts from fitted hyperparameters only
+                self._kernels = {j: model.kernel_ for j, model in enumerate(self.models)}
+                self._n_fits += 1
             self._fitted = self._version
         return self
 
+    @staticmethod
+    def features(X: np.ndarray) -> np.ndarray:
+        """The GPs' inputs: unit-box gains centred on the box (the linear term's origin), shape (m, d)."""
+        return np.atleast_2d(np.asarray(X, dtype=float)) - 0.5
+
     def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean and std of every scaled slack at unit-box X (m, d), each (m, n_constraints)."""
-        X = np.atleast_2d(np.asarray(X, dtype=float))
-        parts = [model.predict(X, return_std=True) for model in self.models]
+        Z = self.features(X)
+        parts = [model.predict(Z, return_std=True) for model in self.models]
         return np.column_stack([p[0] for p in parts]), np.column_stack([p[1] for p in parts])
 
     def probability(self, X: np.ndarray) -> np.ndarray:
@@ -170,15 +232,24 @@ class ConstrainedAcquisition:
         return value
 
 
-def _fit_gp(X: np.ndarray, s: np.ndarray, seed: int | None) -> GaussianProcessRegressor:
-    """A zero-mean GP on one constraint's scaled slacks (module doc)."""
+def _fit_gp(X: np.ndarray, s: np.ndarray, seed: int | None, previous=None,
+            restarts: int = 0) -> GaussianProcessRegressor:
+    """A zero-mean GP on one constraint's scaled slacks (module doc), warm-started from ``previous``."""
     dim = X.shape[1]
     few = X.shape[0] < MIN_FIT_POINTS
     kernel = ConstantKernel(1.0, (MIN_AMPLITUDE**2, 1e2)) * Matern(np.full(dim, 0.2), (0.05, 0.5), nu=2.5) \
-        + WhiteKernel(1e-4, (1e-6, 1e-1))
-    gp = GaussianProcessRegressor(kernel, alpha=1e-8, normalize_y=False, optimizer=None if few else "fmin_l_bfgs_b",
-                                  n_restarts_optimizer=0 if few else 2,
+        + ConstantKernel(1.0, (1e-4, 1e2)) * DotProduct(0.1, "fixed") + WhiteKernel(1e-4, (1e-6, 1e-1))
+    if previous is not None and not few:
+        kernel = previous
+    gp = GaussianProcessRegressor(kernel, alpha=1e-8, normalize_y=False, optimizer=None if few else _lbfgsb,
+                                  n_restarts_optimizer=0 if few else restarts,
                                   random_state=None if seed is None else int(seed) % (2**32))
     with warnings.catch_warnings():  # a hyperparameter at its bound is expected with few points
         warnings.simplefilter("ignore", ConvergenceWarning)
         return gp.fit(X, s)
+
+
+def _lbfgsb(objective, theta, bounds):
+    """scikit-learn's GP optimizer, L-BFGS-B, limited to :data:`MAX_ITER` iterations."""
+    result = minimize(objective, theta, method="L-BFGS-B", jac=True, bounds=bounds, options={"maxiter": MAX_ITER})
+    return result.x, result.fun

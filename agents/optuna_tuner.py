@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from agents.base import Tuner
+from agents.feasibility import constraint_set, reported_slacks
 from agents.parameters import HasMethods, Interval, Options, validate_params
 from agents.peers.base import latin_hypercube
 
@@ -42,6 +43,16 @@ class OptunaTuner(Tuner):
         hypercube initial design for the same seed (enqueued with ``study.enqueue_trial``), and a
         sampler built here that takes ``n_startup_trials`` gets ``n_startup_trials=N0`` (unless
         ``sampler_kwargs`` sets it), so its model takes over right after the design.
+
+    Notes
+    -----
+    On an env with constraints (``gym.make(id, constraints=...)``, ``env.unwrapped.constraints``),
+    every told trial carries them as Optuna constraints (``trial.set_constraint(name, value -
+    limit)``, Optuna's convention: ``<= 0`` feasible; a failed or unstable experiment counts as
+    broken by its limit, :func:`agents.feasibility.reported_slacks`). The samplers that model
+    constraints use them: ``GPSampler``'s constrained LogEI (EI x probability of feasibility,
+    Optuna >= 4.2) and ``TPESampler``'s feasibility-weighted TPE; Optuna's best trial is then the
+    best feasible one.
     """
 
     name = "optuna"
@@ -96,6 +107,7 @@ class OptunaTuner(Tuner):
         for point in () if initial is None else self.space.from_unit(initial):
             self.study.enqueue_trial({name: float(g) for name, g in zip(self.space.names, point)})
         self._pending: tuple[Any, np.ndarray] | None = None
+        self._constraints = constraint_set(self.env)
 
     def _ask(self) -> np.ndarray:
         if self._pending is not None:  # ask twice without tell: same proposal
@@ -109,14 +121,19 @@ class OptunaTuner(Tuner):
     def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:
         import optuna
 
+        slacks = None if self._constraints is None else \
+            dict(zip(self._constraints[0], reported_slacks(record, *self._constraints)))
         if self._pending is not None and np.allclose(self._pending[1], gains, rtol=0.0, atol=1e-12):
+            for name, value in (slacks or {}).items():
+                self._pending[0].set_constraint(name, value)
             self.study.tell(self._pending[0], cost)
         else:
             if self._pending is not None:  # the asked gains were not run
                 self.study.tell(self._pending[0], state=optuna.trial.TrialState.FAIL)
             params = {name: float(g) for name, g in zip(self.space.names, gains)}
             self.study.add_trial(optuna.trial.create_trial(params=params, distributions=self._distributions,
-                                                           value=cost))
+                                                           value=cost, **({} if slacks is None else
+                                                                          {"constraints": slacks})))
         self._pending = None
 
 

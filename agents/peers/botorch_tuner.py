@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from agents.feasibility import constraint_set, reported_slacks
 from agents.parameters import Interval, Options, validate_params
 from agents.peers.base import PeerTuner, require
 
@@ -39,6 +40,17 @@ class BoTorchTuner(PeerTuner):
     ------
     ImportError
         If BoTorch is not installed (``pip install "gbo-envs[peers]"``).
+
+    Notes
+    -----
+    On an env with constraints (``env.unwrapped.constraints``), BoTorch's outcome constraints:
+    the ``SingleTaskGP`` models the negated cost and every constraint's ``value - limit``
+    (:func:`agents.feasibility.reported_slacks`) as outcomes (each standardised), and the
+    acquisition is constrained: ``"qlognei"`` is ``qLogNoisyExpectedImprovement`` with the cost
+    as objective and ``constraints=[Z -> Z[..., 1 + j]]`` (feasible where ``<= 0``, BoTorch's
+    convention, weighted by a sigmoid of the samples); ``"logei"`` is
+    ``LogConstrainedExpectedImprovement`` with every constraint outcome bounded above by 0 and
+    ``best_f`` the best feasible cost (the best cost while none is feasible).
     """
 
     name = "botorch"
@@ -58,6 +70,13 @@ class BoTorchTuner(PeerTuner):
 
     def _start(self) -> None:
         self._seeds = np.random.default_rng(self.library_seed)
+        self._constraints = constraint_set(self.env)
+        self._C: list[list[float]] = []
+
+    def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:
+        if self._constraints is not None:
+            self._C.append(reported_slacks(record, *self._constraints))
+        super()._tell(gains, cost, record)
 
     def _observe(self, unit: np.ndarray, cost: float) -> None:
         """Nothing to do: the GP is refitted on all data at every proposal."""
@@ -76,13 +95,41 @@ class BoTorchTuner(PeerTuner):
             torch.manual_seed(int(self._seeds.integers(2**31)))
             train_x = torch.as_tensor(np.asarray(self._X), dtype=torch.float64)
             train_y = -torch.as_tensor(np.asarray(self._y), dtype=torch.float64).unsqueeze(-1)
-            model = SingleTaskGP(train_x, train_y, outcome_transform=Standardize(m=1))
-            fit_gpytorch_mll(ExactMarginalLogLikelihood(model.likelihood, model))
-            if self.acquisition == "qlognei":
-                acqf = qLogNoisyExpectedImprovement(model, X_baseline=train_x)
+            if self._constraints is not None:
+                acqf = self._constrained_acquisition(train_x, train_y)
             else:
-                acqf = LogExpectedImprovement(model, best_f=train_y.max())
+                model = SingleTaskGP(train_x, train_y, outcome_transform=Standardize(m=1))
+                fit_gpytorch_mll(ExactMarginalLogLikelihood(model.likelihood, model))
+                if self.acquisition == "qlognei":
+                    acqf = qLogNoisyExpectedImprovement(model, X_baseline=train_x)
+                else:
+                    acqf = LogExpectedImprovement(model, best_f=train_y.max())
             bounds = torch.stack([torch.zeros(dim, dtype=torch.float64), torch.ones(dim, dtype=torch.float64)])
             candidate, _ = optimize_acqf(acqf, bounds=bounds, q=1, num_restarts=NUM_RESTARTS,
                                          raw_samples=RAW_SAMPLES)
         return candidate.detach().numpy().reshape(dim)
+
+    def _constrained_acquisition(self, train_x, train_y):
+        """BoTorch's constrained acquisition on the cost and the constraint outcomes (class Notes)."""
+        import torch
+        from botorch.acquisition import qLogNoisyExpectedImprovement
+        from botorch.acquisition.analytic import LogConstrainedExpectedImprovement
+        from botorch.acquisition.objective import GenericMCObjective
+        from botorch.fit import fit_gpytorch_mll
+        from botorch.models import SingleTaskGP
+        from botorch.models.transforms.outcome import Standardize
+        from gpytorch.mlls import ExactMarginalLogLikelihood
+
+        slacks = torch.as_tensor(np.asarray(self._C), dtype=torch.float64).reshape(train_y.shape[0], -1)
+        k = slacks.shape[1]
+        outcomes = torch.cat([train_y, slacks], dim=-1)
+        model = SingleTaskGP(train_x, outcomes, outcome_transform=Standardize(m=1 + k))
+        fit_gpytorch_mll(ExactMarginalLogLikelihood(model.likelihood, model))
+        if self.acquisition == "qlognei":
+            return qLogNoisyExpectedImprovement(
+                model, X_baseline=train_x, objective=GenericMCObjective(lambda Z, X=None: Z[..., 0]),
+                constraints=[lambda Z, j=j: Z[..., 1 + j] for j in range(k)])
+        feasible = torch.all(slacks <= 0, dim=-1)
+        best = train_y[feasible].max() if bool(feasible.any()) else train_y.max()
+        return LogConstrainedExpectedImprovement(model, best_f=best, objective_index=0,
+                                                 constraints={1 + j: (None, 0.0) for j in range(k)})
