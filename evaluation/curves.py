@@ -11,8 +11,21 @@ plant-changing env from its change on. These *curves* are what the benchmark
 suite ships as references and what the comparison tables are computed from;
 they are small enough to keep in the repository.
 
+<<<<<<< HEAD
 The table's columns and its file (:data:`CURVE_COLUMNS`, :func:`read_curves`, :func:`write_curves`)
 are those of :mod:`evaluation.curve_table`.
+=======
+Columns of a curves table (:data:`CURVE_COLUMNS`): ``study, plant, tuner`` (label),
+``tuner_name, params`` (JSON), ``env_id, env_kwargs`` (JSON), ``budget, batch,
+seed, key, file`` (the batch file the run is, :attr:`BatchTask.filename`),
+``curve`` and ``instant`` (lists of floats, one per experiment), ``optimum``
+(``J*`` of the first experiment's plant), ``seconds, cpu_seconds,
+plant_cpu_seconds`` (the run's wall and CPU time and the CPU time of the plant's
+steps, NaN when unknown), ``summary`` (JSON: the tuner's own figures, see
+:func:`run_summary`), ``source`` (``"engine"`` or where it was imported from) and
+``violations`` (on a plant with constraints: the experiments that broke one, NaN
+elsewhere; the best-ratio curve of such a plant counts only the feasible experiments).
+>>>>>>> 453f2b0 (gbo tune --constraints, study plants' constraints = {...}, curves count only feasible experiments on a constrained plant and carry their violations, a violations column in the leaderboard, DC+limits in the benchmark suite)
 
 A study folder may hold a ``curves.parquet`` beside its batch files (runs kept as
 curves only, e.g. those of the former benchmark scripts); :func:`load_curves`
@@ -31,15 +44,26 @@ import pandas as pd
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.jsonable import jsonable
+<<<<<<< HEAD
 from evaluation.behaviour import plant_behaviour
 from evaluation.curve_table import CURVE_COLUMNS, CURVES_FILE, read_curves, write_curves
 from evaluation.study_runner import RESULTS_DIR, plan_batches
+=======
+from agents.result import CONSTRAINT_PREFIX
+>>>>>>> 453f2b0 (gbo tune --constraints, study plants' constraints = {...}, curves count only feasible experiments on a constrained plant and carry their violations, a violations column in the leaderboard, DC+limits in the benchmark suite)
 from gbo_envs.atomic_write import atomic_write
 from gbo_envs.gain_grid import grid_axes, grid_points
 
 __all__ = ["CURVE_COLUMNS", "CURVES_FILE", "change_at", "curves_from_results", "experiments_to_target",
            "load_curves", "plant_optima", "plant_optimum_cell", "read_curves", "run_summary", "write_curves"]
 
+<<<<<<< HEAD
+=======
+CURVES_FILE = "curves.parquet"
+CURVE_COLUMNS = ["study", "plant", "tuner", "tuner_name", "params", "env_id", "env_kwargs", "budget", "batch", "seed",
+                 "key", "file", "curve", "instant", "optimum", "seconds", "cpu_seconds", "plant_cpu_seconds", "summary",
+                 "source", "commit", "violations"]
+>>>>>>> 453f2b0 (gbo tune --constraints, study plants' constraints = {...}, curves count only feasible experiments on a constrained plant and carry their violations, a violations column in the leaderboard, DC+limits in the benchmark suite)
 #: Keys of a result's ``info`` kept in a run's summary.
 SUMMARY_KEYS = ("activations", "distrusts", "repeats", "reinitializations", "twin_evaluations", "fidelity")
 
@@ -224,10 +248,14 @@ def curves_from_results(frame: pd.DataFrame, optima: dict[str, np.ndarray], task
         part = part.sort_values("experiment")
         true = part["true_cost"].to_numpy(dtype=float)
         true = np.where(np.isnan(true), part["cost"].to_numpy(dtype=float), true)
+        # on a constrained plant only the experiments that kept every limit count towards the best
+        constrained = "feasible" in part and any(part[c].notna().any() for c in part.columns
+                                                 if c.startswith(CONSTRAINT_PREFIX))
+        broke = part["feasible"].eq(False).to_numpy() if constrained else np.zeros(len(part), dtype=bool)
         if "best_true_cost_now" in part and part["best_true_cost_now"].notna().all():
             now = part["best_true_cost_now"].to_numpy(dtype=float)
         else:
-            now = np.fmin.accumulate(true)
+            now = np.fmin.accumulate(np.where(broke, np.inf, true))
         best = np.asarray(optima[plant], dtype=float)
         n = len(part)
         first = part.iloc[0]
@@ -244,7 +272,8 @@ def curves_from_results(frame: pd.DataFrame, optima: dict[str, np.ndarray], task
             "seconds": float(first.get("batch_wall_time", np.nan)),
             "cpu_seconds": float(first.get("batch_cpu_time", np.nan)),
             "plant_cpu_seconds": float(first.get("plant_cpu_time", np.nan)),
-            "summary": json.dumps(run_summary(info)), "source": source})
+            "summary": json.dumps(run_summary(info)), "source": source,
+            "violations": int(broke.sum()) if constrained else np.nan})
     return pd.DataFrame(rows, columns=CURVE_COLUMNS)
 
 

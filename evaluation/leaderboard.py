@@ -127,10 +127,11 @@ class Leaderboard:
     ----------
     counts_ : DataFrame
         One row per run: ``tuner, plant, seed, count`` (real experiments to the target, ``miss`` for a run
-        that never reaches it) and ``solved``.
+        that never reaches it), ``solved`` and ``violations`` (experiments that broke a constraint of a
+        constrained plant, NaN on a plant without constraints).
     table_ : DataFrame
         Per tuner and plant: ``tuner, plant, target, seeds, mean, ci_low, ci_high, misses, vs_reference,
-        status``.
+        violations`` (mean per run; NaN without constraints), ``status``.
     aggregate_ : DataFrame
         Per tuner, ranked: ``rank, tuner, plants, geo_mean_vs_reference, ci_low, ci_high, solved, pairs,
         status``.
@@ -175,13 +176,14 @@ class Leaderboard:
             count = experiments_to_target(run.curve, plant.target, instant=run.instant, start=plant.start,
                                           budget=plant.budget)
             rows.append({"tuner": run.tuner, "plant": run.plant, "seed": int(run.seed), "count": count,
-                         "solved": count < plant.miss})
-        self.counts_ = pd.DataFrame(rows, columns=["tuner", "plant", "seed", "count", "solved"])
+                         "solved": count < plant.miss, "violations": float(getattr(run, "violations", np.nan))})
+        self.counts_ = pd.DataFrame(rows, columns=["tuner", "plant", "seed", "count", "solved", "violations"])
         tuners = list(dict.fromkeys([*(order or []), *self.counts_["tuner"]]))
         tuners = [t for t in tuners if t in set(self.counts_["tuner"])]
         self.plants_ = list(plants)
         status = status or {}
         counts = {key: part.set_index("seed")["count"] for key, part in self.counts_.groupby(["tuner", "plant"])}
+        broken = {key: part["violations"] for key, part in self.counts_.groupby(["tuner", "plant"])}
         table = []
         for plant in plants:
             ref = counts.get((self.reference, plant.label))
@@ -190,7 +192,8 @@ class Leaderboard:
                 if mine is None:
                     table.append({"tuner": tuner, "plant": plant.label, "target": plant.target, "seeds": 0,
                                   "mean": np.nan, "ci_low": np.nan, "ci_high": np.nan, "misses": 0,
-                                  "vs_reference": np.nan, "status": status.get((tuner, plant.label), "no runs")})
+                                  "vs_reference": np.nan, "violations": np.nan,
+                                  "status": status.get((tuner, plant.label), "no runs")})
                     continue
                 mean, low, high = mean_interval(mine.to_numpy(), self.confidence, self.n_bootstrap, self.seed)
                 shared = mine.index.intersection(ref.index) if ref is not None else []
@@ -198,9 +201,10 @@ class Leaderboard:
                 table.append({"tuner": tuner, "plant": plant.label, "target": plant.target, "seeds": int(mine.size),
                               "mean": mean, "ci_low": low, "ci_high": high,
                               "misses": int((mine >= plant.miss).sum()), "vs_reference": float(vs),
+                              "violations": _mean_violations(broken[(tuner, plant.label)]),
                               "status": status.get((tuner, plant.label), "")})
         self.table_ = pd.DataFrame(table, columns=["tuner", "plant", "target", "seeds", "mean", "ci_low", "ci_high",
-                                                   "misses", "vs_reference", "status"])
+                                                   "misses", "vs_reference", "violations", "status"])
         self.aggregate_ = self._aggregate(tuners, counts, status)
         self.tuners_ = list(self.aggregate_["tuner"])
         return self
@@ -307,6 +311,12 @@ class Leaderboard:
         return fig
 
 
+def _mean_violations(values: pd.Series) -> float:
+    """Mean violations per run, NaN when no run has constraints."""
+    values = values.dropna()
+    return float(values.mean()) if len(values) else np.nan
+
+
 # -- files --------------------------------------------------------------------------------------------
 def _cell(row) -> str:
     if not row["seeds"]:
@@ -354,17 +364,19 @@ def leaderboard_markdown(board: Leaderboard, title: str, intro: list[str], figur
               f"Mean real experiments to the target with its {level} bootstrap percentile interval "
               f"(`scipy.stats.bootstrap`, {board.n_bootstrap} resamples of the seeds, seed {board.seed}; it stays "
               f"within the range of the counts); a miss counts as the experiments counted + 1; `/ {ref}`: the mean "
-              f"over `{ref}`'s on the same seeds.", ""]
+              f"over `{ref}`'s on the same seeds; violations per run: the mean number of experiments that broke a "
+              "constraint of a plant with constraints (on such a plant only the feasible experiments reach the "
+              "target; — without constraints).", ""]
     for plant in board.plants_:
         part = board.table_[board.table_["plant"] == plant.label]
         counted = f"experiments {plant.start + 1}-{plant.budget} (after the plant change)" if plant.start else \
             f"budget {plant.budget}"
         lines += [f"### {plant.label}: ratio {plant.target:g}, {counted}", "",
-                  f"| tuner | experiments to {plant.target:g} | misses | / {ref} | seeds | status |",
-                  "|---|---|---|---|---|---|"]
+                  f"| tuner | experiments to {plant.target:g} | misses | / {ref} | violations per run | seeds | "
+                  "status |", "|---|---|---|---|---|---|---|"]
         for row in part.to_dict("records"):
             lines.append(f"| {_name(row['tuner'], highlight)} | {_cell(row)} | {row['misses']} | "
-                         f"{_number(row['vs_reference'])} | "
+                         f"{_number(row['vs_reference'])} | {_number(row['violations'], 1)} | "
                          f"{row['seeds']} | {row['status'] or 'current'} |")
         lines.append("")
     if notes:
@@ -409,10 +421,10 @@ def write_leaderboard(board: Leaderboard, out: Path | str, title: str, intro: li
     paths["html"] = write_html(paths["md"], title=title, highlight=highlight)
     table = board.table_.assign(kind="plant")
     aggregate = board.aggregate_.rename(columns={"geo_mean_vs_reference": "vs_reference"}).assign(
-        kind="suite", plant="all", mean=np.nan, target=np.nan, seeds=np.nan, misses=np.nan)
+        kind="suite", plant="all", mean=np.nan, target=np.nan, seeds=np.nan, misses=np.nan, violations=np.nan)
     frame = pd.concat([aggregate, table], ignore_index=True)[
         ["kind", "rank", "tuner", "plant", "target", "seeds", "mean", "ci_low", "ci_high", "misses", "vs_reference",
-         "solved", "pairs", "plants", "status"]]
+         "violations", "solved", "pairs", "plants", "status"]]
     paths["csv"] = out / "leaderboard.csv"
     with atomic_write(paths["csv"]) as handle:
         frame.to_csv(handle, index=False, float_format="%.6g")

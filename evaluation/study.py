@@ -17,6 +17,7 @@ same noise. Example (``evaluation/studies/smoke.toml``)::
     [env]
     id = "gbo_envs/DCMotor-v0"
     kwargs = {}                   # passed to gym.make
+    # constraints = {overshoot_pct = 2.0, peak_u = 140.0}   # the machine's limits (docs/constraints.md)
 
     [[tuners]]
     name = "random"               # registry name (agents.make)
@@ -118,8 +119,8 @@ STUDIES_DIR = Path(__file__).resolve().parent / "studies"
 
 TOP_KEYS = ("study", "env", "plants", "tuners", "thresholds", "analysis", "report", "paper", "notes", "suite")
 STUDY_KEYS = ("name", "title", "description", "batches", "budget", "n_initial", "seed", "resolution", "imports")
-ENV_KEYS = ("id", "kwargs")
-PLANT_KEYS = ("label", "id", "kwargs", "thresholds", "batches", "budget", "phase")
+ENV_KEYS = ("id", "kwargs", "constraints")
+PLANT_KEYS = ("label", "id", "kwargs", "constraints", "thresholds", "batches", "budget", "phase")
 TUNER_KEYS = ("name", "label", "params", "sweep", "plants", "batches")
 #: ``[suite]``: the plants and batches of the quick suite (``gbo bench suite --suite quick``).
 SUITE_KEYS = ("quick_plants", "quick_batches")
@@ -492,7 +493,7 @@ def _parse(data: dict, name: str, path: Path | None, text: str) -> Study:
         env_id = env.get("id")
         if not isinstance(env_id, str) or not env_id:
             raise StudySpecError(f"[env] id: expected an env id string such as 'gbo_envs/DCMotor-v0', got {env_id!r}")
-        env_kwargs = dict(_table(env.get("kwargs", {}), "[env] kwargs"))
+        env_kwargs = _with_constraints(dict(_table(env.get("kwargs", {}), "[env] kwargs")), env, "[env]")
         plants = (Plant(label=env_id.rsplit("/", 1)[-1], env_id=env_id, env_kwargs=dict(env_kwargs)),)
 
     tuners = data.get("tuners")
@@ -660,6 +661,22 @@ def _merged(params: dict, point: dict[tuple, Any]) -> dict:
     return merged
 
 
+def _with_constraints(kwargs: dict, raw: dict, where: str) -> dict:
+    """``kwargs`` with the table's ``constraints = {name = limit}`` (checked) as the env's ``constraints``."""
+    if "constraints" not in raw:
+        return kwargs
+    from gbo_envs.constraints import Constraints
+
+    limits = dict(_table(raw["constraints"], f"{where} constraints"))
+    try:
+        Constraints(limits)
+    except (TypeError, ValueError) as exc:
+        raise StudySpecError(f"{where} constraints: {exc}") from None
+    if "constraints" in kwargs:
+        raise StudySpecError(f"{where}: constraints given twice, as constraints and in kwargs; keep one")
+    return {**kwargs, "constraints": limits}
+
+
 def _plant(raw: Any, where: str) -> Plant:
     raw = _table(raw, where)
     _check_keys(raw, PLANT_KEYS, where)
@@ -670,7 +687,7 @@ def _plant(raw: Any, where: str) -> Plant:
     if not isinstance(label, str) or not NAME_PATTERN.fullmatch(label.replace("+", "_").replace(".", "_")):
         raise StudySpecError(f"{where} label: expected letters, digits and '_-+.' (e.g. 'DC+saturation'), "
                              f"got {label!r}")
-    kwargs = dict(_table(raw.get("kwargs", {}), f"{where} kwargs"))
+    kwargs = _with_constraints(dict(_table(raw.get("kwargs", {}), f"{where} kwargs")), raw, where)
     thresholds = tuple(_threshold(t, f"{where} thresholds[{i}]")
                        for i, t in enumerate(_list(raw.get("thresholds", []), f"{where} thresholds")))
     names = [t.label for t in thresholds]

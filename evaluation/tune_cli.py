@@ -48,9 +48,19 @@ def _tune(args: argparse.Namespace) -> int:
         level = events.level
         events.addHandler(printer)
         events.setLevel(logging.INFO)
+    env_kwargs = dict(args.env_kwargs)
+    if args.constraints is not None:
+        from gbo_envs.constraints import Constraints
+
+        try:
+            Constraints(args.constraints)
+        except (TypeError, ValueError) as exc:
+            print(f"gbo tune: --constraints: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        env_kwargs["constraints"] = dict(args.constraints)
     try:
         session = TuningSession(args.db, args.env, args.tuner, budget=args.budget, seed=args.seed,
-                                env_kwargs=args.env_kwargs, tuner_kwargs=args.tuner_kwargs, on_crash=args.on_crash,
+                                env_kwargs=env_kwargs, tuner_kwargs=args.tuner_kwargs, on_crash=args.on_crash,
                                 max_consecutive_skips=args.max_skips, force=args.force)
         result = session.run(progress=progress)
     except KeyboardInterrupt as exc:
@@ -70,9 +80,12 @@ def _tune(args: argparse.Namespace) -> int:
     if result.n_experiments > args.budget:
         resumed += f"; the session already held more than --budget {args.budget}, nothing was run"
     failed = sum(row.get("status") == "failed" for row in result.plant_rows)
+    broke = f", {result.violations} broke a constraint" if result.constraints else ""
     print(f"session {session.session_id} in {args.db}: {result.n_experiments}/{args.budget} plant experiments"
-          f"{resumed}, {failed} failed, {result.twin_evaluations} twin evaluations")
+          f"{resumed}, {failed} failed{broke}, {result.twin_evaluations} twin evaluations")
     ok = [row for row in result.plant_rows if row.get("status") == "ok"]
+    if result.constraints:  # the best is the best feasible experiment
+        ok = [row for row in ok if row.get("feasible") is True]
     if ok:
         best = min(ok, key=lambda row: row["cost"])
         gains = ", ".join(f"{name} = {best[name]:.6g}" for name in result.gain_names)

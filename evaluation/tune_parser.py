@@ -37,6 +37,10 @@ def add_parser(subparsers) -> None:
                       help='gym.make keyword arguments, e.g. \'{"noise": false}\'')
     tune.add_argument("--tuner-kwargs", type=json_object, default={}, metavar="JSON",
                       help="tuner constructor keyword arguments as a JSON object")
+    tune.add_argument("--constraints", type=json_object, default=None, metavar="JSON",
+                      help='limits every experiment must keep (value <= limit), e.g. \'{"overshoot_pct": 2.0, '
+                           '"peak_u": 140}\': a metric or peak_u (the largest |u|); the env\'s constraints '
+                           "(docs/constraints.md)")
     tune.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",
                       help="import MODULE first, found as `python -m` finds it (the current folder first): "
                            "it registers your own envs or tuners; repeatable")

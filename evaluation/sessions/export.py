@@ -6,7 +6,7 @@ import datetime as dt
 import math
 from pathlib import Path
 
-from agents.result import TuningResult
+from agents.result import TuningResult, constraint_columns
 from agents.twin.csvio import write_csv
 from evaluation.sessions.store import SessionInfo, SessionStore
 
@@ -29,7 +29,8 @@ def load_result(store: SessionStore, session_id: int) -> TuningResult:
     result = TuningResult(tuner=info.tuner, env_id=info.env_id, gain_names=info.gain_names, seed=info.seed,
                           info={"params": info.spec.get("tuner_params", {}), "session_id": session_id,
                                 "db": str(store.path)},
-                          interrupted=info.done < info.budget)
+                          interrupted=info.done < info.budget,
+                          constraints=dict(info.spec.get("env_kwargs", {}).get("constraints") or {}))
     plant_ids: set[int] = set()
     best = math.inf
     for row in store.experiments(session_id):
@@ -46,7 +47,8 @@ def load_result(store: SessionStore, session_id: int) -> TuningResult:
         result.add(record, row.experiment, best if row.source == "plant" else math.nan,
                    (row.finished_at or row.started_at) - info.created_at,
                    {"true_cost": math.nan if row.true_cost is None else row.true_cost,
-                    "unstable": bool(row.unstable), "status": row.status, "reason": row.reason})
+                    "unstable": bool(row.unstable), "status": row.status, "reason": row.reason,
+                    **({} if row.source != "plant" else constraint_columns(row.extra, row.status == "failed"))})
     return result
 
 
