@@ -257,7 +257,7 @@ class BayesianOptimization(Tuner):
         known = constraint_set(self.env)
         self.constraint_model = None if known is None else ConstraintModel(*known)
         if self.safe:
-            if self.constraint_model is None:
+            if self.constraint_model is None and self.env is not None:
                 raise ValueError("safe: safe=True needs an env with constraints, e.g. "
                                  "gym.make(id, constraints={'overshoot_pct': 2.0})")
             if self.safe_start.shape[1] != dim:
@@ -463,6 +463,9 @@ class BayesianOptimization(Tuner):
             Posterior std of ``J_hat`` at ``gains``, cost units.
         """
         model = self.fit_surrogate()
+        if self.safe and not self.constrained:
+            raise ValueError("safe: safe=True needs experiments that report their constraints "
+                             "(record['constraints']); none did")
         if self.constrained:
             acquisition = self._constrained_acquisition(model)
         else:

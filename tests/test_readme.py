@@ -41,7 +41,8 @@ import pytest
 from tests.support import REPO_ROOT
 
 #: the pages whose code blocks run: the README and the docs pages it links for the detail
-PAGES = ("README.md", "docs/envs.md", "docs/tuners.md", "docs/workbench.md", "docs/benchmark.md", "docs/cli.md")
+PAGES = ("README.md", "docs/envs.md", "docs/tuners.md", "docs/workbench.md", "docs/benchmark.md", "docs/cli.md",
+         "docs/constraints.md")
 #: the pages whose relative links are checked: the above and the other hand-written docs
 LINKED_PAGES = (*PAGES, "docs/real-data.md", "docs/surfaces.md", "docs/design.md", "benchmarks/README.md",
                 "CHANGELOG.md")
