@@ -48,8 +48,10 @@ class SafeOpt(Tuner):
 
     Parameters
     ----------
-    safe_start : array_like of shape (m, n_gains) or (n_gains,)
+    safe_start : array_like of shape (m, n_gains) or (n_gains,), optional
         Gains known to keep every constraint, in the env's units; the first ``m`` experiments.
+        Required on an env with constraints. On an env without, every gain is safe: the safe
+        set is the whole candidate set and the first experiment is ``bo``'s Latin hypercube point.
     beta : float, default 2.0
         Confidence scaling of the bounds ``mu +- beta sigma`` (> 0; 2 is the package's default).
     grid_points : int, default 100
@@ -66,7 +68,8 @@ class SafeOpt(Tuner):
     Raises
     ------
     ValueError
-        Without ``safe_start``, or (at :meth:`setup`) on an env without constraints.
+        At :meth:`setup`: an env with constraints but no ``safe_start``, or a ``safe_start`` of
+        the wrong number of gains or outside the feasible set.
     """
 
     name = "safeopt"
@@ -82,44 +85,48 @@ class SafeOpt(Tuner):
 
     def __init__(self, *, safe_start=None, beta: float = 2.0, grid_points: int = 100, n_candidates: int = 4096,
                  noise_std: float | None = None, max_expander_checks: int = 256, n_targets: int = 2048) -> None:
-        if safe_start is None:
-            raise ValueError("safe_start: SafeOpt needs gains known to keep every constraint, e.g. "
-                             "safe_start=[[0.3, 1.0]]; it explores only from them")
         self._params = validate_params(self._parameter_constraints, {
             "beta": beta, "grid_points": grid_points, "n_candidates": n_candidates, "noise_std": noise_std,
             "max_expander_checks": max_expander_checks, "n_targets": n_targets})
-        self.safe_start = validated_safe_start(safe_start)
-        self._params["safe_start"] = self.safe_start.tolist()
+        self.safe_start = None if safe_start is None else validated_safe_start(safe_start)
+        if self.safe_start is not None:
+            self._params["safe_start"] = self.safe_start.tolist()
         for key in ("beta", "grid_points", "n_candidates", "noise_std", "max_expander_checks", "n_targets"):
             setattr(self, key, self._params[key])
 
     def _setup(self) -> None:
         known = constraint_set(self.env)
-        if known is None:
-            raise ValueError("safeopt: needs an env with constraints, e.g. gym.make(id, constraints="
-                             "{'overshoot_pct': 2.0}); without them every gain is safe")
         dim = self.space.dim
-        if self.safe_start.shape[1] != dim:
-            raise ValueError(f"safe_start: need gains of {dim} values each, got shape {self.safe_start.shape}")
-        starts = np.vstack([self.space.to_unit(self.space.check(row, name="safe_start")) for row in self.safe_start])
+        if self.safe_start is not None:
+            if self.safe_start.shape[1] != dim:
+                raise ValueError(f"safe_start: need gains of {dim} values each, got shape {self.safe_start.shape}")
+            starts = np.vstack([self.space.to_unit(self.space.check(row, name="safe_start"))
+                                for row in self.safe_start])
+        elif known is not None:
+            raise ValueError("safe_start: SafeOpt on an env with constraints needs gains known to keep every "
+                             "constraint, e.g. safe_start=[[0.3, 1.0]]; it explores only from them")
+        else:  # no constraints: every gain is safe, start as bo does
+            starts = qmc.LatinHypercube(d=dim, rng=self.rng).random(1)
+        self._starts = starts
         if dim <= 2:
             grid = _unit_candidates(dim, self.grid_points, self.rng)
         else:
             grid = qmc.Sobol(d=dim, scramble=True, rng=self.rng).random(self.n_candidates)
         self._D = np.vstack([starts, grid])  # the safe starts are candidates 0 .. m-1
-        self._safe = np.zeros(self._D.shape[0], dtype=bool)
+        self._safe = np.zeros(self._D.shape[0], dtype=bool) if known is not None else \
+            np.ones(self._D.shape[0], dtype=bool)
         self._safe[: starts.shape[0]] = True
         self._fit_seed = int(self.rng.integers(2**31))
         self.cost_gp = GPSurrogate(noise_std=self.noise_std)
-        self.constraints = ConstraintModel(*known)
+        self.constraints = None if known is None else ConstraintModel(*known)
         self._X: list[np.ndarray] = []
         self._y: list[float] = []
         self.last_sets_: dict[str, int] = {}
 
     def _ask(self) -> np.ndarray:
         n = len(self._y)
-        if n < self.safe_start.shape[0]:
-            return self.safe_start[n].copy()
+        if n < self._starts.shape[0]:
+            return self.space.from_unit(self._starts[n])
         with single_thread():
             return self.space.from_unit(self._D[self._next()])
 
@@ -127,10 +134,11 @@ class SafeOpt(Tuner):
         x = self.space.to_unit(gains)
         self._X.append(x)
         self._y.append(cost)
-        self.constraints.add(x, record)
+        if self.constraints is not None:
+            self.constraints.add(x, record)
 
     def run_summary(self) -> dict[str, Any]:
-        return {"safe_share": float(np.mean(self._safe[self.safe_start.shape[0]:])), **self.last_sets_}
+        return {"safe_share": float(np.mean(self._safe[self._starts.shape[0]:])), **self.last_sets_}
 
     # -- SafeOpt's sets -----------------------------------------------------------------------------
     def _next(self) -> int:
@@ -141,7 +149,7 @@ class SafeOpt(Tuner):
         mean, std = self.cost_gp.predict(self._D)
         lower, upper = mean - self.beta * std, mean + self.beta * std
         width = 2 * self.beta * std / self.cost_gp.y_scale_
-        if self.constraints.n_observations:
+        if self.constraints is not None and self.constraints.n_observations:
             self.constraints.fit(seed=seed + 1)
             c_mean, c_std = self.constraints.predict(self._D)
             self._safe |= np.all(c_mean + self.beta * c_std <= 0.0, axis=1)
@@ -161,7 +169,7 @@ class SafeOpt(Tuner):
     def _expanders(self, safe: np.ndarray, maximisers: np.ndarray, width: np.ndarray, floor: float) -> np.ndarray:
         """The expanders among the safe candidates wider than ``floor`` (module doc)."""
         unsafe = np.flatnonzero(~self._safe)
-        if not self.constraints.n_observations or not unsafe.size:
+        if self.constraints is None or not self.constraints.n_observations or not unsafe.size:
             return np.empty(0, dtype=int)
         others = np.setdiff1d(safe, maximisers)
         others = others[width[others] > floor]

@@ -93,7 +93,10 @@ def main(argv=None) -> None:
     runs = [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
     done = {(r["tuner"], r["seed"]) for r in runs if r["budget"] == args.budget}
     optimum = gbo_envs.ground_truth(ENV_ID, constraints=LIMITS, n_jobs=1).cost
-    tasks = [(label, seed) for seed in range(args.seeds) for label in args.tuners if (label, seed) not in done]
+    # the safe tuners first, seed by seed; the slower peer (Optuna's GP sampler) after them
+    order = sorted(args.tuners, key=lambda label: TUNERS[label][0].startswith("optuna"))
+    tasks = sorted(((label, seed) for seed in range(args.seeds) for label in order if (label, seed) not in done),
+                   key=lambda task: (TUNERS[task[0]][0].startswith("optuna"), task[1]))
     for run in Parallel(n_jobs=args.jobs, return_as="generator_unordered")(
             delayed(one_run)(label, seed, args.budget, optimum, args.ratio) for label, seed in tasks):
         runs.append(run)

@@ -127,11 +127,14 @@ def test_safe_mode_without_an_env_learns_the_constraints_from_the_records():
 
 
 # -- SafeOpt -----------------------------------------------------------------------------------------------
-def test_safeopt_refuses_without_a_safe_start_and_without_constraints():
+def test_safeopt_refuses_a_constrained_env_without_a_safe_start_and_takes_an_unconstrained_one():
     with pytest.raises(ValueError, match="safe_start"):
-        agents.make("safeopt")
-    with pytest.raises(ValueError, match="constraints"):
-        agents.make("safeopt", safe_start=SAFE_START).run(gym.make(ENV), budget=2, seed=0)
+        agents.make("safeopt").run(_env(), budget=2, seed=0)
+    with pytest.raises(ValueError, match="safe_start"):
+        agents.make("safeopt", safe_start=[[0.3]]).run(_env(), budget=2, seed=0)
+    tuner = agents.make("safeopt")
+    result = tuner.run(gym.make(ENV), budget=3, seed=0)  # no constraints: every gain is safe
+    assert result.n_experiments == 3 and tuner._safe.all()
 
 
 def test_safeopt_proposes_only_from_its_safe_set_which_grows_from_the_start():
