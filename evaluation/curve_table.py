@@ -7,7 +7,9 @@ seed, key, file`` (the batch file the run is, :attr:`evaluation.study_runner.Bat
 (``J*`` of the first experiment's plant), ``seconds, cpu_seconds,
 plant_cpu_seconds`` (the run's wall and CPU time and the CPU time of the plant's
 steps, NaN when unknown), ``summary`` (JSON: the tuner's own figures, see
-:func:`evaluation.curves.run_summary`) and ``source`` (``"engine"`` or where it was imported from).
+:func:`evaluation.curves.run_summary`), ``source`` (``"engine"`` or where it was imported from) and
+``violations`` (on a plant with constraints: the experiments that broke one, NaN elsewhere; the
+best-ratio curve of such a plant counts only the feasible experiments).
 
 :mod:`evaluation.curves` computes the rows from a study's batch files; :func:`write_curves` and
 :func:`read_curves` keep them as Parquet (``curves.parquet``, :data:`CURVES_FILE`, in a study's folder:
@@ -30,7 +32,7 @@ CURVES_FILE = "curves.parquet"
 #: Columns of a curves table (see the module docstring).
 CURVE_COLUMNS = ["study", "plant", "tuner", "tuner_name", "params", "env_id", "env_kwargs", "budget", "batch", "seed",
                  "key", "file", "curve", "instant", "optimum", "seconds", "cpu_seconds", "plant_cpu_seconds", "summary",
-                 "source", "commit"]
+                 "source", "commit", "violations"]
 
 
 def write_curves(curves: pd.DataFrame, path: Path | str) -> Path:

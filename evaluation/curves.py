@@ -11,21 +11,8 @@ plant-changing env from its change on. These *curves* are what the benchmark
 suite ships as references and what the comparison tables are computed from;
 they are small enough to keep in the repository.
 
-<<<<<<< HEAD
 The table's columns and its file (:data:`CURVE_COLUMNS`, :func:`read_curves`, :func:`write_curves`)
 are those of :mod:`evaluation.curve_table`.
-=======
-Columns of a curves table (:data:`CURVE_COLUMNS`): ``study, plant, tuner`` (label),
-``tuner_name, params`` (JSON), ``env_id, env_kwargs`` (JSON), ``budget, batch,
-seed, key, file`` (the batch file the run is, :attr:`BatchTask.filename`),
-``curve`` and ``instant`` (lists of floats, one per experiment), ``optimum``
-(``J*`` of the first experiment's plant), ``seconds, cpu_seconds,
-plant_cpu_seconds`` (the run's wall and CPU time and the CPU time of the plant's
-steps, NaN when unknown), ``summary`` (JSON: the tuner's own figures, see
-:func:`run_summary`), ``source`` (``"engine"`` or where it was imported from) and
-``violations`` (on a plant with constraints: the experiments that broke one, NaN
-elsewhere; the best-ratio curve of such a plant counts only the feasible experiments).
->>>>>>> 453f2b0 (gbo tune --constraints, study plants' constraints = {...}, curves count only feasible experiments on a constrained plant and carry their violations, a violations column in the leaderboard, DC+limits in the benchmark suite)
 
 A study folder may hold a ``curves.parquet`` beside its batch files (runs kept as
 curves only, e.g. those of the former benchmark scripts); :func:`load_curves`
@@ -44,26 +31,16 @@ import pandas as pd
 
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.jsonable import jsonable
-<<<<<<< HEAD
+from agents.result import CONSTRAINT_PREFIX
 from evaluation.behaviour import plant_behaviour
 from evaluation.curve_table import CURVE_COLUMNS, CURVES_FILE, read_curves, write_curves
 from evaluation.study_runner import RESULTS_DIR, plan_batches
-=======
-from agents.result import CONSTRAINT_PREFIX
->>>>>>> 453f2b0 (gbo tune --constraints, study plants' constraints = {...}, curves count only feasible experiments on a constrained plant and carry their violations, a violations column in the leaderboard, DC+limits in the benchmark suite)
 from gbo_envs.atomic_write import atomic_write
 from gbo_envs.gain_grid import grid_axes, grid_points
 
 __all__ = ["CURVE_COLUMNS", "CURVES_FILE", "change_at", "curves_from_results", "experiments_to_target",
            "load_curves", "plant_optima", "plant_optimum_cell", "read_curves", "run_summary", "write_curves"]
 
-<<<<<<< HEAD
-=======
-CURVES_FILE = "curves.parquet"
-CURVE_COLUMNS = ["study", "plant", "tuner", "tuner_name", "params", "env_id", "env_kwargs", "budget", "batch", "seed",
-                 "key", "file", "curve", "instant", "optimum", "seconds", "cpu_seconds", "plant_cpu_seconds", "summary",
-                 "source", "commit", "violations"]
->>>>>>> 453f2b0 (gbo tune --constraints, study plants' constraints = {...}, curves count only feasible experiments on a constrained plant and carry their violations, a violations column in the leaderboard, DC+limits in the benchmark suite)
 #: Keys of a result's ``info`` kept in a run's summary.
 SUMMARY_KEYS = ("activations", "distrusts", "repeats", "reinitializations", "twin_evaluations", "fidelity")
 
