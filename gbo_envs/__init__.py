@@ -18,7 +18,7 @@ from gbo_envs.envs.cost_spec import CostSpec
 from gbo_envs.envs.external import ExperimentFailed, ExternalPlantEnv, PlantStructure
 from gbo_envs.envs.rig_options import FailurePolicy, StepExperiment
 from gbo_envs.experiment import Experiment, RecordError, validate_signals
-from gbo_envs.ground_truth import GroundTruth, ground_truth
+from gbo_envs.ground_truth import FeasibleSet, GroundTruth, feasible_set, ground_truth
 from gbo_envs.metrics import METRIC_NAMES, step_metrics, weighted_cost
 from gbo_envs.physics.lti import ContinuousPlant
 
@@ -32,6 +32,7 @@ __all__ = [
     "ExperimentFailed",
     "ExternalPlantEnv",
     "FailurePolicy",
+    "FeasibleSet",
     "GroundTruth",
     "METRIC_NAMES",
     "PDT1Controller",
@@ -41,6 +42,7 @@ __all__ = [
     "RecordError",
     "StepExperiment",
     "StepResponse",
+    "feasible_set",
     "ground_truth",
     "step_metrics",
     "validate_signals",

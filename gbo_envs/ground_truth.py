@@ -21,13 +21,60 @@ from gbo_envs.ground_truth_tables import load_search_table, load_table
 from gbo_envs.optimum_search import SearchDisagreement, certified_minimum, default_points
 from gbo_envs.plotting import cost_surface
 
-__all__ = ["GRID_MAX_GAINS", "GroundTruth", "METHODS", "ground_truth", "search_settings"]
+__all__ = ["FeasibleSet", "feasible_set", "GRID_MAX_GAINS", "GroundTruth", "METHODS", "ground_truth", "search_settings"]
 
 #: ``method`` of :func:`ground_truth`: ``"auto"`` (the grid up to :data:`GRID_MAX_GAINS` gains, the search
 #: above), ``"grid"`` or ``"search"``.
 METHODS = ("auto", "grid", "search")
 #: With ``method="auto"``: the most gains whose ground truth is a grid.
 GRID_MAX_GAINS = 2
+
+
+@dataclass(frozen=True, eq=False)
+class FeasibleSet:
+    """The gains of a grid that keep every constraint: the result of :func:`feasible_set`.
+
+    Attributes
+    ----------
+    constraints : dict
+        ``{name: limit}`` (:class:`~gbo_envs.constraints.Constraints`).
+    axes : tuple of ndarray
+        Grid values of each gain, each of shape (resolution,).
+    costs : ndarray of shape (resolution,) * n_gains
+        ``J`` on the grid (``indexing="ij"``), every cell.
+    cells : ndarray of bool of shape (resolution,) * n_gains
+        Which cells keep every limit and are stable, each judged on its noise-free experiment.
+    gain_names, gain_units : tuple of str
+    """
+
+    constraints: dict
+    axes: tuple[np.ndarray, ...]
+    costs: np.ndarray
+    cells: np.ndarray
+    gain_names: tuple[str, ...]
+    gain_units: tuple[str, ...] = ()
+
+    @property
+    def share(self) -> float:
+        """The share of the grid's cells that keep every limit (dimensionless, in [0, 1])."""
+        return float(np.mean(self.cells))
+
+    @property
+    def best(self) -> GroundTruth:
+        """The best feasible cell as a :class:`GroundTruth` (its ``costs``: the whole grid).
+
+        Raises
+        ------
+        ValueError
+            No cell is feasible.
+        """
+        if not self.cells.any():
+            raise ValueError(f"constraints: no gain of the {self.costs.shape[0]}-point grid keeps "
+                             f"{self.constraints}; loosen a limit")
+        best = np.unravel_index(int(np.argmin(np.where(self.cells, self.costs, np.inf))), self.costs.shape)
+        return GroundTruth(gains=np.array([axis[i] for axis, i in zip(self.axes, best)]),
+                           cost=float(self.costs[best]), gain_names=self.gain_names, axes=self.axes,
+                           costs=self.costs, gain_units=self.gain_units)
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,11 +107,6 @@ class GroundTruth:
         Search: ``(check_cost - cost) / cost``, certified when ``<= tolerance``.
     evaluations : int or None
         Search: cost evaluations of both searches.
-    constraints : dict or None
-        ``{name: limit}`` of the constraints the optimum keeps (``None``: unconstrained); ``gains``
-        and ``cost`` are then the best *feasible* grid cell.
-    feasible : ndarray of bool of shape (resolution,) * n_gains or None
-        With constraints: which grid cells keep every limit (and are stable).
     """
 
     gains: np.ndarray
@@ -79,14 +121,6 @@ class GroundTruth:
     check_cost: float | None = None
     disagreement: float | None = None
     evaluations: int | None = None
-    constraints: dict | None = None
-    feasible: np.ndarray | None = None
-
-    @property
-    def feasible_share(self) -> float | None:
-        """With constraints: the share of the grid's cells that keep every limit (``None`` without)."""
-        return None if self.feasible is None else float(np.mean(self.feasible))
-
     @property
     def certified(self) -> bool | None:
         """Search: whether the two searches agree within :attr:`tolerance`; ``None`` for a grid."""
@@ -222,8 +256,7 @@ def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: in
         Limits the optimum must keep (:class:`~gbo_envs.constraints.Constraints`); default: the
         env's own (``gym.make(id, constraints=...)``), ``{}`` for none. With constraints the grid
         is computed live and the result is its best feasible cell, each cell judged on the
-        noise-free experiment (:meth:`~gbo_envs.ControllerTuningEnv.evaluate_constraints`: the
-        expected metrics, ``peak_u`` on the record of noise draw 0, unstable cells infeasible).
+        noise-free experiment (:func:`feasible_set`, which also gives the feasible cells).
         Needs the grid (``method="grid"`` from three gains up: ``resolution ** n_gains`` cells).
     **make_kwargs
         Passed to ``gym.make`` when an id is given.
@@ -249,7 +282,7 @@ def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: in
         if method == "search" or (method == "auto" and dim > GRID_MAX_GAINS):
             raise ValueError(f"constraints: the certified search is unconstrained; for {dim} gains pass "
                              f"method='grid' (resolution ** {dim} cells)")
-        return _constrained_grid(plant_env, limits, int(resolution), int(chunk), n_jobs, progress)
+        return feasible_set(env, limits, int(resolution), int(chunk), n_jobs, progress).best
     if method == "search" or (method == "auto" and dim > GRID_MAX_GAINS):
         return _search(env, search_settings(dim, n_points, n_starts, tolerance, seeds), int(chunk), progress,
                        use_table)
@@ -310,24 +343,56 @@ def _search(env, search: dict, chunk: int, progress: bool, use_table: bool) -> G
                        evaluations=int(stored["evaluations"]))
 
 
-def _constrained_grid(plant, limits: Constraints, resolution: int, chunk: int, n_jobs: int,
-                      progress: bool) -> GroundTruth:
-    """The grid's best feasible cell under ``limits`` (computed live: the tables hold costs only)."""
-    axes = grid_axes(plant.action_space.low, plant.action_space.high, resolution)
+def feasible_set(env_or_id, constraints=None, resolution: int = 100, chunk: int = 1000, n_jobs: int = -1,
+                 progress: bool = False, **make_kwargs) -> FeasibleSet:
+    """The grid cells that keep ``constraints`` and their costs; ``.best`` is the constrained optimum.
+
+    Each cell is judged on its noise-free experiment
+    (:meth:`~gbo_envs.ControllerTuningEnv.evaluate_constraints`: the expected metrics,
+    ``peak_u`` and user functions on the record of noise draw 0, unstable cells infeasible).
+    Computed live (the shipped tables hold costs only), on ``resolution ** n_gains`` cells.
+
+    Parameters
+    ----------
+    env_or_id : gymnasium.Env or str
+        A plant env (wrappers allowed) or a registered id.
+    constraints : mapping, optional
+        The limits (:class:`~gbo_envs.constraints.Constraints`); default: the env's own.
+    resolution : int, default 100
+        Grid points per gain, ``>= 2``.
+    chunk, n_jobs, progress
+        As in :func:`ground_truth`.
+    **make_kwargs
+        Passed to ``gym.make`` when an id is given.
+
+    Returns
+    -------
+    FeasibleSet
+
+    Raises
+    ------
+    ValueError
+        Without constraints (none given and the env has none).
+    """
+    if int(resolution) < 2:
+        raise ValueError(f"resolution: must be an integer >= 2, got {resolution}")
+    env = gym.make(env_or_id, **make_kwargs) if isinstance(env_or_id, str) else env_or_id
+    plant = env.unwrapped
+    limits = getattr(plant, "constraints", Constraints()) if constraints is None else Constraints(constraints)
+    if not limits:
+        raise ValueError("constraints: a feasible set needs constraints, e.g. {'overshoot_pct': 2.0}; "
+                         "the env has none")
+    axes = grid_axes(plant.action_space.low, plant.action_space.high, int(resolution))
     grid = grid_points(axes)
-    parts = np.array_split(grid, max(1, grid.shape[0] // max(1, chunk)))
+    parts = np.array_split(grid, max(1, grid.shape[0] // max(1, int(chunk))))
     tasks = Parallel(n_jobs=n_jobs, return_as="generator")(
         delayed(_constrained_part)(plant, limits, part) for part in parts)
-    done = list(tqdm(tasks, total=len(parts), desc="ground truth", unit="task", disable=not progress))
+    done = list(tqdm(tasks, total=len(parts), desc="feasible set", unit="task", disable=not progress))
     shape = [axis.size for axis in axes]
-    costs = np.concatenate([d[0] for d in done]).reshape(shape)
-    feasible = np.concatenate([d[1] for d in done]).reshape(shape)
-    if not feasible.any():
-        raise ValueError(f"constraints: no gain of the {resolution}-point grid keeps {limits!r}; loosen a limit")
-    best = np.unravel_index(int(np.argmin(np.where(feasible, costs, np.inf))), costs.shape)
-    return GroundTruth(gains=np.array([axis[i] for axis, i in zip(axes, best)]), cost=float(costs[best]),
-                       gain_names=plant.gain_names, axes=tuple(axes), costs=costs, gain_units=plant.gain_units,
-                       constraints=limits.to_spec(), feasible=feasible)
+    return FeasibleSet(constraints=limits.to_spec(), axes=tuple(axes),
+                       costs=np.concatenate([d[0] for d in done]).reshape(shape),
+                       cells=np.concatenate([d[1] for d in done]).reshape(shape), gain_names=plant.gain_names,
+                       gain_units=plant.gain_units)
 
 
 def _constrained_part(env, limits: Constraints, gains: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

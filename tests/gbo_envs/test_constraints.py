@@ -109,15 +109,16 @@ def test_external_plant_takes_constraints(dc_motor):
 def test_constrained_ground_truth_is_the_best_feasible_cell():
     truth = gbo_envs.ground_truth("gbo_envs/DCMotor-v0", constraints=LIMITS, n_jobs=1)
     free = gbo_envs.ground_truth("gbo_envs/DCMotor-v0")
+    cells = gbo_envs.feasible_set("gbo_envs/DCMotor-v0", LIMITS, n_jobs=1)
     env = gym.make("gbo_envs/DCMotor-v0", constraints=LIMITS, noise=False)
     env.reset(seed=0)
     info = _step(env, truth.gains)
     assert info["feasible"] and info["cost"] == pytest.approx(truth.cost, rel=1e-9)
     # every cheaper cell breaks a limit
     assert truth.cost > free.cost
-    assert np.all(~truth.feasible[truth.costs < truth.cost])
-    assert truth.feasible.shape == (100, 100) and 0.2 < truth.feasible_share < 0.3
-    assert truth.constraints == LIMITS
+    assert np.all(~cells.cells[cells.costs < truth.cost])
+    assert cells.cells.shape == (100, 100) and 0.2 < cells.share < 0.3
+    assert cells.constraints == LIMITS and cells.best.cost == truth.cost
     # the measured figures of issue 55 (60 x 60 there; the 100 x 100 grid here)
     assert truth.gains[0] == pytest.approx(0.41, abs=0.02) and truth.gains[1] == pytest.approx(1.28, abs=0.03)
     assert truth.cost == pytest.approx(0.2835, abs=0.006)
@@ -127,8 +128,10 @@ def test_ground_truth_takes_the_envs_own_constraints_and_an_empty_set_lifts_them
     env = gym.make("gbo_envs/DCMotor-v0", constraints=LIMITS)
     constrained = gbo_envs.ground_truth(env, resolution=20, n_jobs=1)
     lifted = gbo_envs.ground_truth(env, resolution=20, n_jobs=1, constraints={})
-    assert constrained.constraints == LIMITS and lifted.constraints is None
     assert constrained.cost > lifted.cost
+    assert constrained.cost == gbo_envs.feasible_set(env, resolution=20, n_jobs=1).best.cost
+    with pytest.raises(ValueError, match="needs constraints"):
+        gbo_envs.feasible_set("gbo_envs/DCMotor-v0", resolution=5, n_jobs=1)
 
 
 def test_constrained_ground_truth_refuses_the_search_and_an_empty_feasible_set():
