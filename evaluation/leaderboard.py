@@ -364,19 +364,22 @@ def leaderboard_markdown(board: Leaderboard, title: str, intro: list[str], figur
               f"Mean real experiments to the target with its {level} bootstrap percentile interval "
               f"(`scipy.stats.bootstrap`, {board.n_bootstrap} resamples of the seeds, seed {board.seed}; it stays "
               f"within the range of the counts); a miss counts as the experiments counted + 1; `/ {ref}`: the mean "
-              f"over `{ref}`'s on the same seeds; violations per run: the mean number of experiments that broke a "
-              "constraint of a plant with constraints (on such a plant only the feasible experiments reach the "
-              "target; — without constraints).", ""]
+              f"over `{ref}`'s on the same seeds. A plant with constraints has a column more, the violations per "
+              "run: the mean number of its experiments that broke a constraint (only the feasible ones reach the "
+              "target).", ""]
     for plant in board.plants_:
         part = board.table_[board.table_["plant"] == plant.label]
         counted = f"experiments {plant.start + 1}-{plant.budget} (after the plant change)" if plant.start else \
             f"budget {plant.budget}"
+        constrained = bool(part["violations"].notna().any())
         lines += [f"### {plant.label}: ratio {plant.target:g}, {counted}", "",
-                  f"| tuner | experiments to {plant.target:g} | misses | / {ref} | violations per run | seeds | "
-                  "status |", "|---|---|---|---|---|---|---|"]
+                  f"| tuner | experiments to {plant.target:g} | misses | / {ref} | "
+                  f"{'violations per run | ' if constrained else ''}seeds | status |",
+                  "|---|---|---|---|" + ("---|" if constrained else "") + "---|---|"]
         for row in part.to_dict("records"):
+            broke = f"{_number(row['violations'], 1)} | " if constrained else ""
             lines.append(f"| {_name(row['tuner'], highlight)} | {_cell(row)} | {row['misses']} | "
-                         f"{_number(row['vs_reference'])} | {_number(row['violations'], 1)} | "
+                         f"{_number(row['vs_reference'])} | {broke}"
                          f"{row['seeds']} | {row['status'] or 'current'} |")
         lines.append("")
     if notes:
