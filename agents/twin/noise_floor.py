@@ -27,7 +27,7 @@ import numpy as np
 from agents.twin.records import Batch
 
 __all__ = ["NOISE_FLOOR_LABELS", "NoiseFloor", "noise_floor", "noise_floor_estimate", "noise_floor_method",
-           "quantization_step", "settled_noise", "white_noise", "white_noise_floor"]
+           "noiseless_quantum", "quantization_step", "settled_noise", "white_noise", "white_noise_floor"]
 
 #: Median of chi-square with 1 degree of freedom: a robust ``var`` is ``median(x^2) / 0.4549``.
 _CHI2_MEDIAN = 0.4549
@@ -246,11 +246,30 @@ def white_noise_floor(data: Batch) -> float | None:
     d2 = np.diff(data.y, n=2, axis=1)[data.mask[:, 2:]]
     if d2.size < 10:
         return None
-    scale = max(float(np.max(np.abs(data.y[data.mask]))), 1.0)
-    if np.mean(np.abs(d2) <= 1e-12 * scale) < 0.5:
+    if not _holds_still(data, d2):
         return white_noise(data.y, data.mask)
     q = quantization_step(data.y, data.mask)[0]
     return None if q is None else float(q / np.sqrt(12.0))
+
+
+def noiseless_quantum(data: Batch) -> float | None:
+    """The resolution ``q`` (units of ``y``) of an output quantized without visible noise, else ``None``.
+
+    As :func:`white_noise_floor` reads it: more than half of the second differences of ``y`` are exactly
+    zero, and its changes are whole multiples of one step (:func:`quantization_step`). Such a
+    measurement is a deterministic rounding of the response, not white noise of std ``q / sqrt(12)``:
+    it never exceeds the reference by less than a level.
+    """
+    d2 = np.diff(data.y, n=2, axis=1)[data.mask[:, 2:]]
+    if d2.size < 10 or not _holds_still(data, d2):
+        return None
+    return quantization_step(data.y, data.mask)[0]
+
+
+def _holds_still(data: Batch, d2: np.ndarray) -> bool:
+    """Whether more than half of the second differences ``d2`` of ``y`` are exactly zero (no visible noise)."""
+    scale = max(float(np.max(np.abs(data.y[data.mask]))), 1.0)
+    return not np.mean(np.abs(d2) <= 1e-12 * scale) < 0.5
 
 
 def noise_floor(data: Batch) -> float | None:
