@@ -306,9 +306,10 @@ class TwinKeeper:
         ``None`` (and for the linear twin).
 
         White noise of the floor's std ``q / sqrt(12)`` is not such a sensor: its maxima exceed the reference where
-        the rounding does not, which moves the overshoot and the settling time of every twin response (on
-        LinearMotorCascade-v0's 5 um encoder the noisy twin put the cost at the optimum at 0.87 for the plant's
-        0.595; the twin with the rounding at 0.595).
+        the rounding does not, which adds overshoot and settling time to every twin response (on
+        LinearMotorCascade-v0's 5 um encoder, 16 random gains: the noisy twin's costs a median 25 % above the
+        plant's, the rounding twin's within 0.2 %; where a response peaks within a level of the reference, one
+        level of overshoot more or less still separates them).
         """
         quanta = [q for q in self._quanta if q is not None]
         if not quanta or 2 * len(quanta) <= len(self._quanta):
