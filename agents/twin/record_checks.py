@@ -122,27 +122,24 @@ def same_sample_share(u: np.ndarray, y: np.ndarray, mask: np.ndarray, lags: int 
 
 
 def warn_if_non_causal(data) -> None:
-    """Warn (:class:`NonCausalRecordWarning`) if the output of ``data`` (a :class:`~agents.twin.records.Batch`)
-    answers the input within the same sample.
+    """Warn (:class:`NonCausalRecordWarning`) if the output of the open-loop records of ``data`` (a
+    :class:`~agents.twin.records.Batch`) answers the input within the same sample.
 
     A same-sample term (:func:`same_sample_share`) that explains more than :data:`NON_CAUSAL_SHARE`
-    of what the causal regression leaves is warned of, for the open-loop records (``r`` equal to
-    ``u``: the input does not depend on the output) at either sign, and for the closed-loop ones
-    when it raises the output with the input: a controller that reads ``y[k]`` to compute ``u[k]``
-    ties them in the same sample too, but with the opposite sign (``u = C (r - y)`` with positive
-    gains, so ``du[k]`` and ``dy[k]`` move in opposite directions).
+    of what the causal regression leaves is warned of, at either sign. Only the open-loop records
+    (``r`` equal to ``u``) are tested: in a closed loop the digital controller reads ``y[k]`` to compute
+    ``u[k]``, so ``u`` and ``y`` are tied within the sample whatever the log's timing, and the test
+    cannot tell a one-sample-early log from the controller (simulated closed loops of DCMotorStep-v0
+    gave shares above 0.9 at either sign).
     """
-    closed = np.asarray(data.closed_loop)
-    for rows, signed in ((np.flatnonzero(~closed), False), (np.flatnonzero(closed), True)):
-        if rows.size == 0:
-            continue
-        share, gain = same_sample_share(data.u[rows], data.y[rows], data.mask[rows])
-        if share > NON_CAUSAL_SHARE and (gain > 0.0 or not signed):
+    rows = np.flatnonzero(~np.asarray(data.closed_loop))
+    if rows.size:
+        share, _ = same_sample_share(data.u[rows], data.y[rows], data.mask[rows])
+        if share > NON_CAUSAL_SHARE:
             warnings.warn(
                 f"records: the output y answers the input u within the same sample (a term u[k] -> y[k] explains "
-                f"{100 * share:.0f} % of what a causal model of the {'closed' if signed else 'open'}-loop "
+                f"{100 * share:.0f} % of what a causal model of the open-loop "
                 "experiments leaves); a sampled plant answers u[k] from y[k+1] on, so y was probably logged one "
                 "sample early (read after u was applied), and no causal model fits it: move y one sample later "
                 "(in the CSV, the y column down one row within each experiment) and load the data again",
                 NonCausalRecordWarning, stacklevel=3)
-            return

@@ -416,6 +416,7 @@ def test_a_cost_miss_resets_the_twin_data_only_if_the_twin_had_replayed_its_reco
     assert len(keeper.records_) == (1 if reset else before + 1)
 
 
+@pytest.mark.filterwarnings("error::agents.twin.record_checks.NonCausalRecordWarning")  # simulated: causal
 def test_a_load_change_is_read_on_the_responses_and_the_twin_follows_the_new_plant():
     """A 25 % inertia load (DCMotorStep-v0) misses the costs by about 40 %, below the paper's delta = 2: the twin
     refitted on both plants' records simulates neither within the noise, a twin of the records since the change

@@ -263,7 +263,8 @@ def test_a_tuner_from_the_users_module_gets_a_leaderboard_with_the_references(tm
     md = (tmp_path / "out" / "leaderboard.md").read_text()
     assert "3 plants (DCMotor-v0, DCMotorRig-v0, LinearMotor-v0), seeds 0-0," in md  # what ran, and nothing else:
     assert "30 seeds" not in md and "every registered env" not in md  # not the standard suite's scope
-    for tuner in ["local-random", "bo", "guided-bo", "random", "botorch", "nominal"]:
+    assert "| **local-random** ◀ yours |" in md  # the user's tuner, marked
+    for tuner in ["bo", "guided-bo", "random", "botorch", "nominal"]:
         assert f"| {tuner} |" in md, tuner
     csv = pd.read_csv(tmp_path / "out" / "leaderboard.csv")
     mine = csv[(csv["tuner"] == "local-random") & (csv["kind"] == "plant")]
