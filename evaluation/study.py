@@ -95,6 +95,7 @@ import gymnasium as gym
 import numpy as np
 
 import agents
+from gbo_envs.constraints import Constraints
 
 #: Study names: letters, digits, ``_`` and ``-`` (no dots: ``..`` is no name, and no path).
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]+")
@@ -665,8 +666,6 @@ def _with_constraints(kwargs: dict, raw: dict, where: str) -> dict:
     """``kwargs`` with the table's ``constraints = {name = limit}`` (checked) as the env's ``constraints``."""
     if "constraints" not in raw:
         return kwargs
-    from gbo_envs.constraints import Constraints
-
     limits = dict(_table(raw["constraints"], f"{where} constraints"))
     try:
         Constraints(limits)

@@ -29,6 +29,7 @@ from agents import TuningStopped
 from agents.run_display import progress_enabled
 from evaluation.cli_args import EXIT_BAD_INPUT, OutputClosed
 from evaluation.sessions import ReplayMismatch, SessionBusy, SessionStore, TuningSession, export_csv, sessions_table
+from gbo_envs.constraints import Constraints
 
 
 class _PrintEvents(logging.Handler):
@@ -50,8 +51,6 @@ def _tune(args: argparse.Namespace) -> int:
         events.setLevel(logging.INFO)
     env_kwargs = dict(args.env_kwargs)
     if args.constraints is not None:
-        from gbo_envs.constraints import Constraints
-
         try:
             Constraints(args.constraints)
         except (TypeError, ValueError) as exc:
