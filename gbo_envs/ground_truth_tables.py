@@ -42,10 +42,10 @@ __all__ = ["TABLE_DIR", "IGNORED_KWARGS", "fingerprint", "load_search_table", "l
 TABLE_DIR = Path(__file__).resolve().parent / "data" / "ground_truth"
 #: Constructor kwargs that do not enter :meth:`~gbo_envs.ControllerTuningEnv.evaluate` (the expected cost):
 #: the additive cost noise has zero mean, and rendering, the out-of-bounds policy and the episode length
-#: act on experiments, not on the grid. ``noise`` only switches those experiments to the expectation (for
-#: a loop with output noise it also removes that noise, which changes the normalisers and so bypasses the
-#: table).
-IGNORED_KWARGS = ("noise", "cost_noise_std", "render_mode", "out_of_bounds", "max_experiments")
+#: act on experiments, not on the grid, as do the ``constraints`` (they judge an experiment's record, not
+#: its expected cost). ``noise`` only switches those experiments to the expectation (for a loop with
+#: output noise it also removes that noise, which changes the normalisers and so bypasses the table).
+IGNORED_KWARGS = ("noise", "cost_noise_std", "render_mode", "out_of_bounds", "max_experiments", "constraints")
 #: Relative tolerance on the normalisers (bit-equal on one platform; this allows another BLAS's rounding).
 NORMALIZER_RTOL = 1e-9
 
