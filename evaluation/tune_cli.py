@@ -43,20 +43,20 @@ class _PrintEvents(logging.Handler):
 
 
 def _tune(args: argparse.Namespace) -> int:
-    progress = False if args.quiet else None
-    events, printer, level = logging.getLogger("agents.base"), _PrintEvents(), None
-    if not progress_enabled(progress):  # without a bar the tuner's events (e.g. "twin: + saturation ...") are printed
-        level = events.level
-        events.addHandler(printer)
-        events.setLevel(logging.INFO)
     env_kwargs = dict(args.env_kwargs)
-    if args.constraints is not None:
+    if args.constraints is not None:  # refused before the logger below is touched
         try:
             Constraints(args.constraints)
         except (TypeError, ValueError) as exc:
             print(f"gbo tune: --constraints: {exc}", file=sys.stderr)
             return EXIT_BAD_INPUT
         env_kwargs["constraints"] = dict(args.constraints)
+    progress = False if args.quiet else None
+    events, printer, level = logging.getLogger("agents.base"), _PrintEvents(), None
+    if not progress_enabled(progress):  # without a bar the tuner's events (e.g. "twin: + saturation ...") are printed
+        level = events.level
+        events.addHandler(printer)
+        events.setLevel(logging.INFO)
     try:
         session = TuningSession(args.db, args.env, args.tuner, budget=args.budget, seed=args.seed,
                                 env_kwargs=env_kwargs, tuner_kwargs=args.tuner_kwargs, on_crash=args.on_crash,

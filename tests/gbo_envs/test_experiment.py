@@ -187,7 +187,7 @@ def test_to_pandas_has_one_row_per_real_experiment(guided):
     frame = guided.to_pandas()
     assert frame["experiment"].tolist() == list(range(1, 8)) and set(frame["source"]) == {"plant"}
     assert list(frame.columns) == ["experiment", "source", "Kp", "Ki", "cost", "best_cost", "true_cost", "unstable",
-                                   "overshoot_pct", "settling_time", "rise_time", "itae", "wall_time"]
+                                   "feasible", "overshoot_pct", "settling_time", "rise_time", "itae", "wall_time"]
     assert guided.n_twin > 0  # the twin rows exist, behind include_twin
     full = guided.to_pandas(include_twin=True)
     assert len(full) == 7 + guided.n_twin and set(full["source"]) == {"plant", "twin"}
