@@ -17,7 +17,7 @@ from scipy.stats import qmc
 
 from agents.acquisition import ExpectedImprovement, maximize_multistart, maximize_on_grid
 from agents.base import Tuner
-from agents.feasibility import ConstrainedAcquisition, ConstraintModel, constraint_set, validated_safe_start
+from agents.feasibility import ConstrainedAcquisition, ConstraintModel, constraint_set, run_risk, validated_safe_start
 from agents.metric_surrogate import CompositeSurrogate, MetricSurrogate
 from agents.parameters import Interval, Options, validate_params
 from agents.result import METRIC_COLUMNS
@@ -201,6 +201,7 @@ class BayesianOptimization(Tuner):
         if not isinstance(safe, bool | np.bool_):
             raise ValueError(f"safe: must be True or False, got {safe!r}")
         self.safe, self.delta = bool(safe), validate_params(self._parameter_constraints, {"delta": delta})["delta"]
+        self._run_risk = self.delta  # the safe mode's delta (a subclass may give ``delta`` another meaning)
         self.safe_start = validated_safe_start(safe_start) if safe_start is not None else None
         if self.safe and self.safe_start is None:
             raise ValueError("safe_start: safe=True needs gains known to keep every constraint, e.g. "
@@ -488,7 +489,12 @@ class BayesianOptimization(Tuner):
         self.constraint_model.fit(seed=int(np.random.default_rng([self._fit_seed, self._version, 2]).integers(2**31)))
         any_kept = bool(np.any(self._kept_mask(self.training_set()[1].size)))
         ei = ExpectedImprovement(model, self.incumbent()) if any_kept else None
-        return ConstrainedAcquisition(ei, self.constraint_model, 1.0 - self.delta if self.safe else None)
+        return ConstrainedAcquisition(ei, self.constraint_model, self.safe_level() if self.safe else None)
+
+    def safe_level(self) -> float:
+        """Safe mode: the least ``PF`` of the next proposal, ``1 - delta_t`` with ``delta_t`` the run's risk
+        split over its experiments (:func:`agents.feasibility.run_risk`, ``t`` the next experiment's number)."""
+        return 1.0 - run_risk(self._run_risk, self.n_observations + 1)
 
     def _best_kept_point(self) -> np.ndarray:
         """Unit-box gains of the lowest-cost feasible plant experiment."""

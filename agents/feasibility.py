@@ -44,7 +44,7 @@ from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, DotProduct, Matern, WhiteKernel
 
 __all__ = ["CLIP", "ConstrainedAcquisition", "ConstraintModel", "UNSTABLE_SLACK", "constraint_set",
-           "reported_slacks", "validated_safe_start"]
+           "reported_slacks", "run_risk", "validated_safe_start"]
 
 #: Scaled slacks are clipped to ``[-CLIP, CLIP]`` (median slacks).
 CLIP = 5.0
@@ -91,6 +91,37 @@ def reported_slacks(record: dict | None, names, limits) -> list[float]:
         values = np.where(np.isnan(values), scale, np.maximum(values, scale))
     values = np.where(np.isnan(values), scale, values)
     return np.where(np.isfinite(values), values, 10.0 * scale).tolist()
+
+
+def run_risk(delta: float, experiment: int) -> float:
+    """The risk ``delta_t`` admitted for the ``t``-th experiment of a run so that the whole run keeps ``delta``.
+
+    A safe tuner that admits the same risk ``delta`` at every proposal breaks a limit in a run of
+    ``T`` experiments with probability up to ``1 - (1 - delta)^T`` (35 experiments at
+    ``delta = 0.05``: 83 %), and since each proposal maximises the acquisition on the edge of the
+    safe set, it sits where ``PF`` is just ``1 - delta``. SafeOpt's guarantee (Sui et al. 2015,
+    Lemma 1, after Srinivas et al. 2010, Lemma 5.1) is for the run: it splits ``delta`` over the
+    experiments as ``delta_t = 6 delta / (pi^2 t^2)`` (``sum_{t >= 1} delta_t = delta``), so that by
+    the union bound every proposal of the run keeps the limits with probability ``>= 1 - delta``
+    (without SafeOpt's union over the candidate set, which the grid makes arbitrary).
+
+    Parameters
+    ----------
+    delta : float
+        The admitted probability that the run breaks a limit at all, in ``(0, 1)``.
+    experiment : int
+        ``t``, the number of the experiment in the run (1 for the first), ``>= 1``.
+
+    Returns
+    -------
+    float
+        ``delta_t = 6 delta / (pi^2 t^2)``; a proposal is safe when ``PF >= 1 - delta_t``.
+    """
+    if not 0.0 < delta < 1.0:
+        raise ValueError(f"delta: must be in (0, 1), got {delta}")
+    if experiment < 1:
+        raise ValueError(f"experiment: must be >= 1, got {experiment}")
+    return 6.0 * delta / (math.pi**2 * experiment**2)
 
 
 def validated_safe_start(values) -> np.ndarray:

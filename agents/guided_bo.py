@@ -16,6 +16,7 @@ from agents.guidance import TwinIterations, TwinPrior, from_former_keywords
 from agents.parameters import validate_params
 from agents.twin.prior import unstable_metrics
 from agents.twin_keeper import TwinKeeper
+from agents.twin_safety import TwinSafeAcquisition, TwinSafetyFilter
 
 __all__ = ["GuidedBO"]
 
@@ -72,6 +73,16 @@ class GuidedBO(BayesianOptimization):
     guidance : TwinPrior, TwinIterations, str or dict, default "prior"
         How the twin guides BO: an object of :mod:`agents.guidance`, a name (``"prior"``,
         ``"iterations"``: its defaults) or a one-key table, ``{"iterations": {"eta1": 2.0}}``.
+    safe : bool, default False
+        Safe mode with the twin as a safety filter (:mod:`agents.twin_safety`): every proposal lies
+        in the union of the gains the twin predicts safe by a margin from its measured error and the
+        gains the constraint GPs call safe (``PF >= 1 - delta_t / 2``), so that the run keeps the
+        env's constraints with probability ``>= 1 - safe_delta``; the first experiments are
+        ``safe_start``. Needs an env with constraints, ``safe_start`` and the ``"prior"`` guidance.
+    safe_start : array_like of shape (m, n_gains) or (n_gains,), optional
+        Gains known to keep every constraint, in the env's units (as ``bo``'s).
+    safe_delta : float, default 0.05
+        Safe mode: the admitted probability that the run breaks a constraint, in ``(0, 1)``.
     **deprecated
         ``eta1``, ``eta3``, ``n_ei``, ``max_twin_iterations``, ``activation``, ``period``: the former
         spelling of :class:`~agents.guidance.TwinIterations`'s fields (a ``FutureWarning``).
@@ -102,9 +113,15 @@ class GuidedBO(BayesianOptimization):
 
     def __init__(self, *, n_initial: int = 1, grid_points: int = 100, noise_std: float | None = None,
                  eta2: float | None = None, delta: float = 2.0, n_samples: int | None = 100, twin_poles: int = 2,
-                 twin="auto", guidance: TwinPrior | TwinIterations | str | dict = "prior", **deprecated) -> None:
+                 twin="auto", guidance: TwinPrior | TwinIterations | str | dict = "prior", safe: bool = False,
+                 safe_start=None, safe_delta: float = 0.05, **deprecated) -> None:
         guidance = from_former_keywords(guidance, deprecated)
-        super().__init__(n_initial=n_initial, grid_points=grid_points, noise_std=noise_std, model=guidance.model)
+        super().__init__(n_initial=n_initial, grid_points=grid_points, noise_std=noise_std, model=guidance.model,
+                         safe=safe, safe_start=safe_start, delta=safe_delta)
+        if self.safe and not isinstance(guidance, TwinPrior):
+            raise ValueError(f"safe: the twin safety filter guides with the twin prior; got guidance {guidance!r}, "
+                             "use guidance='prior'")
+        self.safe_delta = self.delta
         params = validate_params(self._parameter_constraints, {
             "eta2": eta2, "delta": delta, "n_samples": n_samples, "twin_poles": twin_poles, "twin": twin})
         self.guidance = guidance
@@ -115,6 +132,8 @@ class GuidedBO(BayesianOptimization):
         self._params = {"n_initial": self.n_initial, "grid_points": self.grid_points, "noise_std": self.noise_std,
                         **{name: value for name, value in params.items() if name != "twin"},
                         "twin": twin if isinstance(twin, str) else type(twin).__name__, "guidance": guidance}
+        if self.safe:  # only what differs from the defaults, as bo's safe mode
+            self._params.update({"safe": True, "safe_start": self.safe_start.tolist(), "safe_delta": self.safe_delta})
 
     # -- Tuner hooks ---------------------------------------------------------------------------------
     def _setup(self) -> None:
@@ -131,14 +150,33 @@ class GuidedBO(BayesianOptimization):
         self.activations_ = self.twin_evaluations_ = self.repeats_ = 0
         self.since_activation_ = np.inf
         self._prior = None  # the twin's metrics while they are the metric GPs' prior mean
+        self.safety_ = TwinSafetyFilter(plant_env.constraints, self.safe_delta) if self.safe else None
 
     def _ask(self) -> np.ndarray:
-        if self.n_observations < self.n_initial:
+        if self.n_observations < self.n_initial and not self.safe:
             return super()._ask()
-        return self.guidance.propose(self, self.keeper_)
+        gains = self.guidance.propose(self, self.keeper_)
+        if self.safety_ is not None and self.n_observations >= 1:
+            self.safety_.expect(self.keeper_.twin_env(), gains)  # the twin's prediction, judged at tell()
+            if self.constrained and self.constraint_model.probability(self.space.to_unit(gains)[None])[0] < \
+                    self.safety_.gp_level(self.n_observations + 1):
+                self.safety_.admitted_ += 1
+        return gains
+
+    def _constrained_acquisition(self, model):
+        """Safe mode: ``EI x PF`` on the twin-safe and the GP-safe gains, else bo's.
+
+        (:class:`~agents.twin_safety.TwinSafeAcquisition`)."""
+        if self.safety_ is None:
+            return super()._constrained_acquisition(model)
+        acquisition = super()._constrained_acquisition(model)
+        return TwinSafeAcquisition(acquisition.ei, self.constraint_model, self.safety_, self.keeper_.twin_env(),
+                                   self.space, self.n_observations + 1)
 
     def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:
         super()._tell(gains, cost, record)
+        if self.safety_ is not None:
+            self.safety_.observe(gains, record)
         if record is not None and record.get("unstable", False) and self.metric_surrogate is not None:
             # a diverging experiment keeps the metric GPs (and the twin prior) in use: its metrics are
             # those of J = unstable_cost, as the twin's diverging points (agents.twin.prior.TwinMetrics)
@@ -154,6 +192,8 @@ class GuidedBO(BayesianOptimization):
         summary.update({"activations": self.activations_,
                         "twin_evaluations": self.twin_evaluations_ + self.keeper_.metric_simulations_,
                         "repeats": self.repeats_, **self.keeper_.summary()})
+        if self.safety_ is not None:
+            summary.update({"twin_admitted": self.safety_.admitted_, "twin_errors": len(self.safety_.errors_)})
         return summary
 
     # -- what the guidance uses ----------------------------------------------------------------------

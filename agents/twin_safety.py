@@ -1,0 +1,200 @@
+r"""The digital twin as a safety filter: gains the twin predicts unsafe are refused before the plant runs them.
+
+Safe BO (``agents.make("bo", safe=True)``) admits a gain when the constraint GPs, fitted on the
+plant's experiments alone, give ``PF(theta) >= 1 - delta_t`` (:mod:`agents.feasibility`): its
+safe set grows only as far as the plant was measured. Guided BO has a twin that simulates the
+whole feasible set, records ``u`` and ``y`` included, so it can judge every constraint of
+:mod:`gbo_envs.constraints` at any gain without a plant experiment. :class:`TwinSafetyFilter`
+makes that judgement safe by the twin's own measured error:
+
+* **Prediction.** ``c~_j(theta)``: the slack ``value_j - limit_j`` of constraint ``j`` on the
+  noise-free twin's simulated record at ``theta`` (its metrics, its ``peak_u``, a user
+  function of the record; :meth:`gbo_envs.ControllerTuningEnv.evaluate_constraints`); a twin
+  loop that diverges predicts every slack ``+inf``.
+* **Measured error.** Every plant experiment at gains the twin had predicted before it ran
+  (the twin fitted on the earlier records only, so the error is out of sample) gives
+  ``e_ji = c_j(theta_i) - c~_j(theta_i)``, the plant's slack (measured on its noisy record)
+  minus the twin's. A plant that diverged where the twin did not is an error of ``+inf``.
+* **Margin.** With ``n >= 2`` errors of mean ``e_j`` and standard deviation ``s_j``, the margin
+  is the one-sided Student-t prediction bound of the next error (normal errors of unknown mean
+  and variance),
+
+      m_j = e_j + t_{n-1}(1 - delta') s_j sqrt(1 + 1/n),
+
+  at the risk ``delta' = delta_t / (2 n_c)`` (``n_c`` constraints, ``delta_t`` the run's risk
+  at experiment ``t``, :func:`agents.feasibility.run_risk`, half of it the twin's); with fewer
+  than two errors the twin admits nothing (``m_j = inf``). The errors are measured where the
+  tuner goes, on the edge of the safe set, which is where the next proposal is.
+* **Admission.** ``theta`` is twin-safe when ``c~_j(theta) + m_j <= 0`` for every ``j``.
+* **Safe set.** The union of the twin-safe gains and the GP-safe gains
+  (``PF(theta) >= 1 - delta_t / 2``): each statement fails with probability at most
+  ``delta_t / 2``, so a gain of the union keeps the limits with probability ``>= 1 - delta_t``
+  by the union bound, and the whole run with ``>= 1 - delta``. The twin-safe part spans every
+  gain the twin simulates within its margin, also far from the plant experiments: the safe set
+  grows on the twin, not on the plant; a twin that mispredicts gets a wide margin and leaves the
+  safe set to the GPs.
+
+The acquisition (:class:`TwinSafeAcquisition`) is constrained EI, ``EI(theta) x PF(theta)``,
+inside that safe set and ``-1`` outside it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.special import stdtrit
+
+from agents.feasibility import ConstrainedAcquisition, ConstraintModel, run_risk
+
+__all__ = ["EVALUATION_BATCH", "TwinSafeAcquisition", "TwinSafetyFilter"]
+
+#: Gains per batched twin simulation of the constraints (bounds the memory of the records ``u``).
+EVALUATION_BATCH = 1024
+
+
+class TwinSafetyFilter:
+    r"""Twin-predicted constraint slacks with a margin from the twin's measured error (module doc).
+
+    Parameters
+    ----------
+    constraints : gbo_envs.constraints.Constraints
+        The plant's limits (``env.unwrapped.constraints``), judged on the twin's records.
+    delta : float
+        The run's risk of breaking a limit, in ``(0, 1)`` (split over its experiments by
+        :func:`agents.feasibility.run_risk`).
+
+    Attributes
+    ----------
+    errors_ : list of ndarray
+        The out-of-sample errors ``e_i`` (plant slack - twin slack, each of shape (n_c,)).
+    admitted_ : int
+        Proposals the twin admitted that the GPs alone did not.
+    """
+
+    def __init__(self, constraints, delta: float) -> None:
+        if not constraints:
+            raise ValueError("constraints: the twin safety filter needs the plant's constraints; got none")
+        if not 0.0 < float(delta) < 1.0:
+            raise ValueError(f"delta: must be in (0, 1), got {delta}")
+        self.constraints, self.delta = constraints, float(delta)
+        self.errors_: list[np.ndarray] = []
+        self.admitted_ = 0
+        self._cache_env = None
+        self._rows: dict[bytes, np.ndarray] = {}
+        self._pending: tuple[np.ndarray, np.ndarray] | None = None
+
+    # -- the twin's prediction ------------------------------------------------------------------------
+    def predicted_slacks(self, twin_env, gains: np.ndarray) -> np.ndarray:
+        """``c~(theta)``: the noise-free twin's slacks at physical gains of shape (m, d), shape (m, n_c).
+
+        Cached per twin env and gain (the EI grid is simulated once per twin); a diverging twin loop
+        gives ``+inf``.
+        """
+        gains = np.atleast_2d(np.asarray(gains, dtype=float))
+        if twin_env is not self._cache_env:
+            self._cache_env, self._rows = twin_env, {}
+        keys = [row.tobytes() for row in gains]
+        missing = list(dict.fromkeys(key for key in keys if key not in self._rows))
+        if missing:
+            new = np.vstack([np.frombuffer(key, dtype=float) for key in missing])
+            noise_free = twin_env.noise_free()
+            for start in range(0, new.shape[0], EVALUATION_BATCH):
+                batch = new[start:start + EVALUATION_BATCH]
+                _, slacks, feasible = noise_free.evaluate_constraints(batch, constraints=self.constraints)
+                diverged = ~feasible & np.all(slacks <= 0.0, axis=1)  # infeasible with every limit kept: unstable
+                slacks = np.where(diverged[:, None] | ~np.isfinite(slacks), np.inf, slacks)
+                self._rows.update(zip(missing[start:start + EVALUATION_BATCH], slacks))
+        return np.vstack([self._rows[key] for key in keys])
+
+    # -- the twin's error ------------------------------------------------------------------------------
+    def expect(self, twin_env, gains) -> None:
+        """The twin, fitted on the records so far, predicts the next plant experiment at ``gains`` (physical)."""
+        gains = np.asarray(gains, dtype=float)
+        self._pending = None if twin_env is None else (gains.copy(), self.predicted_slacks(twin_env, gains[None])[0])
+
+    def observe(self, gains, record: dict | None) -> None:
+        """The plant experiment at ``gains`` ran: its error against the prediction of :meth:`expect`, if any.
+
+        A plant slack that the experiment does not report, or a twin that predicted divergence,
+        teaches nothing about the twin's error where it admits gains; a plant that diverged where
+        the twin did not is an error of ``+inf``.
+        """
+        pending, self._pending = self._pending, None
+        if pending is None or not np.allclose(pending[0], np.asarray(gains, dtype=float), rtol=0.0, atol=1e-12):
+            return
+        slacks = (record or {}).get("constraints") or {}
+        if not np.all(np.isfinite(pending[1])) or any(name not in slacks for name in self.constraints.names):
+            return
+        measured = np.array([float(slacks[name]) for name in self.constraints.names])
+        if (record or {}).get("unstable", False):
+            measured = np.full_like(measured, np.inf)
+        self.errors_.append(np.where(np.isnan(measured), np.inf, measured - pending[1]))
+
+    def margin(self, experiment: int) -> np.ndarray:
+        """``m_j = e_j + t_{n-1}(1 - delta') s_j sqrt(1 + 1/n)`` for experiment ``t`` (module doc), shape (n_c,)."""
+        n_c = len(self.constraints)
+        if len(self.errors_) < 2:
+            return np.full(n_c, np.inf)
+        errors = np.vstack(self.errors_)
+        if not np.all(np.isfinite(errors)):
+            return np.where(np.all(np.isfinite(errors), axis=0), self._bound(errors, experiment), np.inf)
+        return self._bound(errors, experiment)
+
+    def _bound(self, errors: np.ndarray, experiment: int) -> np.ndarray:
+        n = errors.shape[0]
+        finite = np.where(np.isfinite(errors), errors, 0.0)
+        risk = run_risk(self.delta, experiment) / (2.0 * errors.shape[1])
+        quantile = float(stdtrit(n - 1, 1.0 - risk))
+        return finite.mean(axis=0) + quantile * finite.std(axis=0, ddof=1) * math.sqrt(1.0 + 1.0 / n)
+
+    def admits(self, twin_env, gains: np.ndarray, experiment: int) -> np.ndarray:
+        """Whether each physical gain (m, d) is twin-safe at experiment ``t``: ``c~_j + m_j <= 0`` for all ``j``.
+
+        Shape (m,); nothing is twin-safe without a twin or with an infinite margin."""
+        gains = np.atleast_2d(np.asarray(gains, dtype=float))
+        margin = self.margin(experiment)
+        if twin_env is None or not np.all(np.isfinite(margin)):
+            return np.zeros(gains.shape[0], dtype=bool)
+        return np.all(self.predicted_slacks(twin_env, gains) + margin <= 0.0, axis=1)
+
+    def gp_level(self, experiment: int) -> float:
+        """The least ``PF`` of a GP-safe gain at experiment ``t``: ``1 - delta_t / 2`` (module doc)."""
+        return 1.0 - 0.5 * run_risk(self.delta, experiment)
+
+
+class TwinSafeAcquisition:
+    """``EI x PF`` on the union of the twin-safe and the GP-safe gains, ``-1`` elsewhere (module doc).
+
+    Parameters
+    ----------
+    ei : callable or None
+        Expected Improvement over the best feasible cost (``None``: maximise ``PF``).
+    constraints : ConstraintModel
+        The fitted constraint GPs.
+    safety : TwinSafetyFilter
+    twin_env : agents.twin.TwinEnv or None
+        The current twin (``None``: only the GP-safe gains are admitted).
+    space : agents.GainSpace
+        Maps the unit-box inputs to physical gains.
+    experiment : int
+        ``t``, the number of the experiment proposed.
+    """
+
+    def __init__(self, ei, constraints: ConstraintModel, safety: TwinSafetyFilter, twin_env, space,
+                 experiment: int) -> None:
+        self.base = ConstrainedAcquisition(ei, constraints)
+        self.safety, self.twin_env, self.space, self.experiment = safety, twin_env, space, experiment
+        self.level = safety.gp_level(experiment)
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        X = np.atleast_2d(X)
+        value = self.base(X)
+        admitted = self.base.constraints.probability(X) >= self.level
+        if not np.all(admitted):
+            admitted |= self.safety.admits(self.twin_env, self.space.from_unit(X), self.experiment)
+        return np.where(admitted, value, -1.0)
+
+    def gp_safe(self, x: np.ndarray) -> bool:
+        """Whether unit-box gains ``x`` are GP-safe (to count the twin's admissions)."""
+        return bool(self.base.constraints.probability(np.atleast_2d(x))[0] >= self.level)
