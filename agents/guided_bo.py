@@ -109,6 +109,7 @@ class GuidedBO(BayesianOptimization):
     _parameter_constraints: dict[str, list] = {
         **BayesianOptimization._parameter_constraints,
         **{name: TwinKeeper._parameter_constraints[name] for name in _KEEPER_PARAMS},
+        "safe_delta": BayesianOptimization._parameter_constraints["delta"],
     }
 
     def __init__(self, *, n_initial: int = 1, grid_points: int = 100, noise_std: float | None = None,
@@ -116,6 +117,7 @@ class GuidedBO(BayesianOptimization):
                  twin="auto", guidance: TwinPrior | TwinIterations | str | dict = "prior", safe: bool = False,
                  safe_start=None, safe_delta: float = 0.05, **deprecated) -> None:
         guidance = from_former_keywords(guidance, deprecated)
+        safe_delta = validate_params(self._parameter_constraints, {"safe_delta": safe_delta})["safe_delta"]
         super().__init__(n_initial=n_initial, grid_points=grid_points, noise_std=noise_std, model=guidance.model,
                          safe=safe, safe_start=safe_start, delta=safe_delta)
         if self.safe and not isinstance(guidance, TwinPrior):

@@ -44,8 +44,8 @@ import gbo_envs
 PLANTS = {
     # safe start: overshoot 0 %, peak command 134.1
     "DCMotor-v0": ("gbo_envs/DCMotor-v0", {"overshoot_pct": 2.0, "peak_u": 140.0}, [[0.3, 1.0]], 100),
-    # safe start: overshoot 0.21 %, peak command 139.2 (its ground truth computed live: 40 x 40 cells)
-    "DCMotorRig-v0": ("gbo_envs/DCMotorRig-v0", {"overshoot_pct": 2.0, "peak_u": 140.0}, [[0.3, 1.0]], 40),
+    # safe start: overshoot 0.21 %, peak command 139.2 (its ground truth computed live: 25 x 25 cells)
+    "DCMotorRig-v0": ("gbo_envs/DCMotorRig-v0", {"overshoot_pct": 2.0, "peak_u": 140.0}, [[0.3, 1.0]], 25),
     # safe start: the nominal feedback gains without feed-forward (overshoot 0, peak current 3.9 A)
     "LinearMotorCascade-v0": ("gbo_envs/LinearMotorCascade-v0", {"overshoot_pct": 0.025, "peak_u": 6.5},
                               [[41.7, 26.7, 83.3, 0.0]], 16),

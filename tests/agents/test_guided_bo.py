@@ -138,7 +138,10 @@ def test_params_are_the_constructor_keywords_and_rebuild_the_tuner():
     tuner = GuidedBO(guidance=TwinIterations(eta1=2, eta3=np.inf, activation="periodic"), **FAST)
     params = tuner.get_params()
     keywords = [p.name for p in inspect.signature(GuidedBO).parameters.values() if p.kind is p.KEYWORD_ONLY]
-    assert list(params) == keywords
+    safe_mode = ["safe", "safe_start", "safe_delta"]  # as bo's: in the params only in safe mode (specs unchanged)
+    assert list(params) == [name for name in keywords if name not in safe_mode]
+    safe = GuidedBO(safe=True, safe_start=[[0.3, 1.0]], **FAST).get_params()
+    assert list(safe) == keywords and agents.make("guided-bo", **safe).get_params() == safe
     assert params["twin"] == "auto" and params["grid_points"] == 40
     assert params["guidance"] == TwinIterations(eta1=2.0, eta3=np.inf, activation="periodic")
     assert agents.make("guided-bo", **params).get_params() == params

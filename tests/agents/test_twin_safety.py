@@ -1,0 +1,123 @@
+"""Safe tuning's run-wide risk and guided BO's twin safety filter (issue 55, points 3 and 4)."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from scipy import stats
+
+import agents
+import gbo_envs
+from agents.feasibility import run_risk
+from agents.twin_keeper import TwinKeeper
+from agents.twin_safety import TwinSafetyFilter
+
+ENV = "gbo_envs/DCMotor-v0"
+LIMITS = {"overshoot_pct": 2.0, "peak_u": 140.0}
+SAFE_START = [[0.3, 1.0]]
+#: J*_c of DCMotor-v0 with LIMITS on the 100 x 100 grid (docs/constraints.md)
+OPTIMUM = 0.2794
+
+
+def _env():
+    return gym.make(ENV, constraints=LIMITS)
+
+
+def _twin_env():
+    """The linear twin of DCMotor-v0 fitted on one record at the safe start, and the plant env."""
+    env = _env()
+    keeper = TwinKeeper(twin="linear")
+    keeper.setup(agents.GainSpace.from_env(env), env.unwrapped)
+    env.reset(seed=0)
+    info = env.step(np.array(SAFE_START[0]))[4]
+    keeper.tell(info["gains"], info["cost"], info)
+    return keeper.twin_env(), env
+
+
+# -- the run's risk -----------------------------------------------------------------------------------------
+def test_the_run_risk_sums_to_delta_over_the_run_and_is_refused_outside_its_range():
+    risks = [run_risk(0.05, t) for t in range(1, 100_000)]
+    assert risks[0] == pytest.approx(6 * 0.05 / math.pi**2)
+    assert sum(risks) == pytest.approx(0.05, rel=1e-4) and sum(risks) < 0.05
+    assert all(a > b for a, b in zip(risks, risks[1:]))
+    with pytest.raises(ValueError, match="delta"):
+        run_risk(1.0, 1)
+    with pytest.raises(ValueError, match="experiment"):
+        run_risk(0.05, 0)
+
+
+def test_bo_safe_breaks_no_limit_on_the_dc_motor():
+    # with PF >= 1 - delta at every proposal, experiment 7 ran (0.63, 0.894): peak command 149.3
+    tuner = agents.make("bo", safe=True, safe_start=SAFE_START)
+    result = tuner.run(_env(), budget=10, seed=0)
+    assert result.violations == 0
+    assert tuner.safe_level() == pytest.approx(1 - run_risk(0.05, 11))
+
+
+# -- the filter ---------------------------------------------------------------------------------------------
+def test_the_filter_predicts_the_slacks_the_twin_simulates_and_refuses_them_beyond_the_margin():
+    twin_env, env = _twin_env()
+    safety = TwinSafetyFilter(env.unwrapped.constraints, 0.05)
+    gains = np.array([[0.3, 1.0], [0.85, 1.07], [0.41, 1.3]])
+    predicted = safety.predicted_slacks(twin_env, gains)
+    _, plant, _ = env.unwrapped.evaluate_constraints(gains)
+    np.testing.assert_allclose(predicted, plant, atol=0.2)  # the linear twin of the linear plant, from a noisy record
+    assert not safety.admits(twin_env, gains, 3).any()  # no measured error yet: the twin admits nothing
+    for g in gains[[0, 2]]:  # two out-of-sample errors of the twin, where the plant keeps the limits
+        safety.expect(twin_env, g)
+        env.reset(seed=1)
+        safety.observe(g, env.step(g)[4])
+    assert len(safety.errors_) == 2 and np.all(np.isfinite(safety.margin(3)))
+    admitted = safety.admits(twin_env, gains, 3)
+    assert admitted[0] and not admitted[1]  # (0.85, 1.07) breaks both limits on the twin as on the plant
+
+
+def test_the_margin_is_the_student_t_prediction_bound_of_the_errors():
+    safety = TwinSafetyFilter(gbo_envs.constraints.Constraints(LIMITS), 0.05)
+    safety.errors_ = [np.array([0.1, 1.0]), np.array([0.3, -1.0]), np.array([0.2, 0.5])]
+    errors = np.vstack(safety.errors_)
+    risk = run_risk(0.05, 4) / 4
+    expected = errors.mean(0) + stats.t.ppf(1 - risk, 2) * errors.std(0, ddof=1) * math.sqrt(1 + 1 / 3)
+    np.testing.assert_allclose(safety.margin(4), expected)
+    safety.errors_.append(np.array([np.inf, 0.0]))  # the plant diverged where the twin did not
+    margin = safety.margin(5)
+    assert margin[0] == np.inf and np.isfinite(margin[1])
+
+
+def test_the_filter_learns_only_from_gains_it_predicted():
+    twin_env, env = _twin_env()
+    safety = TwinSafetyFilter(env.unwrapped.constraints, 0.05)
+    safety.expect(twin_env, np.array([0.3, 1.0]))
+    env.reset(seed=0)
+    safety.observe(np.array([0.4, 1.2]), env.step(np.array([0.4, 1.2]))[4])  # other gains: no error learned
+    assert safety.errors_ == []
+    with pytest.raises(ValueError, match="delta"):
+        TwinSafetyFilter(env.unwrapped.constraints, 0.0)
+    with pytest.raises(ValueError, match="constraints"):
+        TwinSafetyFilter(gbo_envs.constraints.Constraints({}), 0.05)
+
+
+# -- guided BO in safe mode ---------------------------------------------------------------------------------
+def test_guided_bo_safe_grows_its_safe_set_on_the_twin_and_keeps_the_limits():
+    tuner = agents.make("guided-bo", safe=True, safe_start=SAFE_START)
+    result = tuner.run(_env(), budget=8, seed=0)
+    frame = result.to_pandas()
+    assert result.violations == 0
+    np.testing.assert_allclose(frame[["Kp", "Ki"]].to_numpy()[0], SAFE_START[0])
+    assert result.info["twin_admitted"] >= 1  # proposals the constraint GPs alone did not call safe
+    assert frame["true_cost"].min() <= 1.05 * OPTIMUM
+    assert tuner.get_params()["safe"] is True and tuner.get_params()["safe_start"] == SAFE_START
+
+
+def test_guided_bo_safe_refuses_without_a_safe_start_constraints_or_the_twin_prior():
+    with pytest.raises(ValueError, match="safe_start"):
+        agents.make("guided-bo", safe=True)
+    with pytest.raises(ValueError, match="guidance"):
+        agents.make("guided-bo", safe=True, safe_start=SAFE_START, guidance="iterations")
+    with pytest.raises(ValueError, match="constraints"):
+        agents.make("guided-bo", safe=True, safe_start=SAFE_START).run(gym.make(ENV), budget=2, seed=0)
+    with pytest.raises(ValueError, match="delta"):
+        agents.make("guided-bo", safe=True, safe_start=SAFE_START, safe_delta=1.5)
