@@ -38,6 +38,7 @@ docs/design.md ("Which twin drives guided BO") gives the reasons and the measure
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -52,7 +53,7 @@ from agents.twin.noise_floor import noiseless_quantum
 from agents.twin.prior import TwinMetrics
 from agents.twin.records import Batch
 from agents.twin.selection import diagnosed_twin, measurement_noise
-from gbo_envs.experiment import SIGNALS
+from gbo_envs.experiment import SIGNALS, Experiment
 from gbo_envs.physics.sensor import Quantization
 
 __all__ = ["MAX_DIAGNOSED_RECORDS", "MAX_TWIN_EFFECTS", "PLANT_CHANGE_RECORDS", "RMSE_FLOOR", "SIMULATED_NOISE_FLOOR",
@@ -168,8 +169,7 @@ class TwinKeeper:
             raise ValueError("env: the twin keeper needs the unwrapped plant env, with its closed loop (env.loop)")
         self.space, self._env = space, env
         self._step_height = abs(float(env.loop.r2) - float(env.loop.r1)) or 1.0
-        self._records: list[dict] = []  # D~: the records' t, r, u, y
-        self._measured: list[tuple[np.ndarray, float]] = []  # (gains, measured cost) of each record in D~
+        self._records: list[Experiment] = []  # D~ with the gains and costs told, each record's index its place in it
         self._costs: list[float] = []  # every cost told
         self._noise_floors: list[float] = []
         self._quanta: list[float | None] = []  # each record's resolution if quantized without visible noise
@@ -193,23 +193,31 @@ class TwinKeeper:
             self._record_change(None)
 
     # -- what the tuner tells and asks ---------------------------------------------------------------
-    def tell(self, gains, cost: float, record: dict | None) -> None:
-        """A plant experiment: its gains (physical units), measured cost and record (an env ``info``, or ``None``).
+    def tell(self, gains, cost: float, record: Experiment | Mapping | None) -> None:
+        """A plant experiment: its gains (physical units), measured cost and record.
 
-        Checks the last promise (see "Trust" in the module doc), then adds the record's ``t, r, u, y``
-        to ``D~`` (eq. (Ds)) unless it diverged, lacks a signal or is not finite.
+        Checks the last promise (see "Trust" in the module doc), then adds the record to ``D~``
+        (eq. (Ds)) unless it diverged or has no signals.
+
+        Parameters
+        ----------
+        gains : array_like of shape (n_gains,)
+        cost : float
+            The measured cost ``J``, dimensionless.
+        record : Experiment, mapping or None
+            The experiment (:class:`~gbo_envs.Experiment`), or an env ``info`` (its ``"experiment"``,
+            not kept if ``info["unstable"]``); ``None``: a cost without a record.
         """
         gains = np.asarray(gains, dtype=float)
         self._costs.append(float(cost))
         self._check_promise(gains, cost)
-        if record is None or record.get("unstable", False) or not all(key in record for key in SIGNALS):
+        new = _identifiable(record)
+        if new is None:
             return  # nothing to identify from (or a diverging response)
-        new = {key: np.asarray(record[key], dtype=float) for key in SIGNALS}
-        if not all(np.all(np.isfinite(v)) for v in new.values()):
-            return
         if self.twin != "linear":
-            self._noise_floors.append(measurement_noise(new) / self._step_height)
-            self._quanta.append(noiseless_quantum(Batch.from_records([new])))
+            single = Batch.from_records([new])
+            self._noise_floors.append(measurement_noise(single) / self._step_height)
+            self._quanta.append(noiseless_quantum(single))
         if self._twin_env is not None:
             # eq. (reinit_DTdataset): the last fitted twin's estimate of this experiment against the measurement
             predicted = float(self._twin_env.evaluate(gains[None, :])[1][0])
@@ -220,8 +228,9 @@ class TwinKeeper:
                 self._reinitialise(len(self._records))
             elif self.refit_on_cost_miss and abs(cost - predicted) > 3.0 * self.sigma_eps:
                 self._cost_missed = True  # the twin's cost is off by more than the cost noise explains
-        self._records.append(new)  # eq. (Ds): D~ <- D~ u {(u_i, y_i)}
-        self._measured.append((gains, float(cost)))
+        # eq. (Ds): D~ <- D~ u {(u_i, y_i)}, with the gains and cost as told (a wrapper may edit the cost), the
+        # record numbered by its place in D~
+        self._records.append(new.replace(gains=gains, cost=float(cost), index=len(self._records)))
         self._dirty = True
 
     def twin_env(self):
@@ -275,8 +284,8 @@ class TwinKeeper:
         return self._retired_simulations + (0 if self._metrics is None else self._metrics.simulations_)
 
     @property
-    def records_(self) -> tuple[dict, ...]:
-        """``D~``: the records ``{"t", "r", "u", "y"}`` the twin is fitted on, oldest first."""
+    def records_(self) -> tuple[Experiment, ...]:
+        """``D~``: the records the twin is fitted on, oldest first (``index``: the place in ``D~``, from 0)."""
         return tuple(self._records)
 
     @property
@@ -418,7 +427,7 @@ class TwinKeeper:
                 self._restore_trust()
         return self.twin_
 
-    def _error_on(self, new: list[dict]) -> float | None:
+    def _error_on(self, new: list[Experiment]) -> float | None:
         """The current twin's normalised RMSE on new records; ``None`` if it cannot simulate them."""
         try:
             return float(-self.twin_.score(new))
@@ -459,7 +468,7 @@ class TwinKeeper:
 
     def _reinitialise(self, start: int) -> None:
         """``D~`` restarts from its records after the first ``start`` (eq. (reinit_DTdataset), or a plant change)."""
-        self._records, self._measured = self._records[start:], self._measured[start:]
+        self._records = [record.replace(index=k) for k, record in enumerate(self._records[start:])]
         self._fitted_on = self._diagnosed_on = self._explained_upto = 0
         self.reinitializations_ += 1
 
@@ -529,8 +538,8 @@ class TwinKeeper:
     def _cost_error(self, twin) -> float:
         """RMS relative error of ``twin``'s expected cost at the gains of ``D~`` against the measured costs
         (``inf`` if the twin diverges where the plant did not)."""
-        gains = np.array([g for g, _ in self._measured])
-        measured = np.array([c for _, c in self._measured])
+        gains = np.array([record.gains for record in self._records])
+        measured = np.array([record.cost for record in self._records])
         try:
             predicted = self._env_for(twin).evaluate(gains)[1]
         except _FIT_ERRORS:
@@ -598,6 +607,21 @@ class TwinKeeper:
         change["text"] = f"twin: {named}, RMSE {before}{twin.rmse_:.3g} (after {after})"
         self.changes_.append(change)
         self._events.append(change["text"])
+
+
+def _identifiable(record: Experiment | Mapping | None) -> Experiment | None:
+    """The record's :class:`~gbo_envs.Experiment` if it has signals and did not diverge, else ``None``."""
+    if isinstance(record, Mapping):
+        if record.get("unstable", False) or (not isinstance(record.get("experiment"), Experiment)
+                                             and not all(key in record for key in SIGNALS)):
+            return None
+        try:
+            record = Experiment.from_mapping(record)
+        except ValueError:  # a non-finite signal
+            return None
+    if record is None or not record.has_signals:
+        return None
+    return record
 
 
 def _expected_cost(twin_env, gains) -> float:

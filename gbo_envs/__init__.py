@@ -15,7 +15,11 @@ from gbo_envs.closed_loop import ClosedLoop, StepResponse
 from gbo_envs.controllers import CascadeController, PDT1Controller, PIController, PIDController
 from gbo_envs.envs.base import ControllerTuningEnv
 from gbo_envs.envs.cost_spec import CostSpec
+from gbo_envs.envs.dc_motor import DCMotorPlant
 from gbo_envs.envs.external import ExperimentFailed, ExternalPlantEnv, PlantStructure
+from gbo_envs.envs.linear_motor import LinearMotorDrive, LinearMotorPlant
+from gbo_envs.envs.linear_motor_cascade import CascadeDrive
+from gbo_envs.envs.plant_options import MeasurementNoise
 from gbo_envs.envs.rig_options import FailurePolicy, StepExperiment
 from gbo_envs.experiment import Experiment, RecordError, validate_signals
 from gbo_envs.ground_truth import FeasibleSet, GroundTruth, feasible_set, ground_truth
@@ -24,17 +28,22 @@ from gbo_envs.physics.lti import ContinuousPlant
 
 __all__ = [
     "CascadeController",
+    "CascadeDrive",
     "ClosedLoop",
     "ContinuousPlant",
     "ControllerTuningEnv",
     "CostSpec",
+    "DCMotorPlant",
     "Experiment",
     "ExperimentFailed",
     "ExternalPlantEnv",
     "FailurePolicy",
     "FeasibleSet",
     "GroundTruth",
+    "LinearMotorDrive",
+    "LinearMotorPlant",
     "METRIC_NAMES",
+    "MeasurementNoise",
     "PDT1Controller",
     "PIController",
     "PIDController",

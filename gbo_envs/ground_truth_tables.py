@@ -8,7 +8,7 @@ thousands of gains. Their defaults are computed once by
 ``gbo_envs/data/ground_truth/<env>.npz``. A table holds the env's normalisers,
 a *fingerprint* of what it was computed for (the env id, the env's effective
 constructor kwargs -- its defaults updated with the kwargs it was made with, so
-``expectation_draws`` and ``expectation_seed`` included -- and the grid
+``expectation_draws`` and ``expectation_seed`` included, an option object as its fields -- and the grid
 resolution or the search's settings) and either
 
 * a grid (:func:`save_table`): the cost grid and its gain axes, or
@@ -25,6 +25,7 @@ stale fails CI.
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import json
 from pathlib import Path
@@ -102,13 +103,22 @@ def fingerprint(env: gym.Env, resolution: int) -> dict | None:
             continue
         for name, parameter in inspect.signature(init).parameters.items():
             if parameter.default is not inspect.Parameter.empty:
-                kwargs[name] = parameter.default
-    kwargs.update(spec.kwargs or {})
+                kwargs.update(_settings(name, parameter.default))
+    for name, value in (spec.kwargs or {}).items():
+        kwargs.update(_settings(name, value))
     kwargs = {name: value for name, value in kwargs.items() if name not in IGNORED_KWARGS}
     kwargs["expectation_draws"] = int(plant_env.expectation_draws)
     kwargs["expectation_seed"] = int(plant_env.expectation_seed)
     return {"env_id": spec.id, "kwargs": json.loads(json.dumps(kwargs, sort_keys=True, default=repr)),
             "resolution": int(resolution)}
+
+
+def _settings(name: str, value) -> dict:
+    """A kwarg as the settings it stands for: an option object (a dataclass instance such as
+    :class:`~gbo_envs.envs.plant_options.DCMotorPlant`) as its fields, by the names the env also takes them by."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {field.name: getattr(value, field.name) for field in dataclasses.fields(value)}
+    return {name: value}
 
 
 def table_path(env_id: str) -> Path:

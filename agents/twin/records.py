@@ -315,7 +315,7 @@ class Batch:
         """
         data = as_records(records, min_steps=3)
         if n_samples is not None:
-            data = as_records(decimate_records(data, n_samples, mean_input=True), min_steps=3)
+            data = decimate_records(data, n_samples, mean_input=True)  # uniform samples of validated records
         dts = np.array([rec.dt for rec in data])
         if np.any(np.abs(dts - dts[0]) > 1e-6 * dts[0]):
             k = int(np.argmax(np.abs(dts - dts[0]) > 1e-6 * dts[0]))  # numbered from 1, as in the CSV

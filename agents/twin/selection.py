@@ -66,11 +66,11 @@ def diagnosed_twin(records: Sequence, spec: ModelSpec, effects: Mapping | None =
     return GreyBoxTwin.from_fit(diagnoses[-1].current, data, n_samples=n_samples), rungs
 
 
-def measurement_noise(record) -> float:
-    """White-noise floor of one record's measured output, in output units
+def measurement_noise(data: Batch) -> float:
+    """White-noise floor of the measured output of a batch of records, in output units
     (:func:`agents.twin.noise_floor.white_noise_floor`: the noise a twin simulates).
 
     ``0.0`` when it cannot be estimated (too short, or quantized without visible noise and no common step).
     """
-    floor = white_noise_floor(Batch.from_records([record]))
+    floor = white_noise_floor(data)
     return float(floor) if floor is not None and np.isfinite(floor) else 0.0

@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
+
 import numpy as np
 
 from gbo_envs.closed_loop import ClosedLoop
 from gbo_envs.controllers import PIController
 from gbo_envs.envs.base import ControllerTuningEnv
 from gbo_envs.envs.cost_spec import CostSpec
+from gbo_envs.envs.plant_options import ENV_NOISE, MeasurementNoise, checked_fields, grouped
 from gbo_envs.physics.effects import build_effects
 from gbo_envs.physics.lti import ContinuousPlant
 
-__all__ = ["DCMotorEnv", "DC_MOTOR", "NOMINAL_FOPDT"]
+__all__ = ["DCMotorEnv", "DCMotorPlant", "DC_MOTOR", "NOMINAL_FOPDT"]
 
 #: Calibration facts of the DC motor loop (paper, Table I and Sec. IV-V).
 DC_MOTOR = {
@@ -42,6 +46,36 @@ DC_MOTOR = {
 #: delay 2 ms) gives (1.71, 3.59), outside the feasible set, and no FOPDT with the identified 2 ms
 #: delay reproduces the table's Ki column.
 NOMINAL_FOPDT = {"gain": 0.8842, "tau": 1.3984, "delay": 0.014544}
+
+
+@dataclass(frozen=True)
+class DCMotorPlant:
+    """The DC motor model of Table I: ``G(s) = gain / (s^2 + tau1 s + tau2) e^{-s delay}``, speed in rad/s.
+
+    Parameters
+    ----------
+    gain : float, default 9.544
+        ``L``, (rad/s^3) per controller unit.
+    tau1 : float, default 4.145
+        Coefficient of ``s``, 1/s.
+    tau2 : float, default 4.199
+        Constant coefficient, 1/s^2.
+    delay : float, default 0.002
+        Input delay in s, ``>= 0``.
+
+    Examples
+    --------
+    >>> DCMotorPlant(gain=10).gain
+    10.0
+    """
+
+    gain: float = DC_MOTOR["gain"]
+    tau1: float = DC_MOTOR["tau1"]
+    tau2: float = DC_MOTOR["tau2"]
+    delay: float = DC_MOTOR["delay"]
+
+    def __post_init__(self) -> None:
+        checked_fields(self, gain={}, tau1={}, tau2={}, delay={"low": 0.0})
 
 
 class DCMotorEnv(ControllerTuningEnv):
@@ -101,18 +135,22 @@ class DCMotorEnv(ControllerTuningEnv):
 
     ## Arguments
 
-    ``gym.make("gbo_envs/DCMotor-v0", noise=True, cost_noise_std=0.009,
-    output_noise_std=0.0, gain=9.544, tau1=4.145, tau2=4.199, delay=0.002,
-    out_of_bounds="raise", unstable_cost=10.0, render_mode=None)``
+    ``gym.make("gbo_envs/DCMotor-v0", noise=True, measurement_noise=MeasurementNoise(cost_noise_std=0.009,
+    output_noise_std=0.0), plant=DCMotorPlant(gain=9.544, tau1=4.145, tau2=4.199, delay=0.002),
+    out_of_bounds="raise", unstable_cost=10.0, render_mode=None)``, all keyword-only; a field of an
+    option object may also be given by its name (``gym.make("gbo_envs/DCMotor-v0", gain=10.0)``,
+    :func:`gbo_envs.envs.plant_options.grouped`).
 
     * ``noise``: ``False`` gives the noise-free plant (both noise sources 0).
-    * ``cost_noise_std``: std of the additive cost noise (dimensionless);
-      the default is 3.8 % of the ground-truth optimum ``J* = 0.235``, the
-      paper's level (0.03 / 0.79).
-    * ``output_noise_std``: std of white speed-sensor noise in rad/s; it feeds
-      back and enters the metrics, as on a rig (off by default: it biases the
-      settling time, so the paper's noise model is additive on ``J``).
-    * ``gain, tau1, tau2, delay``: plant parameters (delay in s).
+    * ``measurement_noise`` (:class:`~gbo_envs.envs.plant_options.MeasurementNoise`):
+      ``cost_noise_std``, the std of the additive cost noise (dimensionless; the
+      default is 3.8 % of the ground-truth optimum ``J* = 0.235``, the paper's
+      level 0.03 / 0.79), and ``output_noise_std``, the std of white speed-sensor
+      noise in rad/s; it feeds back and enters the metrics, as on a rig (off by
+      default: it biases the settling time, so the paper's noise model is
+      additive on ``J``).
+    * ``plant`` (:class:`~gbo_envs.envs.plant_options.DCMotorPlant`): ``gain, tau1,
+      tau2, delay`` (delay in s).
     * ``out_of_bounds``: ``"raise"``, ``"clip"`` or ``"allow"``.
     * ``unstable_cost``: finite cost of a diverging experiment.
     * ``expectation_draws``, ``expectation_seed``: the ``K`` fixed noise draws
@@ -129,50 +167,52 @@ class DCMotorEnv(ControllerTuningEnv):
     output_unit = "rad/s"
     input_unit = "input units"
 
+    #: The env's calibration (:data:`DC_MOTOR`; a variant of the loop changes its feasible set and cost noise).
+    calibration = DC_MOTOR
+    #: The FOPDT of the env's nominal design (:data:`NOMINAL_FOPDT`), ``None`` for a loop without one.
+    nominal_design = NOMINAL_FOPDT
+
     def __init__(
         self,
+        *,
         noise: bool = True,
-        cost_noise_std: float | None = None,
-        output_noise_std: float | None = None,
-        gain: float = DC_MOTOR["gain"],
-        tau1: float = DC_MOTOR["tau1"],
-        tau2: float = DC_MOTOR["tau2"],
-        delay: float = DC_MOTOR["delay"],
+        measurement_noise: MeasurementNoise = ENV_NOISE,
+        plant: DCMotorPlant = DCMotorPlant(),
+        effects=None,
         out_of_bounds: str = "raise",
         unstable_cost: float = 10.0,
         render_mode: str | None = None,
-        effects=None,
         normalizers=None,
         expectation_draws: int = 16,
         expectation_seed: int = 0,
         constraints=None,
+        **settings,
     ) -> None:
-        cost_noise_std = DC_MOTOR["cost_noise_std"] if cost_noise_std is None else cost_noise_std
-        output_noise_std = DC_MOTOR["output_noise_std"] if output_noise_std is None else output_noise_std
-        if not noise:
-            cost_noise_std = output_noise_std = 0.0
-        self.plant_params = {"gain": float(gain), "tau1": float(tau1), "tau2": float(tau2), "delay": float(delay)}
+        options = grouped(type(self).__name__, settings, measurement_noise=measurement_noise, plant=plant)
+        calibration = self.calibration
+        cost_noise_std, output_noise_std = options["measurement_noise"].levels(calibration, noise)
+        self.plant_params = dataclasses.asdict(options["plant"])
         #: FOPDT of the paper's nominal PGM design (agents.NominalPGM uses it by default)
-        self.nominal_fopdt = dict(NOMINAL_FOPDT)
+        self.nominal_fopdt = None if self.nominal_design is None else dict(self.nominal_design)
         loop = ClosedLoop(
             plant=dc_motor_plant(**self.plant_params),
-            controller=PIController(),
-            dt=DC_MOTOR["dt"],
-            duration=DC_MOTOR["duration"],
-            r1=DC_MOTOR["r1"],
-            r2=DC_MOTOR["r2"],
+            controller=self._controller(),
+            dt=calibration["dt"],
+            duration=calibration["duration"],
+            r1=calibration["r1"],
+            r2=calibration["r2"],
             effects=_build_effects(effects),
-            output_noise_std=float(output_noise_std),
+            output_noise_std=output_noise_std,
         )
-        low, high = np.array(DC_MOTOR["gain_low"]), np.array(DC_MOTOR["gain_high"])
+        low, high = np.array(calibration["gain_low"]), np.array(calibration["gain_high"])
         super().__init__(
             loop=loop,
             gain_low=low,
             gain_high=high,
-            cost=CostSpec(weights=DC_MOTOR["weights"], normalizers=normalizers, unstable_cost=unstable_cost),
-            reference_gains=np.linspace(low, high, 5),
+            cost=CostSpec(weights=calibration["weights"], normalizers=normalizers, unstable_cost=unstable_cost),
+            reference_gains=self._reference_gains(low, high),
             cost_noise_std=cost_noise_std,
-            max_experiments=DC_MOTOR["max_experiments"],
+            max_experiments=calibration["max_experiments"],
             out_of_bounds=out_of_bounds,
             render_mode=render_mode,
             noise=noise,
@@ -180,6 +220,15 @@ class DCMotorEnv(ControllerTuningEnv):
             expectation_seed=expectation_seed,
         )
         self.constraints = constraints
+
+    def _controller(self):
+        """The loop's controller: the digital PI ``Kp (1 + Ki / s)``."""
+        return PIController()
+
+    @staticmethod
+    def _reference_gains(low: np.ndarray, high: np.ndarray) -> np.ndarray:
+        """Gains whose mean metrics normalise the cost: 5 evenly spanning the diagonal of the feasible set."""
+        return np.linspace(low, high, 5)
 
 
 def dc_motor_plant(gain: float, tau1: float, tau2: float, delay: float) -> ContinuousPlant:

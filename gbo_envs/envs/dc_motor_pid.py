@@ -38,11 +38,8 @@ import itertools
 
 import numpy as np
 
-from gbo_envs.closed_loop import ClosedLoop
 from gbo_envs.controllers import PIDController
-from gbo_envs.envs.base import ControllerTuningEnv
-from gbo_envs.envs.cost_spec import CostSpec
-from gbo_envs.envs.dc_motor import DC_MOTOR, _build_effects, dc_motor_plant
+from gbo_envs.envs.dc_motor import DC_MOTOR, DCMotorEnv
 
 __all__ = ["DCMotorPIDEnv", "DC_MOTOR_PID", "corner_gains"]
 
@@ -62,7 +59,7 @@ def corner_gains(low, high) -> np.ndarray:
     return np.array(list(itertools.product(*zip(np.asarray(low, dtype=float), np.asarray(high, dtype=float)))))
 
 
-class DCMotorPIDEnv(ControllerTuningEnv):
+class DCMotorPIDEnv(DCMotorEnv):
     """PID speed control of the paper's identified DC motor; one step = one step experiment.
 
     ## Description
@@ -122,76 +119,28 @@ class DCMotorPIDEnv(ControllerTuningEnv):
 
     ## Arguments
 
-    ``gym.make("gbo_envs/DCMotorPID-v0", noise=True, cost_noise_std=0.006,
-    output_noise_std=0.0, gain=9.544, tau1=4.145, tau2=4.199, delay=0.002,
-    filter_time=0.02, effects=None, out_of_bounds="raise", unstable_cost=10.0,
-    render_mode=None)``
-
-    * ``noise``: ``False`` gives the noise-free plant (both noise sources 0).
-    * ``cost_noise_std``: std of the additive cost noise (dimensionless), 3.8 %
-      of the ground-truth optimum ``J* = 0.158`` as on ``DCMotor-v0``.
-    * ``output_noise_std``: std of white speed-sensor noise in rad/s.
-    * ``gain, tau1, tau2, delay``: plant parameters (delay in s).
-    * ``filter_time``: the derivative filter ``Tf`` in s.
-    * ``effects``: effect blocks ``{name: {param: value}}`` (as on ``DCMotor-v0``).
-    * ``out_of_bounds``, ``unstable_cost``, ``normalizers``, ``expectation_draws``,
-      ``expectation_seed``: as on ``DCMotor-v0``.
+    ``gym.make("gbo_envs/DCMotorPID-v0", filter_time=0.02, **kwargs)``: those of
+    ``DCMotor-v0`` (keyword-only), plus the derivative filter ``filter_time``
+    (``Tf`` in s). The default ``cost_noise_std`` of ``measurement_noise`` is
+    0.006, 3.8 % of the ground-truth optimum ``J* = 0.158`` as on ``DCMotor-v0``.
 
     ## Version History
 
     * v0: initial version.
     """
 
-    output_unit = "rad/s"
-    input_unit = "input units"
+    calibration = {**DC_MOTOR, **DC_MOTOR_PID}
+    nominal_design = None
 
-    def __init__(
-        self,
-        noise: bool = True,
-        cost_noise_std: float | None = None,
-        output_noise_std: float | None = None,
-        gain: float = DC_MOTOR["gain"],
-        tau1: float = DC_MOTOR["tau1"],
-        tau2: float = DC_MOTOR["tau2"],
-        delay: float = DC_MOTOR["delay"],
-        filter_time: float = DC_MOTOR_PID["filter_time"],
-        out_of_bounds: str = "raise",
-        unstable_cost: float = 10.0,
-        render_mode: str | None = None,
-        effects=None,
-        normalizers=None,
-        expectation_draws: int = 16,
-        expectation_seed: int = 0,
-        constraints=None,
-    ) -> None:
-        cost_noise_std = DC_MOTOR_PID["cost_noise_std"] if cost_noise_std is None else cost_noise_std
-        output_noise_std = DC_MOTOR["output_noise_std"] if output_noise_std is None else output_noise_std
-        if not noise:
-            cost_noise_std = output_noise_std = 0.0
-        self.plant_params = {"gain": float(gain), "tau1": float(tau1), "tau2": float(tau2), "delay": float(delay)}
-        loop = ClosedLoop(
-            plant=dc_motor_plant(**self.plant_params),
-            controller=PIDController(filter_time=float(filter_time)),
-            dt=DC_MOTOR["dt"],
-            duration=DC_MOTOR["duration"],
-            r1=DC_MOTOR["r1"],
-            r2=DC_MOTOR["r2"],
-            effects=_build_effects(effects),
-            output_noise_std=float(output_noise_std),
-        )
-        low, high = np.array(DC_MOTOR_PID["gain_low"]), np.array(DC_MOTOR_PID["gain_high"])
-        super().__init__(
-            loop=loop,
-            gain_low=low,
-            gain_high=high,
-            cost=CostSpec(weights=DC_MOTOR["weights"], normalizers=normalizers, unstable_cost=unstable_cost),
-            reference_gains=corner_gains(low, high),
-            cost_noise_std=cost_noise_std,
-            max_experiments=DC_MOTOR["max_experiments"],
-            out_of_bounds=out_of_bounds,
-            render_mode=render_mode,
-            noise=noise,
-            expectation_draws=expectation_draws,
-            expectation_seed=expectation_seed,
-        )
-        self.constraints = constraints
+    def __init__(self, *, filter_time: float = DC_MOTOR_PID["filter_time"], **kwargs) -> None:
+        self.filter_time = float(filter_time)
+        super().__init__(**kwargs)
+
+    def _controller(self):
+        """The loop's controller: the PID with the derivative filter ``Tf = filter_time``."""
+        return PIDController(filter_time=self.filter_time)
+
+    @staticmethod
+    def _reference_gains(low: np.ndarray, high: np.ndarray) -> np.ndarray:
+        """Gains whose mean metrics normalise the cost: the eight corners of the feasible set."""
+        return corner_gains(low, high)

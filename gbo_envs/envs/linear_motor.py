@@ -42,6 +42,8 @@ it is discretised exactly and enters the linear stability analysis.
 
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -50,10 +52,12 @@ from gbo_envs.closed_loop import ClosedLoop
 from gbo_envs.controllers import PDT1Controller
 from gbo_envs.envs.base import ControllerTuningEnv
 from gbo_envs.envs.cost_spec import CostSpec
+from gbo_envs.envs.plant_options import ENV_NOISE, MeasurementNoise, checked_fields, grouped
 from gbo_envs.physics.effects import build_effects
 from gbo_envs.physics.lti import ContinuousPlant
 
-__all__ = ["LinearMotorEnv", "LINEAR_MOTOR", "linear_motor_plant", "vertex_gains"]
+__all__ = ["LinearMotorDrive", "LinearMotorEnv", "LinearMotorPlant", "LINEAR_MOTOR", "linear_motor_plant",
+           "vertex_gains"]
 
 #: Calibration facts of the linear servo motor position loop (paper, Sec. VI-B).
 LINEAR_MOTOR = {
@@ -79,6 +83,54 @@ LINEAR_MOTOR = {
     # m; 0 by default so that the measured J follows the paper's J = J_hat + epsilon exactly
     "output_noise_std": 0.0,
 }
+
+
+@dataclass(frozen=True)
+class LinearMotorPlant:
+    """The linear motor model: ``G(s) = gain / (inertia s^2 + damping s) e^{-s delay}``, position in m, current in A.
+
+    Parameters
+    ----------
+    gain : float, default 0.44262
+        Numerator, ``> 0``.
+    inertia : float, default 0.070983
+        Coefficient of ``s^2``, ``> 0``; ``inertia / gain`` is the current per unit acceleration in A s^2/m.
+    damping : float, default 0.8
+        Coefficient of ``s``, ``>= 0``; ``damping / gain`` is the current per unit speed in A s/m
+        (``0``: the authors' bare nominal model).
+    delay : float, default 0.001
+        Input delay in s, ``>= 0``.
+    """
+
+    gain: float = LINEAR_MOTOR["gain"]
+    inertia: float = LINEAR_MOTOR["inertia"]
+    damping: float = LINEAR_MOTOR["damping"]
+    delay: float = LINEAR_MOTOR["delay"]
+
+    def __post_init__(self) -> None:
+        checked_fields(self, gain={}, inertia={}, damping={}, delay={"low": 0.0})  # the signs: linear_motor_plant
+
+
+@dataclass(frozen=True)
+class LinearMotorDrive:
+    """The linear motor's drive and position sensor.
+
+    Parameters
+    ----------
+    current_limit : float or None, default 7.0
+        The drive's current limit in A, ``> 0`` (``None``: unlimited).
+    sensor_resolution : float or None, default 5e-6
+        The position sensor's increment in m, ``> 0`` (``None``: an exact measurement).
+    """
+
+    current_limit: float | None = LINEAR_MOTOR["current_limit"]
+    sensor_resolution: float | None = LINEAR_MOTOR["sensor_resolution"]
+
+    def __post_init__(self) -> None:
+        checked_fields(self, current_limit={"allow_none": True}, sensor_resolution={"allow_none": True})
+        for name in ("current_limit", "sensor_resolution"):
+            if getattr(self, name) is not None and getattr(self, name) <= 0.0:
+                raise ValueError(f"{name}: must be > 0 or None, got {getattr(self, name)}")
 
 
 class LinearMotorEnv(ControllerTuningEnv):
@@ -146,22 +198,26 @@ class LinearMotorEnv(ControllerTuningEnv):
 
     ## Arguments
 
-    ``gym.make("gbo_envs/LinearMotor-v0", noise=True, cost_noise_std=0.001,
-    output_noise_std=0.0, gain=0.44262, inertia=0.070983, damping=0.8,
-    delay=0.001, current_limit=7.0, sensor_resolution=5e-6, effects=None,
-    out_of_bounds="raise", unstable_cost=10.0, render_mode=None)``
+    ``gym.make("gbo_envs/LinearMotor-v0", noise=True, measurement_noise=MeasurementNoise(cost_noise_std=0.001,
+    output_noise_std=0.0), plant=LinearMotorPlant(gain=0.44262, inertia=0.070983, damping=0.8, delay=0.001),
+    drive=LinearMotorDrive(current_limit=7.0, sensor_resolution=5e-6), effects=None, out_of_bounds="raise",
+    unstable_cost=10.0, render_mode=None)``, all keyword-only; a field of an option object may also be
+    given by its name (``gym.make("gbo_envs/LinearMotor-v0", current_limit=None)``,
+    :func:`gbo_envs.envs.plant_options.grouped`).
 
     * ``noise``: ``False`` gives the noise-free plant (both noise sources 0).
-    * ``cost_noise_std``: std of the additive cost noise (dimensionless); the
-      paper's ``sigma_eps = 0.001`` on the same normalisation (0.12 % of the
-      ground-truth optimum ``J* = 0.849``).
-    * ``output_noise_std``: std of white position-sensor noise in m, added to
-      the quantised measurement; it feeds back and enters the metrics.
-    * ``gain, inertia, damping``: coefficients of ``G(s) = gain / (inertia s^2 +
-      damping s)``; ``damping=0`` gives the authors' bare nominal model.
-    * ``delay``: input delay in s.
-    * ``current_limit``: drive current limit in A (``None``: no limit).
-    * ``sensor_resolution``: position sensor step in m (``None``: ideal sensor).
+    * ``measurement_noise`` (:class:`~gbo_envs.envs.plant_options.MeasurementNoise`):
+      ``cost_noise_std``, the std of the additive cost noise (dimensionless; the
+      paper's ``sigma_eps = 0.001`` on the same normalisation, 0.12 % of the
+      ground-truth optimum ``J* = 0.849``), and ``output_noise_std``, the std of
+      white position-sensor noise in m, added to the quantised measurement; it
+      feeds back and enters the metrics.
+    * ``plant`` (:class:`LinearMotorPlant`): ``gain, inertia, damping`` of
+      ``G(s) = gain / (inertia s^2 + damping s)`` (``damping=0`` gives the
+      authors' bare nominal model) and the input ``delay`` in s.
+    * ``drive`` (:class:`LinearMotorDrive`): the ``current_limit`` in A (``None``:
+      no limit) and the position sensor's ``sensor_resolution`` in m (``None``:
+      ideal sensor).
     * ``effects``: further effect blocks, ``{name: {param: value}}``
       (:func:`gbo_envs.physics.effects.build_effects`), applied after the
       current limit and the sensor quantisation; an entry named
@@ -183,17 +239,18 @@ class LinearMotorEnv(ControllerTuningEnv):
     output_unit = "m"
     input_unit = "A"
 
+    #: The env's calibration (:data:`LINEAR_MOTOR`; a variant of the loop changes its feasible set and length).
+    calibration = LINEAR_MOTOR
+    #: Whether the drive's current limit clips the plant input (``saturation``), not the controller's output.
+    limit_in_plant = True
+
     def __init__(
         self,
+        *,
         noise: bool = True,
-        cost_noise_std: float | None = None,
-        output_noise_std: float | None = None,
-        gain: float = LINEAR_MOTOR["gain"],
-        inertia: float = LINEAR_MOTOR["inertia"],
-        damping: float = LINEAR_MOTOR["damping"],
-        delay: float = LINEAR_MOTOR["delay"],
-        current_limit: float | None = LINEAR_MOTOR["current_limit"],
-        sensor_resolution: float | None = LINEAR_MOTOR["sensor_resolution"],
+        measurement_noise: MeasurementNoise = ENV_NOISE,
+        plant: LinearMotorPlant = LinearMotorPlant(),
+        drive: LinearMotorDrive = LinearMotorDrive(),
         effects: dict[str, dict[str, Any]] | None = None,
         out_of_bounds: str = "raise",
         unstable_cost: float = 10.0,
@@ -202,33 +259,33 @@ class LinearMotorEnv(ControllerTuningEnv):
         expectation_draws: int = 16,
         expectation_seed: int = 0,
         constraints=None,
+        **settings,
     ) -> None:
-        cost_noise_std = LINEAR_MOTOR["cost_noise_std"] if cost_noise_std is None else cost_noise_std
-        output_noise_std = LINEAR_MOTOR["output_noise_std"] if output_noise_std is None else output_noise_std
-        if not noise:
-            cost_noise_std = output_noise_std = 0.0
-        self.plant_params = {"gain": float(gain), "inertia": float(inertia), "damping": float(damping),
-                             "delay": float(delay)}
-        self.effects_spec = linear_motor_effects(current_limit, sensor_resolution, effects)
+        options = grouped(type(self).__name__, settings, measurement_noise=measurement_noise, plant=plant, drive=drive)
+        calibration, drive = self.calibration, options["drive"]
+        cost_noise_std, output_noise_std = options["measurement_noise"].levels(calibration, noise)
+        self.plant_params = dataclasses.asdict(options["plant"])
+        self.effects_spec = linear_motor_effects(drive.current_limit if self.limit_in_plant else None,
+                                                 drive.sensor_resolution, effects)
         loop = ClosedLoop(
             plant=linear_motor_plant(**self.plant_params),
-            controller=PDT1Controller(filter_time=LINEAR_MOTOR["filter_time"]),
-            dt=LINEAR_MOTOR["dt"],
-            duration=LINEAR_MOTOR["duration"],
-            r1=LINEAR_MOTOR["r1"],
-            r2=LINEAR_MOTOR["r2"],
+            controller=self._controller(drive),
+            dt=calibration["dt"],
+            duration=calibration["duration"],
+            r1=calibration["r1"],
+            r2=calibration["r2"],
             effects=_build_effects(self.effects_spec),
-            output_noise_std=float(output_noise_std),
+            output_noise_std=output_noise_std,
         )
-        low, high = np.array(LINEAR_MOTOR["gain_low"]), np.array(LINEAR_MOTOR["gain_high"])
+        low, high = np.array(calibration["gain_low"]), np.array(calibration["gain_high"])
         super().__init__(
             loop=loop,
             gain_low=low,
             gain_high=high,
-            cost=CostSpec(weights=LINEAR_MOTOR["weights"], normalizers=normalizers, unstable_cost=unstable_cost),
-            reference_gains=vertex_gains(low, high),
+            cost=CostSpec(weights=calibration["weights"], normalizers=normalizers, unstable_cost=unstable_cost),
+            reference_gains=self._reference_gains(low, high),
             cost_noise_std=cost_noise_std,
-            max_experiments=LINEAR_MOTOR["max_experiments"],
+            max_experiments=calibration["max_experiments"],
             out_of_bounds=out_of_bounds,
             render_mode=render_mode,
             noise=noise,
@@ -236,6 +293,15 @@ class LinearMotorEnv(ControllerTuningEnv):
             expectation_seed=expectation_seed,
         )
         self.constraints = constraints
+
+    def _controller(self, drive: LinearMotorDrive):
+        """The loop's controller: the PDT1 of eq. (LM_Controller) (the drive limits the plant input)."""
+        return PDT1Controller(filter_time=LINEAR_MOTOR["filter_time"])
+
+    @staticmethod
+    def _reference_gains(low: np.ndarray, high: np.ndarray) -> np.ndarray:
+        """Gains whose mean metrics normalise the cost: the four vertices of the feasible set."""
+        return vertex_gains(low, high)
 
 
 def linear_motor_plant(gain: float, inertia: float, damping: float, delay: float) -> ContinuousPlant:

@@ -53,18 +53,16 @@ that optimum.
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
-from gbo_envs.closed_loop import ClosedLoop
-from gbo_envs.controllers import CascadeController
-from gbo_envs.envs.base import ControllerTuningEnv
-from gbo_envs.envs.cost_spec import CostSpec
+from gbo_envs.controllers import ANTI_WINDUP, CascadeController
 from gbo_envs.envs.dc_motor_pid import corner_gains
-from gbo_envs.envs.linear_motor import LINEAR_MOTOR, _build_effects, linear_motor_effects, linear_motor_plant
+from gbo_envs.envs.linear_motor import LINEAR_MOTOR, LinearMotorDrive, LinearMotorEnv
+from gbo_envs.envs.plant_options import checked_fields
 
-__all__ = ["LINEAR_CASCADE", "LinearMotorCascadeEnv", "nominal_cascade"]
+__all__ = ["CascadeDrive", "LINEAR_CASCADE", "LinearMotorCascadeEnv", "nominal_cascade"]
 
 #: Calibration facts of the cascade (the plant, sensor, step and weights are those of ``LINEAR_MOTOR``).
 LINEAR_CASCADE = {
@@ -75,6 +73,30 @@ LINEAR_CASCADE = {
     "gain_high": (52.1, 33.4, 104.2, 1.0),
     "max_experiments": 50,
 }
+
+
+@dataclass(frozen=True)
+class CascadeDrive(LinearMotorDrive):
+    """The drive of the position -> speed cascade: :class:`LinearMotorDrive` and how its speed PI meets the limit.
+
+    Parameters
+    ----------
+    current_limit, sensor_resolution
+        As in :class:`LinearMotorDrive`; the current limit is the controller's output limit.
+    anti_windup : {"clamping", "back-calculation", "none"}, default "clamping"
+        The speed integrator against the current limit (:class:`~gbo_envs.controllers.CascadeController`).
+    tracking_time : float, optional
+        Back-calculation's tracking time in s (default: the controller's).
+    """
+
+    anti_windup: str = "clamping"
+    tracking_time: float | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.anti_windup not in ANTI_WINDUP:
+            raise ValueError(f"anti_windup: must be one of {ANTI_WINDUP}, got {self.anti_windup!r}")
+        checked_fields(self, tracking_time={"allow_none": True})
 
 
 def nominal_cascade(gain: float = LINEAR_MOTOR["gain"], inertia: float = LINEAR_MOTOR["inertia"],
@@ -95,7 +117,7 @@ def nominal_cascade(gain: float = LINEAR_MOTOR["gain"], inertia: float = LINEAR_
     return np.array([1.0 / (8.0 * sigma), t / (2.0 * k * sigma), 1.0 / (4.0 * sigma), 1.0])
 
 
-class LinearMotorCascadeEnv(ControllerTuningEnv):
+class LinearMotorCascadeEnv(LinearMotorEnv):
     """Cascaded position control of the paper's linear servo motor; one step = one step experiment.
 
     ## Description
@@ -161,20 +183,17 @@ class LinearMotorCascadeEnv(ControllerTuningEnv):
 
     ## Arguments
 
-    ``gym.make("gbo_envs/LinearMotorCascade-v0", noise=True, cost_noise_std=0.001,
-    output_noise_std=0.0, gain=0.44262, inertia=0.070983, damping=0.8,
-    delay=0.001, current_limit=7.0, sensor_resolution=5e-6, effects=None,
-    anti_windup="clamping", out_of_bounds="raise", unstable_cost=10.0,
-    render_mode=None)``
+    ``gym.make("gbo_envs/LinearMotorCascade-v0", drive=CascadeDrive(current_limit=7.0,
+    sensor_resolution=5e-6, anti_windup="clamping", tracking_time=None), **kwargs)``: those of
+    ``LinearMotor-v0`` (keyword-only; a field of an option object may also be given by its name),
+    with the cascade's drive (:class:`CascadeDrive`):
 
-    * ``noise``, ``cost_noise_std``, ``output_noise_std``, ``gain``, ``inertia``,
-      ``damping``, ``delay``, ``sensor_resolution``: as on ``LinearMotor-v0``.
     * ``current_limit``: the drive's current limit in A, where the cascade
       clips its command (``None``: unlimited, a linear loop).
-    * ``effects``: further effect blocks ``{name: {param: value}}`` after the
-      sensor's quantisation (an entry ``"quantization"`` replaces it).
     * ``anti_windup``: ``"clamping"``, ``"back-calculation"`` (with
       ``tracking_time`` in s) or ``"none"``.
+    * ``effects``: further effect blocks ``{name: {param: value}}`` after the
+      sensor's quantisation (an entry ``"quantization"`` replaces it).
     * ``out_of_bounds``, ``unstable_cost``, ``normalizers``, ``expectation_draws``,
       ``expectation_seed``: as on ``LinearMotor-v0``.
 
@@ -183,66 +202,22 @@ class LinearMotorCascadeEnv(ControllerTuningEnv):
     * v0: initial version.
     """
 
-    output_unit = "m"
-    input_unit = "A"
+    calibration = {**LINEAR_MOTOR, **LINEAR_CASCADE}
+    limit_in_plant = False
 
-    def __init__(
-        self,
-        noise: bool = True,
-        cost_noise_std: float | None = None,
-        output_noise_std: float | None = None,
-        gain: float = LINEAR_MOTOR["gain"],
-        inertia: float = LINEAR_MOTOR["inertia"],
-        damping: float = LINEAR_MOTOR["damping"],
-        delay: float = LINEAR_MOTOR["delay"],
-        current_limit: float | None = LINEAR_MOTOR["current_limit"],
-        sensor_resolution: float | None = LINEAR_MOTOR["sensor_resolution"],
-        effects: dict[str, dict[str, Any]] | None = None,
-        anti_windup: str = "clamping",
-        tracking_time: float | None = None,
-        out_of_bounds: str = "raise",
-        unstable_cost: float = 10.0,
-        render_mode: str | None = None,
-        normalizers=None,
-        expectation_draws: int = 16,
-        expectation_seed: int = 0,
-        constraints=None,
-    ) -> None:
-        cost_noise_std = LINEAR_MOTOR["cost_noise_std"] if cost_noise_std is None else cost_noise_std
-        output_noise_std = LINEAR_MOTOR["output_noise_std"] if output_noise_std is None else output_noise_std
-        if not noise:
-            cost_noise_std = output_noise_std = 0.0
-        self.plant_params = {"gain": float(gain), "inertia": float(inertia), "damping": float(damping),
-                             "delay": float(delay)}
-        self.effects_spec = linear_motor_effects(None, sensor_resolution, effects)
-        controller = CascadeController(
-            speed_filter_time=LINEAR_CASCADE["speed_filter_time"],
-            reference_filter_time=LINEAR_CASCADE["reference_filter_time"],
-            output_limit=None if current_limit is None else float(current_limit),
-            anti_windup=anti_windup, tracking_time=tracking_time)
-        loop = ClosedLoop(
-            plant=linear_motor_plant(**self.plant_params),
-            controller=controller,
-            dt=LINEAR_MOTOR["dt"],
-            duration=LINEAR_MOTOR["duration"],
-            r1=LINEAR_MOTOR["r1"],
-            r2=LINEAR_MOTOR["r2"],
-            effects=_build_effects(self.effects_spec),
-            output_noise_std=float(output_noise_std),
-        )
-        low, high = np.array(LINEAR_CASCADE["gain_low"]), np.array(LINEAR_CASCADE["gain_high"])
-        super().__init__(
-            loop=loop,
-            gain_low=low,
-            gain_high=high,
-            cost=CostSpec(weights=LINEAR_MOTOR["weights"], normalizers=normalizers, unstable_cost=unstable_cost),
-            reference_gains=corner_gains(low, high),
-            cost_noise_std=cost_noise_std,
-            max_experiments=LINEAR_CASCADE["max_experiments"],
-            out_of_bounds=out_of_bounds,
-            render_mode=render_mode,
-            noise=noise,
-            expectation_draws=expectation_draws,
-            expectation_seed=expectation_seed,
-        )
-        self.constraints = constraints
+    def __init__(self, *, drive: CascadeDrive = CascadeDrive(), **kwargs) -> None:
+        if not isinstance(drive, CascadeDrive):
+            raise TypeError(f"drive: the cascade's drive is a CascadeDrive (with its anti-windup), got {drive!r}")
+        super().__init__(drive=drive, **kwargs)
+
+    def _controller(self, drive: CascadeDrive):
+        """The loop's controller: the cascade, its current command limited to the drive's ``current_limit``."""
+        return CascadeController(speed_filter_time=LINEAR_CASCADE["speed_filter_time"],
+                                 reference_filter_time=LINEAR_CASCADE["reference_filter_time"],
+                                 output_limit=drive.current_limit, anti_windup=drive.anti_windup,
+                                 tracking_time=drive.tracking_time)
+
+    @staticmethod
+    def _reference_gains(low: np.ndarray, high: np.ndarray) -> np.ndarray:
+        """Gains whose mean metrics normalise the cost: the 16 corners of the feasible set."""
+        return corner_gains(low, high)

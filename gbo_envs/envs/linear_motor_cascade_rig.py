@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 from gbo_envs.envs.linear_motor_cascade import LinearMotorCascadeEnv
-from gbo_envs.envs.rigs import LINEAR_RIG, _checked_effects
-from gbo_envs.physics.block import validated_finite
-from gbo_envs.physics.encoder import PositionEncoder
+from gbo_envs.envs.rigs import LinearRig
 
 __all__ = ["LinearMotorCascadeRigEnv"]
 
 
-class LinearMotorCascadeRigEnv(LinearMotorCascadeEnv):
+class LinearMotorCascadeRigEnv(LinearRig, LinearMotorCascadeEnv):
     """``LinearMotorCascade-v0`` on the rig of ``LinearMotorRig-v0``: its sensor noise and guide friction.
 
     ## Description
@@ -69,17 +65,3 @@ class LinearMotorCascadeRigEnv(LinearMotorCascadeEnv):
 
     * v0: initial version.
     """
-
-    def __init__(self, friction: float = LINEAR_RIG["friction"],
-                 sensor_resolution: float = LINEAR_RIG["sensor_resolution"],
-                 sensor_jitter: float = LINEAR_RIG["sensor_jitter"],
-                 expectation_draws: int = LINEAR_RIG["expectation_draws"],
-                 effects: dict[str, dict[str, Any]] | None = None, **kwargs) -> None:
-        sensor_resolution = validated_finite("sensor_resolution", sensor_resolution, "m", positive=True)
-        sensor_jitter = validated_finite("sensor_jitter", sensor_jitter, "m")
-        spec: dict[str, Any] = {
-            "encoder": PositionEncoder(resolution=sensor_resolution, jitter=sensor_jitter),
-            "coulomb_friction": {"torque": friction},
-        }
-        spec.update(_checked_effects(effects))
-        super().__init__(sensor_resolution=None, effects=spec, expectation_draws=expectation_draws, **kwargs)

@@ -19,7 +19,7 @@ from gbo_envs.envs.linear_motor import LinearMotorEnv
 from gbo_envs.physics.block import validated_count, validated_finite
 from gbo_envs.physics.encoder import PositionEncoder, SpeedEncoder
 
-__all__ = ["DCMotorRigEnv", "LinearMotorRigEnv", "DC_RIG", "LINEAR_RIG"]
+__all__ = ["DCMotorRigEnv", "LinearMotorRigEnv", "LinearRig", "DC_RIG", "LINEAR_RIG"]
 
 #: Effects and measurement chain of the DC motor rig stand-in (input units are the controller's output units).
 DC_RIG = {
@@ -41,6 +41,29 @@ LINEAR_RIG = {
     "sensor_jitter": 1.25e-6,
     "expectation_draws": 256,  # K: standard error of J* 0.009 %, optimum stable to 2 cells (docstring)
 }
+
+
+class LinearRig:
+    """The linear motor rig's measurement chain and guide friction on a linear motor env: mix in before the env.
+
+    Its position sensor (a :class:`~gbo_envs.physics.encoder.PositionEncoder`: read-head noise, then the
+    sensor's levels) replaces the env's ideal quantisation, then ``coulomb_friction``; the rest of the
+    env's settings pass through (``**kwargs``). ``LinearMotorRig-v0`` and ``LinearMotorCascadeRig-v0``.
+    """
+
+    def __init__(self, friction: float = LINEAR_RIG["friction"],
+                 sensor_resolution: float = LINEAR_RIG["sensor_resolution"],
+                 sensor_jitter: float = LINEAR_RIG["sensor_jitter"],
+                 expectation_draws: int = LINEAR_RIG["expectation_draws"],
+                 effects: dict[str, dict[str, Any]] | None = None, **kwargs) -> None:
+        sensor_resolution = validated_finite("sensor_resolution", sensor_resolution, "m", positive=True)
+        sensor_jitter = validated_finite("sensor_jitter", sensor_jitter, "m")
+        spec: dict[str, Any] = {
+            "encoder": PositionEncoder(resolution=sensor_resolution, jitter=sensor_jitter),
+            "coulomb_friction": {"torque": friction},
+        }
+        spec.update(_checked_effects(effects))
+        super().__init__(sensor_resolution=None, effects=spec, expectation_draws=expectation_draws, **kwargs)
 
 
 class DCMotorRigEnv(DCMotorEnv):
@@ -165,7 +188,7 @@ class DCMotorRigEnv(DCMotorEnv):
         super().__init__(effects=spec, expectation_draws=expectation_draws, **kwargs)
 
 
-class LinearMotorRigEnv(LinearMotorEnv):
+class LinearMotorRigEnv(LinearRig, LinearMotorEnv):
     """Stand-in for the paper's linear motor rig: ``LinearMotor-v0`` plus guide friction and a noisy sensor.
 
     ## Description
@@ -235,20 +258,6 @@ class LinearMotorRigEnv(LinearMotorEnv):
 
     * v0: initial version.
     """
-
-    def __init__(self, friction: float = LINEAR_RIG["friction"],
-                 sensor_resolution: float = LINEAR_RIG["sensor_resolution"],
-                 sensor_jitter: float = LINEAR_RIG["sensor_jitter"],
-                 expectation_draws: int = LINEAR_RIG["expectation_draws"],
-                 effects: dict[str, dict[str, Any]] | None = None, **kwargs) -> None:
-        sensor_resolution = validated_finite("sensor_resolution", sensor_resolution, "m", positive=True)
-        sensor_jitter = validated_finite("sensor_jitter", sensor_jitter, "m")
-        spec: dict[str, Any] = {
-            "encoder": PositionEncoder(resolution=sensor_resolution, jitter=sensor_jitter),
-            "coulomb_friction": {"torque": friction},
-        }
-        spec.update(_checked_effects(effects))
-        super().__init__(sensor_resolution=None, effects=spec, expectation_draws=expectation_draws, **kwargs)
 
 
 def _checked_effects(effects) -> dict[str, dict[str, Any]]:

@@ -260,7 +260,8 @@ def test_an_unstable_or_non_finite_record_is_not_identified_from():
     tuner.tell(info["gains"], info["cost"], {**info, "unstable": True})
     bad_y = np.asarray(info["y"], dtype=float).copy()
     bad_y[10] = np.inf
-    tuner.tell(info["gains"], info["cost"], {**info, "y": bad_y})
+    signals = {key: value for key, value in info.items() if key != "experiment"}  # a mapping without its Experiment
+    tuner.tell(info["gains"], info["cost"], {**signals, "y": bad_y})
     assert tuner.keeper_.records_ == () and tuner.noise_floor_ == 0.0
     assert tuner.n_observations == 2  # the costs still reach the GP
 

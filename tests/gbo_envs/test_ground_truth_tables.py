@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 import warnings
@@ -13,6 +14,7 @@ import pytest
 import gbo_envs
 from gbo_envs import ground_truth, ground_truth_tables
 from gbo_envs.envs.rigs import DC_RIG
+from gbo_envs.ground_truth import search_settings
 from gbo_envs.ground_truth_tables import TABLE_DIR, fingerprint, load_table, save_table, table_path
 from gbo_envs.optimum_search import SearchDisagreement
 
@@ -45,8 +47,6 @@ def test_the_envs_with_more_gains_ship_their_search():
 @pytest.mark.parametrize("env_id", SEARCHES)
 def test_a_shipped_search_equals_the_live_expectation_and_is_certified(env_id, monkeypatch):
     """A change of the physics, the cost or the defaults that makes a search table stale fails here."""
-    from gbo_envs.ground_truth import search_settings
-
     env = gym.make(env_id)
     stored = ground_truth_tables.load_search_table(env, search_settings(env.unwrapped.action_space.shape[0]))
     assert stored is not None, "the shipped search does not fit the env's default kwargs: rerun " \
@@ -154,3 +154,27 @@ def test_save_table_needs_a_registered_env(tmp_path):
     with pytest.raises(ValueError, match="env"):
         save_table(gbo_envs.envs.rigs.LinearMotorRigEnv(), (np.zeros(2), np.zeros(2)), np.zeros((2, 2)),
                    tmp_path / "x.npz")
+
+
+@pytest.mark.parametrize(("env_id", "options"), [
+    ("gbo_envs/DCMotorRig-v0", {"plant": gbo_envs.DCMotorPlant(), "measurement_noise": gbo_envs.MeasurementNoise()}),
+    ("gbo_envs/LinearMotorRig-v0", {"plant": gbo_envs.LinearMotorPlant(), "drive": gbo_envs.LinearMotorDrive()}),
+    ("gbo_envs/DCMotorPID-v0", {"plant": gbo_envs.DCMotorPlant()}),
+    ("gbo_envs/LinearMotorCascade-v0", {"drive": gbo_envs.CascadeDrive(), "plant": gbo_envs.LinearMotorPlant()}),
+])
+def test_every_shipped_table_loads_with_its_default_options_given_or_not(env_id, options):
+    """The option objects enter the fingerprint as their fields: the defaults, given or not, read the table;
+    another value of a field does not."""
+    def load(env):
+        n_gains = env.unwrapped.action_space.shape[0]
+        if n_gains == 2:
+            return load_table(env, 100)
+        return ground_truth_tables.load_search_table(env, search_settings(n_gains))
+
+    assert env_id in SHIPPED
+    plain, given = gym.make(env_id), gym.make(env_id, **options)
+    assert fingerprint(given, 100) == fingerprint(plain, 100)
+    assert load(plain) is not None and load(given) is not None
+    name, option = next(iter(options.items()))
+    changed = dataclasses.replace(option, **{dataclasses.fields(option)[-1].name: 0.0015})
+    assert load(gym.make(env_id, **{name: changed})) is None

@@ -62,7 +62,7 @@ def test_effects_kwarg_overrides_and_extends_builtins():
     names = [b.name for b in env.loop.effects]
     assert names == ["saturation", "quantization", "coulomb_friction"]
     assert env.loop.effects[0].limit == 5.0
-    with pytest.raises(ValueError, match="saturation"):
+    with pytest.raises(ValueError, match="current_limit: must be > 0"):
         _env(current_limit=-1.0)
     with pytest.raises(ValueError, match="damping"):
         _env(damping=-0.1)
