@@ -474,15 +474,23 @@ class BayesianOptimization(Tuner):
         unit_box = np.column_stack([np.zeros(self.space.dim), np.ones(self.space.dim)])
         if self._optimizer_in_use == "grid":
             x, ei = maximize_on_grid(acquisition, self._unit_grid, polish=self.polish, bounds=unit_box)
-        else:  # seeded by the fit's data version: the same data give the same proposal
-            rng = np.random.default_rng([self._fit_seed, self._version, 1])
-            x, ei = maximize_multistart(acquisition, unit_box, rng, n_candidates=self.n_candidates,
-                                        n_starts=self.n_starts)
+        else:
+            rng, n_starts = self.multistart_plan()
+            x, ei = maximize_multistart(acquisition, unit_box, rng, n_candidates=self.n_candidates, n_starts=n_starts)
         if self.safe and ei < 0.0:  # no candidate in the safe set: repeat the best feasible experiment
             x = self._best_kept_point()
             ei = float(acquisition(x[None, :])[0])
         std = float(model.predict(x[None, :])[1][0])
         return self.space.from_unit(x), float(ei), std
+
+    def multistart_plan(self) -> tuple[np.random.Generator, int]:
+        """The multistart optimizer's Sobol scramble and its number of L-BFGS-B starts for the next maximisation.
+
+        Here: seeded by the fit's data version (the same data give the same proposal; every fit draws new
+        candidates) and ``n_starts``. Guided BO's twin prior replaces both (:meth:`GuidedBO.multistart_plan
+        <agents.guided_bo.GuidedBO.multistart_plan>`).
+        """
+        return np.random.default_rng([self._fit_seed, self._version, 1]), self.n_starts
 
     def _constrained_acquisition(self, model) -> ConstrainedAcquisition:
         """``EI x PF`` over the best feasible cost, ``PF`` alone before a feasible experiment (class doc)."""
