@@ -8,6 +8,7 @@ import pytest
 
 import agents
 import gbo_envs  # noqa: F401  (registers the envs)
+from agents.guided_bo import PRIOR_STARTS
 from agents.twin.prior import TwinMetrics
 from agents.twin_keeper import TwinKeeper
 
@@ -99,3 +100,50 @@ def test_guided_bo_runs_in_three_and_four_gains_with_the_prior_where_the_acquisi
     step = 1.0 / (tuner.grid_points - 1)  # the 2-gain grid's spacing in the unit box
     off_grid = np.any(np.abs(evaluated / step - np.round(evaluated / step)) > 1e-6, axis=1)
     assert off_grid.mean() > 0.9
+
+
+@pytest.mark.slow
+def test_in_three_gains_the_twin_prior_is_simulated_on_the_candidates_once_per_twin():
+    """Under the twin prior the multistart draws the same Sobol candidates at every ask, so an ask with the twin of
+    the previous one simulates only its refinement (from PRIOR_STARTS starts), far fewer gains than the 2048
+    candidates; without the prior (the default BO) every fit draws new candidates, and the ask is unchanged."""
+    env = gym.make("gbo_envs/DCMotorPID-v0")
+    tuner = agents.make("guided-bo")
+    tuner.setup(agents.GainSpace.from_env(env), seed=0, env=env)
+    env.reset(seed=0)
+    new_rows = []
+    for _ in range(5):
+        fits, before = len(tuner.twin_changes_), tuner.keeper_.metric_simulations_
+        gains = tuner.ask()
+        if tuner.n_observations >= 2 and len(tuner.twin_changes_) == fits:  # the same twin as the last ask
+            new_rows.append(tuner.keeper_.metric_simulations_ - before)
+        info = env.step(np.asarray(gains))[4]
+        tuner.tell(gains, info["cost"], info)
+    assert new_rows and max(new_rows) < tuner.n_candidates / 2
+    assert tuner.metric_prior() is not None
+    rng, starts = tuner.multistart_plan()
+    assert starts == PRIOR_STARTS < tuner.n_starts
+    tuner.use_prior(None)
+    rng_default, starts_default = tuner.multistart_plan()
+    assert starts_default == tuner.n_starts
+    assert not np.array_equal(rng.random(4), rng_default.random(4))
+
+
+def test_the_cascade_overshoot_near_the_optimum_is_below_what_a_twin_can_identify():
+    """GuidedBO's notes: near the cascade's optimum whether a response reads one encoder count above its final value
+    changes with a 1e-5 relative change of the plant's gain at about 40 % of the gains (an overshoot of one count
+    costs 0.4, two thirds of J*), and the plant without its quantized sensor does not overshoot there at all."""
+    truth = gbo_envs.ground_truth(CASCADE)
+    plant = gym.make(CASCADE, noise=False).unwrapped
+    low, high = plant.action_space.low, plant.action_space.high
+    offsets = np.random.default_rng(1).random((256, low.size)) - 0.5
+    gains = np.clip(truth.gains + 0.2 * offsets * (high - low), low, high)
+    metrics, cost = plant.evaluate(gains)
+    counts = metrics[:, 0] > 0.0
+    assert 0.3 < counts.mean() < 0.9
+    one_count = 100.0 * 5e-6 / 0.01  # % of the 10 mm step
+    assert plant.weights[0] * one_count / plant.normalizers[0] == pytest.approx(0.4)
+    perturbed = gym.make(CASCADE, noise=False, gain=0.44262 * (1 + 1e-5)).unwrapped.evaluate(gains)[0]
+    assert 0.3 < np.mean(counts != (perturbed[:, 0] > 0.0)) < 0.6
+    unquantized = gym.make(CASCADE, noise=False, sensor_resolution=None).unwrapped.evaluate(gains)[0]
+    assert np.all(unquantized[:, 0] < 0.1 * one_count)
