@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
-from gbo_envs.closed_loop import ClosedLoop
 from gbo_envs.controllers import PIController
-from gbo_envs.envs.base import ControllerTuningEnv
-from gbo_envs.envs.cost_spec import CostSpec
-from gbo_envs.envs.plant_options import ENV_NOISE, MeasurementNoise, checked_fields, grouped
-from gbo_envs.physics.effects import build_effects
+from gbo_envs.envs.motor_env import MotorEnv
+from gbo_envs.envs.plant_options import checked_fields
 from gbo_envs.physics.lti import ContinuousPlant
 
 __all__ = ["DCMotorEnv", "DCMotorPlant", "DC_MOTOR", "NOMINAL_FOPDT"]
@@ -48,6 +44,11 @@ DC_MOTOR = {
 NOMINAL_FOPDT = {"gain": 0.8842, "tau": 1.3984, "delay": 0.014544}
 
 
+def dc_motor_plant(gain: float, tau1: float, tau2: float, delay: float) -> ContinuousPlant:
+    """``G(s) = gain / (s^2 + tau1 s + tau2) e^{-s delay}`` (Table I), speed output in rad/s."""
+    return ContinuousPlant(num=(gain,), den=(1.0, tau1, tau2), delay=delay, output="speed")
+
+
 @dataclass(frozen=True)
 class DCMotorPlant:
     """The DC motor model of Table I: ``G(s) = gain / (s^2 + tau1 s + tau2) e^{-s delay}``, speed in rad/s.
@@ -78,7 +79,7 @@ class DCMotorPlant:
         checked_fields(self, gain={}, tau1={}, tau2={}, delay={"low": 0.0})
 
 
-class DCMotorEnv(ControllerTuningEnv):
+class DCMotorEnv(MotorEnv):
     """PI speed control of the paper's identified DC motor; one step = one step experiment.
 
     ## Description
@@ -149,15 +150,10 @@ class DCMotorEnv(ControllerTuningEnv):
       noise in rad/s; it feeds back and enters the metrics, as on a rig (off by
       default: it biases the settling time, so the paper's noise model is
       additive on ``J``).
-    * ``plant`` (:class:`~gbo_envs.envs.plant_options.DCMotorPlant`): ``gain, tau1,
+    * ``plant`` (:class:`DCMotorPlant`): ``gain, tau1,
       tau2, delay`` (delay in s).
-    * ``out_of_bounds``: ``"raise"``, ``"clip"`` or ``"allow"``.
-    * ``unstable_cost``: finite cost of a diverging experiment.
-    * ``expectation_draws``, ``expectation_seed``: the ``K`` fixed noise draws
-      (and their seed) over which the ground truth averages when the
-      measurement is noisy (``output_noise_std > 0``); unused otherwise.
-    * ``constraints``: upper limits the experiments must keep, e.g. ``{"overshoot_pct": 2.0,
-      "peak_u": 140.0}`` (:mod:`gbo_envs.constraints`); ``info["constraints"]`` and ``info["feasible"]``.
+    * ``out_of_bounds``, ``unstable_cost``, ``normalizers``, ``expectation_draws``, ``expectation_seed``,
+      ``constraints``: as every motor env takes them (:class:`~gbo_envs.envs.motor_env.MotorEnv`).
 
     ## Version History
 
@@ -172,56 +168,14 @@ class DCMotorEnv(ControllerTuningEnv):
     #: The FOPDT of the env's nominal design (:data:`NOMINAL_FOPDT`), ``None`` for a loop without one.
     nominal_design = NOMINAL_FOPDT
 
-    def __init__(
-        self,
-        *,
-        noise: bool = True,
-        measurement_noise: MeasurementNoise = ENV_NOISE,
-        plant: DCMotorPlant = DCMotorPlant(),
-        effects=None,
-        out_of_bounds: str = "raise",
-        unstable_cost: float = 10.0,
-        render_mode: str | None = None,
-        normalizers=None,
-        expectation_draws: int = 16,
-        expectation_seed: int = 0,
-        constraints=None,
-        **settings,
-    ) -> None:
-        options = grouped(type(self).__name__, settings, measurement_noise=measurement_noise, plant=plant)
-        calibration = self.calibration
-        cost_noise_std, output_noise_std = options["measurement_noise"].levels(calibration, noise)
-        self.plant_params = dataclasses.asdict(options["plant"])
+    plant_factory = staticmethod(dc_motor_plant)
+
+    def __init__(self, *, plant: DCMotorPlant = DCMotorPlant(), **kwargs) -> None:
         #: FOPDT of the paper's nominal PGM design (agents.NominalPGM uses it by default)
         self.nominal_fopdt = None if self.nominal_design is None else dict(self.nominal_design)
-        loop = ClosedLoop(
-            plant=dc_motor_plant(**self.plant_params),
-            controller=self._controller(),
-            dt=calibration["dt"],
-            duration=calibration["duration"],
-            r1=calibration["r1"],
-            r2=calibration["r2"],
-            effects=_build_effects(effects),
-            output_noise_std=output_noise_std,
-        )
-        low, high = np.array(calibration["gain_low"]), np.array(calibration["gain_high"])
-        super().__init__(
-            loop=loop,
-            gain_low=low,
-            gain_high=high,
-            cost=CostSpec(weights=calibration["weights"], normalizers=normalizers, unstable_cost=unstable_cost),
-            reference_gains=self._reference_gains(low, high),
-            cost_noise_std=cost_noise_std,
-            max_experiments=calibration["max_experiments"],
-            out_of_bounds=out_of_bounds,
-            render_mode=render_mode,
-            noise=noise,
-            expectation_draws=expectation_draws,
-            expectation_seed=expectation_seed,
-        )
-        self.constraints = constraints
+        super().__init__(options={"plant": plant}, **kwargs)
 
-    def _controller(self):
+    def _controller(self, options: dict):
         """The loop's controller: the digital PI ``Kp (1 + Ki / s)``."""
         return PIController()
 
@@ -229,15 +183,3 @@ class DCMotorEnv(ControllerTuningEnv):
     def _reference_gains(low: np.ndarray, high: np.ndarray) -> np.ndarray:
         """Gains whose mean metrics normalise the cost: 5 evenly spanning the diagonal of the feasible set."""
         return np.linspace(low, high, 5)
-
-
-def dc_motor_plant(gain: float, tau1: float, tau2: float, delay: float) -> ContinuousPlant:
-    """``G(s) = gain / (s^2 + tau1 s + tau2) e^{-s delay}`` (Table I), speed output in rad/s."""
-    return ContinuousPlant(num=(gain,), den=(1.0, tau1, tau2), delay=delay, output="speed")
-
-
-def _build_effects(effects):
-    if not effects:
-        return ()
-
-    return build_effects(effects)

@@ -136,7 +136,7 @@ class DCMotorPIDEnv(DCMotorEnv):
         self.filter_time = float(filter_time)
         super().__init__(**kwargs)
 
-    def _controller(self):
+    def _controller(self, options: dict):
         """The loop's controller: the PID with the derivative filter ``Tf = filter_time``."""
         return PIDController(filter_time=self.filter_time)
 

@@ -42,18 +42,14 @@ it is discretised exactly and enters the linear stability analysis.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from gbo_envs.closed_loop import ClosedLoop
 from gbo_envs.controllers import PDT1Controller
-from gbo_envs.envs.base import ControllerTuningEnv
-from gbo_envs.envs.cost_spec import CostSpec
-from gbo_envs.envs.plant_options import ENV_NOISE, MeasurementNoise, checked_fields, grouped
-from gbo_envs.physics.effects import build_effects
+from gbo_envs.envs.motor_env import MotorEnv
+from gbo_envs.envs.plant_options import checked_fields
 from gbo_envs.physics.lti import ContinuousPlant
 
 __all__ = ["LinearMotorDrive", "LinearMotorEnv", "LinearMotorPlant", "LINEAR_MOTOR", "linear_motor_plant",
@@ -83,6 +79,28 @@ LINEAR_MOTOR = {
     # m; 0 by default so that the measured J follows the paper's J = J_hat + epsilon exactly
     "output_noise_std": 0.0,
 }
+
+
+def linear_motor_plant(gain: float, inertia: float, damping: float, delay: float) -> ContinuousPlant:
+    """``G(s) = gain / (inertia s^2 + damping s) e^{-s delay}``, position output in m, current input in A.
+
+    Parameters
+    ----------
+    gain : float
+        Numerator, ``> 0`` (0.44262 in the authors' model).
+    inertia : float
+        Coefficient of ``s^2``, ``> 0``; ``inertia / gain`` is the current per
+        unit acceleration in A s^2/m.
+    damping : float
+        Coefficient of ``s``, ``>= 0``; ``damping / gain`` is the current per
+        unit speed in A s/m that balances the viscous drag.
+    delay : float
+        Input delay in s.
+    """
+    if not (gain > 0.0 and inertia > 0.0 and damping >= 0.0):
+        raise ValueError(f"linear motor: need gain > 0, inertia > 0 and damping >= 0, "
+                         f"got gain={gain}, inertia={inertia}, damping={damping}")
+    return ContinuousPlant(num=(gain,), den=(inertia, damping, 0.0), delay=delay, output="position")
 
 
 @dataclass(frozen=True)
@@ -133,7 +151,7 @@ class LinearMotorDrive:
                 raise ValueError(f"{name}: must be > 0 or None, got {getattr(self, name)}")
 
 
-class LinearMotorEnv(ControllerTuningEnv):
+class LinearMotorEnv(MotorEnv):
     """PDT1 position control of the paper's linear servo motor; one step = one step experiment.
 
     ## Description
@@ -222,14 +240,8 @@ class LinearMotorEnv(ControllerTuningEnv):
       (:func:`gbo_envs.physics.effects.build_effects`), applied after the
       current limit and the sensor quantisation; an entry named
       ``"saturation"`` or ``"quantization"`` replaces the built-in one.
-    * ``out_of_bounds``: ``"raise"``, ``"clip"`` or ``"allow"``.
-    * ``unstable_cost``: finite cost of a diverging experiment.
-    * ``expectation_draws``, ``expectation_seed``: the ``K`` fixed noise draws
-      (and their seed) over which the ground truth averages when the
-      measurement is noisy (``output_noise_std > 0``); unused otherwise.
-    * ``constraints``: upper limits the experiments must keep, e.g. ``{"overshoot_pct": 2.0,
-      "peak_u": 140.0}`` (:mod:`gbo_envs.constraints`); ``info["constraints"]`` and ``info["feasible"]``.
-    * ``normalizers``: explicit cost normalisers (a digital twin reuses its plant's).
+    * ``out_of_bounds``, ``unstable_cost``, ``normalizers``, ``expectation_draws``, ``expectation_seed``,
+      ``constraints``: as every motor env takes them (:class:`~gbo_envs.envs.motor_env.MotorEnv`).
 
     ## Version History
 
@@ -244,57 +256,21 @@ class LinearMotorEnv(ControllerTuningEnv):
     #: Whether the drive's current limit clips the plant input (``saturation``), not the controller's output.
     limit_in_plant = True
 
-    def __init__(
-        self,
-        *,
-        noise: bool = True,
-        measurement_noise: MeasurementNoise = ENV_NOISE,
-        plant: LinearMotorPlant = LinearMotorPlant(),
-        drive: LinearMotorDrive = LinearMotorDrive(),
-        effects: dict[str, dict[str, Any]] | None = None,
-        out_of_bounds: str = "raise",
-        unstable_cost: float = 10.0,
-        render_mode: str | None = None,
-        normalizers=None,
-        expectation_draws: int = 16,
-        expectation_seed: int = 0,
-        constraints=None,
-        **settings,
-    ) -> None:
-        options = grouped(type(self).__name__, settings, measurement_noise=measurement_noise, plant=plant, drive=drive)
-        calibration, drive = self.calibration, options["drive"]
-        cost_noise_std, output_noise_std = options["measurement_noise"].levels(calibration, noise)
-        self.plant_params = dataclasses.asdict(options["plant"])
+    plant_factory = staticmethod(linear_motor_plant)
+
+    def __init__(self, *, plant: LinearMotorPlant = LinearMotorPlant(), drive: LinearMotorDrive = LinearMotorDrive(),
+                 **kwargs) -> None:
+        super().__init__(options={"plant": plant, "drive": drive}, **kwargs)
+
+    def _effects(self, options: dict, effects) -> tuple:
+        """The drive's current limit (unless the controller limits its output), the sensor's quantisation, then
+        ``effects`` (:func:`linear_motor_effects`, kept as ``effects_spec``)."""
+        drive = options["drive"]
         self.effects_spec = linear_motor_effects(drive.current_limit if self.limit_in_plant else None,
                                                  drive.sensor_resolution, effects)
-        loop = ClosedLoop(
-            plant=linear_motor_plant(**self.plant_params),
-            controller=self._controller(drive),
-            dt=calibration["dt"],
-            duration=calibration["duration"],
-            r1=calibration["r1"],
-            r2=calibration["r2"],
-            effects=_build_effects(self.effects_spec),
-            output_noise_std=output_noise_std,
-        )
-        low, high = np.array(calibration["gain_low"]), np.array(calibration["gain_high"])
-        super().__init__(
-            loop=loop,
-            gain_low=low,
-            gain_high=high,
-            cost=CostSpec(weights=calibration["weights"], normalizers=normalizers, unstable_cost=unstable_cost),
-            reference_gains=self._reference_gains(low, high),
-            cost_noise_std=cost_noise_std,
-            max_experiments=calibration["max_experiments"],
-            out_of_bounds=out_of_bounds,
-            render_mode=render_mode,
-            noise=noise,
-            expectation_draws=expectation_draws,
-            expectation_seed=expectation_seed,
-        )
-        self.constraints = constraints
+        return super()._effects(options, self.effects_spec)
 
-    def _controller(self, drive: LinearMotorDrive):
+    def _controller(self, options: dict):
         """The loop's controller: the PDT1 of eq. (LM_Controller) (the drive limits the plant input)."""
         return PDT1Controller(filter_time=LINEAR_MOTOR["filter_time"])
 
@@ -302,28 +278,6 @@ class LinearMotorEnv(ControllerTuningEnv):
     def _reference_gains(low: np.ndarray, high: np.ndarray) -> np.ndarray:
         """Gains whose mean metrics normalise the cost: the four vertices of the feasible set."""
         return vertex_gains(low, high)
-
-
-def linear_motor_plant(gain: float, inertia: float, damping: float, delay: float) -> ContinuousPlant:
-    """``G(s) = gain / (inertia s^2 + damping s) e^{-s delay}``, position output in m, current input in A.
-
-    Parameters
-    ----------
-    gain : float
-        Numerator, ``> 0`` (0.44262 in the authors' model).
-    inertia : float
-        Coefficient of ``s^2``, ``> 0``; ``inertia / gain`` is the current per
-        unit acceleration in A s^2/m.
-    damping : float
-        Coefficient of ``s``, ``>= 0``; ``damping / gain`` is the current per
-        unit speed in A s/m that balances the viscous drag.
-    delay : float
-        Input delay in s.
-    """
-    if not (gain > 0.0 and inertia > 0.0 and damping >= 0.0):
-        raise ValueError(f"linear motor: need gain > 0, inertia > 0 and damping >= 0, "
-                         f"got gain={gain}, inertia={inertia}, damping={damping}")
-    return ContinuousPlant(num=(gain,), den=(inertia, damping, 0.0), delay=delay, output="position")
 
 
 def vertex_gains(low, high) -> np.ndarray:
@@ -349,10 +303,3 @@ def linear_motor_effects(current_limit: float | None, sensor_resolution: float |
             raise ValueError(f"effects: expected a dict {{name: {{param: value}}}}, got {effects!r}")
         spec.update(effects)
     return spec
-
-
-def _build_effects(spec: dict[str, dict[str, Any]]) -> tuple:
-    if not spec:
-        return ()
-
-    return tuple(build_effects(spec))

@@ -210,8 +210,9 @@ class LinearMotorCascadeEnv(LinearMotorEnv):
             raise TypeError(f"drive: the cascade's drive is a CascadeDrive (with its anti-windup), got {drive!r}")
         super().__init__(drive=drive, **kwargs)
 
-    def _controller(self, drive: CascadeDrive):
+    def _controller(self, options: dict):
         """The loop's controller: the cascade, its current command limited to the drive's ``current_limit``."""
+        drive = options["drive"]
         return CascadeController(speed_filter_time=LINEAR_CASCADE["speed_filter_time"],
                                  reference_filter_time=LINEAR_CASCADE["reference_filter_time"],
                                  output_limit=drive.current_limit, anti_windup=drive.anti_windup,

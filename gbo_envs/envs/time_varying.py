@@ -40,8 +40,8 @@ from typing import Any
 import numpy as np
 
 from gbo_envs.closed_loop import ClosedLoop
-from gbo_envs.envs.dc_motor import DC_MOTOR, DCMotorEnv, dc_motor_plant
-from gbo_envs.envs.linear_motor import LINEAR_MOTOR, LinearMotorEnv, linear_motor_plant
+from gbo_envs.envs.dc_motor import DC_MOTOR, DCMotorEnv
+from gbo_envs.envs.linear_motor import LINEAR_MOTOR, LinearMotorEnv
 from gbo_envs.physics.lti import ContinuousPlant
 
 __all__ = [
@@ -236,7 +236,6 @@ class DCMotorDriftEnv(TimeVaryingMixin, DCMotorEnv):
     * v0: initial version.
     """
 
-    plant_factory = staticmethod(dc_motor_plant)
 
     def __init__(self, drift: dict[str, float] | None = None, drift_time_constant: float = 20.0, **kwargs) -> None:
         super().__init__(**kwargs)
@@ -278,7 +277,6 @@ class DCMotorStepEnv(TimeVaryingMixin, DCMotorEnv):
     * v0: initial version.
     """
 
-    plant_factory = staticmethod(dc_motor_plant)
 
     def __init__(self, change_at: int = 15, new_params: dict[str, float] | None = None, **kwargs) -> None:
         super().__init__(**kwargs)
@@ -332,7 +330,6 @@ class LinearMotorDriftEnv(TimeVaryingMixin, LinearMotorEnv):
     * v0: initial version.
     """
 
-    plant_factory = staticmethod(linear_motor_plant)
 
     def __init__(self, drift: dict[str, float] | None = None, drift_time_constant: float = 10.0, **kwargs) -> None:
         super().__init__(**kwargs)
@@ -372,7 +369,6 @@ class LinearMotorStepEnv(TimeVaryingMixin, LinearMotorEnv):
     * v0: initial version.
     """
 
-    plant_factory = staticmethod(linear_motor_plant)
 
     def __init__(self, change_at: int = 10, new_params: dict[str, float] | None = None, **kwargs) -> None:
         super().__init__(**kwargs)
