@@ -16,7 +16,11 @@ and records like other machines (issue 56), each from its generator here:
   q-axis current staircase from standstill (4 steps, the first with the first sample), 10 ms samples,
   Coulomb friction 0.1 A (:data:`FOC_FRICTION`);
 * ``speed_rig``: :func:`speed_rig_records`, a lab DC motor speed rig under PID steps from rest, 10 ms
-  samples, a 40 ms dead time and a 25 rpm encoder quantum whose levels jitter with the timer.
+  samples, a 40 ms dead time and a 25 rpm encoder quantum whose levels jitter with the timer;
+* ``flexible_load_open`` and ``flexible_load_closed``: :func:`flexible_load_open_records` (six open-loop
+  voltage steps, 1 s at 4 ms) and :func:`flexible_load_closed_records` (PI steps and swept sines, 4 s at 2 ms)
+  of a DC motor carrying a flexible beam whose mode, near 2.3 Hz (:data:`FLEX_MODE`), the encoder on the
+  motor sees.
 
 Each set is written as a workbench CSV and diagnosed by the command a user runs, ``gbo twin diagnose FILE
 --json --quiet``; one JSON line per set: the best candidate, the RMSE before and after it, the noise floor and
@@ -39,6 +43,7 @@ if str(REPO) not in sys.path:  # the generator lives in the test suite
     sys.path.insert(0, str(REPO))
 
 import numpy as np  # noqa: E402
+from scipy.signal import chirp  # noqa: E402
 
 from agents.twin.csvio import write_csv  # noqa: E402
 from agents.twin.open_loop import simulate_open_loop  # noqa: E402
@@ -112,6 +117,78 @@ def speed_rig_records(*, n_records: int = 6, duration: float = 2.0, dt: float = 
     return records
 
 
+#: The flexible-load rig's motor: 20 rad/s per V, mechanical and electrical poles at 10 and 100 rad/s.
+FLEX_MOTOR = ContinuousPlant((20000.0,), (1.0, 110.0, 1000.0))
+#: Its beam: a mode at 2.3 Hz, lightly damped, seen by the encoder on the motor (load over motor inertia 0.3).
+FLEX_MODE = {"frequency": 2.0 * np.pi * 2.3, "damping": 0.03, "inertia_ratio": 0.3, "measured": "motor"}
+
+
+def flexible_load_plant() -> ContinuousPlant:
+    """:data:`FLEX_MOTOR` with the beam's mode :data:`FLEX_MODE` (the ``compliance`` block's factor)."""
+    return build_effects({"compliance": dict(FLEX_MODE)})[0].modify_plant(FLEX_MOTOR, 0)
+
+
+def flexible_load_open_records(*, n_records: int = 6, duration: float = 1.0, dt: float = 0.004, noise: float = 0.2,
+                               seed: int = 0) -> list:
+    """Open-loop voltage steps of a DC motor carrying a flexible beam (:func:`flexible_load_plant`).
+
+    Each record holds the drive off for 0.1 s, then steps it to a level drawn from 1-3 V, alternating in sign;
+    the motor speed (rad/s, from the motor's encoder, Gaussian noise of std ``noise``) starts at rest. Sampled
+    every ``dt`` s for ``duration`` s. ``r`` equals ``u``.
+
+    Returns
+    -------
+    list of gbo_envs.Experiment
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(round(duration / dt))) * dt
+    plant = flexible_load_plant()
+    records = []
+    for k in range(n_records):
+        u = np.where(t >= 0.1, (1.0 if k % 2 == 0 else -1.0) * rng.uniform(1.0, 3.0), 0.0)
+        speed = simulate_open_loop(plant, u[None], dt, y0=0.0, bias=0.0).y_true[0]
+        records.append(Experiment(gains=(), t=t, r=u.copy(), u=u, y=speed + noise * rng.standard_normal(t.size),
+                                  index=k))
+    return records
+
+
+def flexible_load_closed_records(*, n_steps: int = 3, n_sweeps: int = 4, duration: float = 4.0, dt: float = 0.002,
+                                 noise: float = 0.2, seed: int = 1) -> list:
+    """The flexible-beam motor (:func:`flexible_load_plant`) under a PI speed loop: steps and swept sines.
+
+    The PI (Tustin, eq. (Cv): ``Kp`` 0.03-0.08 V s/rad, ``Ki`` 3-10 1/s, drawn per record) closes the loop on
+    the noisy speed (std ``noise``, rad/s) every ``dt`` s. ``n_steps`` records step the reference at 0.2 s to
+    20-40 rad/s (alternating in sign); ``n_sweeps`` sweep it as a logarithmic chirp of 10-20 rad/s amplitude
+    from 0.2 Hz to 4-6 Hz over ``duration`` s. The loop moves the beam's mode (its closed-loop poles sit at
+    13-14 rad/s, the plant's mode at 14.45 rad/s).
+
+    Returns
+    -------
+    list of gbo_envs.Experiment
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(round(duration / dt))) * dt
+    plant = flexible_load_plant().discretize(dt)
+    records = []
+    for k in range(n_steps + n_sweeps):
+        kp, ki = rng.uniform(0.03, 0.08), rng.uniform(3.0, 10.0)
+        if k < n_steps:
+            r = np.where(t >= 0.2, (1.0 if k % 2 == 0 else -1.0) * rng.uniform(20.0, 40.0), 0.0)
+        else:
+            r = rng.uniform(10.0, 20.0) * chirp(t, 0.2, t[-1], rng.uniform(4.0, 6.0), method="logarithmic")
+        x = np.zeros(plant.order)
+        u, y = np.zeros(t.size), np.zeros(t.size)
+        e_old = u_old = 0.0
+        for i in range(t.size):
+            y[i] = float(plant.c @ x) + noise * rng.standard_normal()
+            e = r[i] - y[i]
+            u[i] = u_old + (kp + kp * ki * dt / 2.0) * e + (-kp + kp * ki * dt / 2.0) * e_old  # eq. (Cv), Tustin
+            x = plant.phi @ x + plant.gamma0 * u[i]
+            e_old, u_old = e, u[i]
+        records.append(Experiment(gains=(kp, ki), t=t, r=r, u=u, y=y, index=k))
+    return records
+
+
 def _servo(effects: dict, levels: tuple[float, float]):
     """The servo set with ``effects`` hidden, at the two input ``levels``."""
     return effects, lambda: real_like_records(effects, levels=levels)
@@ -125,6 +202,8 @@ SETS = {
     "time_delay": _servo({"time_delay": {"delay": 0.03}}, (0.3, 0.6)),
     "foc_staircase": ({"coulomb_friction": FOC_FRICTION}, foc_staircase_records),
     "speed_rig": ({"time_delay": {"delay": RIG_DELAY}, "quantization": {"step": RIG_QUANTUM}}, speed_rig_records),
+    "flexible_load_open": ({"compliance": FLEX_MODE}, flexible_load_open_records),
+    "flexible_load_closed": ({"compliance": FLEX_MODE}, flexible_load_closed_records),
 }
 
 

@@ -23,6 +23,7 @@ from agents.twin.guesses import effect_starts, residual_frequencies, rest_comman
 from agents.twin.least_squares import Problem, make_problem
 from agents.twin.linear_fit import PROFILE_EFFECTS, profile
 from agents.twin.model import GreyFit, ModelSpec, fitted_parameters
+from agents.twin.modes import plant_modes
 from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
 from gbo_envs.physics.effects import EFFECT_NAMES
@@ -124,18 +125,20 @@ class OrderCandidate:
     def factor_starts(self, data: Batch, current: GreyFit) -> list[np.ndarray]:
         """Linear parameters ``[b_0..b_m, a_1..a_(n-k)]`` of the current plant times ``F(s)`` with ``F(0) = 1``.
 
-        A pole pair ``w^2 / (s^2 + 2 zeta w s + w^2)`` at the frequencies where the residual rings
-        (:func:`agents.twin.guesses.residual_frequencies`) and on a geometric grid, ``zeta`` 0.05 and
-        0.3; a pole ``p / (s + p)`` or a zero ``s / z + 1`` on the grid. The grid spans four times the
+        A pole pair ``w^2 / (s^2 + 2 zeta w s + w^2)`` at the plant's modes that the residual shows
+        (:func:`agents.twin.modes.plant_modes`, at their damping and 0.05), and at the frequencies where the
+        residual rings (:func:`agents.twin.guesses.residual_frequencies`) and on a geometric grid, ``zeta``
+        0.05 and 0.3; a pole ``p / (s + p)`` or a zero ``s / z + 1`` on the grid. The grid spans four times the
         records' fundamental to a quarter of the Nyquist frequency (rad/s).
         """
         span = float(data.mask.sum(axis=1).min() * data.dt)
         grid = list(np.geomspace(8.0 * np.pi / span, 0.25 * np.pi / data.dt, 8))
         factors = []
         if self.poles == 2:
-            for w in residual_frequencies(data, current) + grid:
-                for zeta in (0.05, 0.3):
-                    factors.append((np.array([w**2]), np.array([1.0, 2.0 * zeta * w, w**2])))
+            pairs = [(m.frequency, zeta) for m in plant_modes(data, current) for zeta in sorted({m.damping, 0.05})]
+            pairs += [(w, zeta) for w in residual_frequencies(data, current) + grid for zeta in (0.05, 0.3)]
+            for w, zeta in pairs:
+                factors.append((np.array([w**2]), np.array([1.0, 2.0 * zeta * w, w**2])))
         elif self.poles == 1:
             factors = [(np.array([p]), np.array([1.0, p])) for p in grid]
         else:
@@ -216,13 +219,16 @@ def _variants(name: str, data: Batch, spec: ModelSpec) -> tuple[dict, ...]:
     ``drift`` of the gain and of each denominator coefficient; ``coulomb_friction`` also with a
     level per direction (``asymmetry``) when the speed takes both signs in records whose
     loads the data pin (a reversal within a record, or records that show their rest), since
-    only then do both levels act.
+    only then do both levels act; ``compliance`` measured on the load's side and on the motor's (where the
+    coupling's anti-resonance shows: an encoder on the motor of a flexible beam).
     """
     if name == "drift":
         dens = [f"den{i}" for i in range(1, spec.n_poles - spec.n_integrators + 1)]
         return tuple({"parameter": p} for p in ["gain", *dens])
     if name == "coulomb_friction" and both_directions(data, spec.output):
         return ({}, {"variant": "asymmetric"})
+    if name == "compliance":
+        return ({}, {"measured": "motor"})
     return ({},)
 
 

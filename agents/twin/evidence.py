@@ -8,10 +8,11 @@ import numpy as np
 from agents.twin.fidelity import rmse
 from agents.twin.guesses import residual_frequencies
 from agents.twin.model import GreyFit
+from agents.twin.modes import RESONANCE_DAMPING, plant_modes
 from agents.twin.records import Batch
 from agents.twin.residuals import residuals
 
-__all__ = ["DRIFT_MIN_RECORDS", "REVEALING_EXPERIMENTS", "SEPARATING_EXPERIMENTS", "both_directions",
+__all__ = ["DRIFT_MIN_RECORDS", "REVEALING_EXPERIMENTS", "SEPARATING_EXPERIMENTS", "both_directions", "comes_to_rest",
            "effect_evidence", "excitation_notes", "order_change", "separating_experiment", "unobservable_effects"]
 
 
@@ -96,9 +97,10 @@ def excitation_notes(data: Batch, output: str) -> dict[str, str]:
     its rest (``"rest"``): its rest level and command are measured, and the model must hold
     them. So, with ``speed`` the mechanical speed (``y``, or ``dy/dt`` for a position):
 
-    * ``coulomb_friction``, ``stiction``: observable when a record reverses its speed, or when
+    * ``coulomb_friction``, ``stiction``: observable when a record reverses its speed, when
       a record shows its rest (a start from standstill shows the breakaway; a rest at speed
-      shows the friction as a load, which several directions tell from an offset);
+      shows the friction as a load, which several directions tell from an offset), or when a
+      record's speed comes to rest after moving (:func:`comes_to_rest`: the friction then holds);
     * ``dead_zone``: when a record's input crosses zero, or a record shows its rest;
     * ``offset``: when a record shows its rest;
     * ``backlash``: when a record's input turns back;
@@ -126,7 +128,7 @@ def excitation_notes(data: Batch, output: str) -> dict[str, str]:
     crossing = bool(np.any(_both_signs(data.u, mask, u_tol)))
     shown = data.initial.pinned
     notes = {}
-    if not reversal and not shown.any():
+    if not reversal and not shown.any() and not np.any(comes_to_rest(speed, mask, speed_tol)):
         for name in ("coulomb_friction", "stiction"):
             notes[name] = ("no speed reversal in any experiment and no experiment that shows its rest: friction "
                            "acts as a constant load, absorbed by each experiment's estimated rest level")
@@ -167,6 +169,32 @@ def both_directions(data: Batch, output: str) -> bool:
     high = np.max(np.where(mask, speed, -np.inf), axis=1)[shown] > tol
     low = np.min(np.where(mask, speed, np.inf), axis=1)[shown] < -tol
     return bool(high.any() and low.any())
+
+
+#: Samples a speed must stay within its noise, after moving, for a record to come to rest (:func:`comes_to_rest`).
+REST_SAMPLES = 20
+
+
+def comes_to_rest(speed: np.ndarray, mask: np.ndarray, tol: float) -> np.ndarray:
+    """Per record, whether the speed moves beyond ``tol`` and later stays within it for :data:`REST_SAMPLES`
+    samples in a row (a slider that arrives and sticks), bool of shape (n_records,).
+
+    There a friction no longer acts as a constant load: at standstill it holds against any smaller force,
+    where a load (an unobserved rest command) would push on, so the model must explain it (the cascade of
+    LinearMotorCascadeRig-v0: a 0.5 A friction whose slider sticks short of the target was taken for a
+    0.97 A dead zone of the current).
+    """
+    out = np.zeros(speed.shape[0], dtype=bool)
+    for k in range(speed.shape[0]):
+        s = np.abs(speed[k][mask[k]])
+        moving = np.flatnonzero(s > tol)
+        if moving.size == 0:
+            continue
+        still = s[moving[0]:] <= tol
+        run = np.diff(np.concatenate([[0], still.astype(int), [0]]))
+        starts, ends = np.flatnonzero(run == 1), np.flatnonzero(run == -1)
+        out[k] = bool(np.any(ends - starts >= REST_SAMPLES))
+    return out
 
 
 def _speed_noise(speed: np.ndarray, mask: np.ndarray) -> float:
@@ -235,13 +263,33 @@ def mode_text(what: str, frequency: float, damping: float) -> str:
     ``frequency`` (rad/s).
 
     Below :data:`RESONANT_DAMPING` it resonates; up to 1 it is damped; from 1 on its two poles are real and
-    nothing oscillates, so it is not called a resonance (a "resonance with damping 2" contradicts itself).
+    nothing oscillates, so it is not called a resonance (a "resonance with damping 2" contradicts itself); below
+    the least damping of :data:`agents.twin.modes.RESONANCE_DAMPING` it is a numerical mode (a pole pair at
+    220 rad/s with damping 0.0025 fitted a record's noise, not a mode).
     """
+    if damping < RESONANCE_DAMPING[0]:
+        return (f"{what} at {frequency:.3g} rad/s with damping {damping:.2g}, below what a resonance has "
+                f"({RESONANCE_DAMPING[0]:g}): a numerical mode, not a resonance")
     if damping < RESONANT_DAMPING:
-        return f"{what} resonating at {frequency:.3g} rad/s with damping {damping:.2g}"
+        return f"{what} resonating at {frequency:.3g} rad/s ({frequency / (2 * np.pi):.3g} Hz) with damping " \
+            f"{damping:.2g}"
     if damping < 1.0:
         return f"{what} at {frequency:.3g} rad/s, damped (damping {damping:.2g})"
     return f"{what} at {frequency:.3g} rad/s, overdamped (damping {damping:.2g} >= 1: no resonance)"
+
+
+def ringing(data: Batch, current: GreyFit) -> str:
+    """Where the residual of ``current`` rings, in words: the strongest plant mode it shows
+    (:func:`agents.twin.modes.plant_modes`, in rad/s and Hz), else its periodogram's peak
+    (:func:`agents.twin.guesses.residual_frequencies`)."""
+    modes = plant_modes(data, current, n_modes=1)
+    if modes:
+        m = modes[0]
+        return (f"residual rings at {m.frequency:.3g} rad/s ({m.hertz:.3g} Hz), a mode of the plant: it follows the "
+                f"plant input through it ({m.share:.0f} % of its power)")
+    rings = residual_frequencies(data, current, n_peaks=1)
+    return f"residual rings at {rings[0]:.3g} rad/s ({rings[0] / (2 * np.pi):.3g} Hz)" if rings else \
+        "residual oscillates"
 
 
 def zero_text(tau: float) -> str:
@@ -257,9 +305,7 @@ def _order_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit, tail
     change = order_change(name, current, fit)
     if name == "pole_pair" and change:
         w, zeta = change["frequency"]["value"], change["damping"]["value"]
-        rings = residual_frequencies(data, current, n_peaks=1)
-        seen = f"residual rings at {rings[0]:.3g} rad/s" if rings else "residual oscillates"
-        return f"{seen}: {mode_text('a second mode of the linear part', w, zeta)}" + tail
+        return f"{ringing(data, current)}: {mode_text('a second mode of the linear part', w, zeta)}" + tail
     if name == "pole" and change:
         return f"the response lags the model: an extra lag of time constant {change['time_constant']['value']:.3g} s" \
             + tail
@@ -345,8 +391,6 @@ def effect_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit) -> s
         return (f"residual periodic in position with period {params.get('period', 0.0):.4g} "
                 f"{POSITION_UNITS[current.spec.output]} (r={r:.2f})") + tail
     if name == "compliance":
-        rings = residual_frequencies(data, current, n_peaks=1)
-        seen = f"residual rings at {rings[0]:.3g} rad/s" if rings else "residual oscillates"
         mode = mode_text("a flexible coupling", params.get("frequency", 0.0), params.get("damping", 0.0))
-        return f"{seen}: {mode} (r={r:.2f})" + tail
+        return f"{ringing(data, current)}: {mode} (r={r:.2f})" + tail
     return f"r={r:.2f}" + tail

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from agents.twin.model import GreyFit
+from agents.twin.modes import RESONANCE_DAMPING, plant_modes
 from agents.twin.noise_floor import quantization_step
 from agents.twin.records import Batch
 from gbo_envs.physics.effects import EFFECT_NAMES
@@ -101,11 +102,16 @@ def effect_starts(name: str, data: Batch, base: GreyFit, with_starts: bool = Tru
     if name == "offset":
         return [np.array([f * us]) for f in (-0.05, 0.05)], np.array([-us]), np.array([us]), np.array([us])
     if name == "compliance":
+        # from the plant's modes that the residual shows (agents.twin.modes), then a grid; the damping within
+        # what a resonance means (RESONANCE_DAMPING): a "coupling" with damping 1.2 explained a short record's
+        # lag, not a mode (issue 56)
         top = np.pi / dt  # the Nyquist frequency, rad/s
-        found = residual_frequencies(data, base) if with_starts else []
-        grid = sorted({*found, *np.geomspace(8.0 * np.pi / horizon, 0.25 * top, 6)})
-        starts = [np.array([w, zeta]) for w in grid for zeta in (0.05, 0.2)]
-        lower, upper, scale = np.array([2.0 * np.pi / horizon, 0.0]), np.array([0.5 * top, 2.0]), \
+        found = plant_modes(data, base) if with_starts else []
+        low, high = RESONANCE_DAMPING
+        grid = sorted(set(np.geomspace(8.0 * np.pi / horizon, 0.25 * top, 6)))
+        starts = [np.array([m.frequency, zeta]) for m in found for zeta in sorted({m.damping, 0.05})]
+        starts += [np.array([w, zeta]) for w in grid for zeta in (0.05, 0.2)]
+        lower, upper, scale = np.array([2.0 * np.pi / horizon, low]), np.array([0.5 * top, high]), \
             np.array([grid[0], 0.05])
         if dict(options or {}).get("measured") == "motor":
             starts = [np.append(s_, r) for s_ in starts for r in (0.5, 2.0)]

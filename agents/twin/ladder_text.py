@@ -17,6 +17,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from agents.twin.residual_shape import FAR_FROM_FLOOR, residual_shape, shape_text, tried_general
 from gbo_envs.physics.effects import EFFECTS, describe_effect
 
 __all__ = ["advice", "format_interval", "number", "pairs_text", "params_text", "rung_text", "unit_text",
@@ -142,6 +143,10 @@ def advice(diagnosis, effects: Sequence[str], data: str = "DATA.csv", stopped_at
         The data's name in the commands suggested.
     stopped_at_max : bool
         The ladder stopped at its ``max_steps`` although ``diagnosis.best`` still helps.
+
+    When no candidate helps but the model's RMSE is above :data:`agents.twin.residual_shape.FAR_FROM_FLOOR`
+    noise floors, the advice does not just stop: it says what the residual looks like and which general
+    candidates were tried (:func:`agents.twin.residual_shape.shape_text`).
     """
     y = _y_unit(units)
     best = next((c for c in getattr(diagnosis, "candidates", ()) if c["effect"] == diagnosis.best), None)
@@ -170,6 +175,16 @@ def advice(diagnosis, effects: Sequence[str], data: str = "DATA.csv", stopped_at
     if noise is not None and diagnosis.current.rmse <= 1.5 * noise:
         return (f"stop: the model is at the noise floor (RMSE {number(diagnosis.current.rmse)} {y}, noise-floor "
                 f"estimate {number(noise)} {y}); no further effect can be told from measurement noise")
+    far = noise is not None and noise > 0 and diagnosis.current.rmse > FAR_FROM_FLOOR * noise
+    data_ = getattr(diagnosis, "data_", None)
+    if far and data_ is not None:  # not at the floor: what the residual looks like, and what was tried
+        shape = residual_shape(data_, diagnosis.current)
+        tried = tried_general(getattr(diagnosis, "candidates", []))
+        return (f"no candidate passes the rules, but the model is not at the noise floor: "
+                f"{shape_text(shape, tried, noise, units)}. Look at the residuals (`gbo twin resid {data}"
+                + (f" --effects {','.join(effects)}" if effects else "") + "`), try the model orders (--poles, "
+                "--zeros), or record an experiment that excites what the residual shows"
+                + _unseen_tail(diagnosis))
     tail = "" if not diagnosis.unobservable else (
         f"; {len(diagnosis.unobservable)} effect(s) cannot be seen in these data (listed above), run the "
         f"experiments named there to test them")
@@ -178,3 +193,11 @@ def advice(diagnosis, effects: Sequence[str], data: str = "DATA.csv", stopped_at
             f"{number(noise)} {y}") + "); look at the residuals (`gbo twin resid " + data +
             (f" --effects {','.join(effects)}" if effects else "") + "`) or the model orders (--poles, --zeros)"
             + tail)
+
+
+def _unseen_tail(diagnosis) -> str:
+    """The advice's note on the effects the data cannot show (empty when there are none)."""
+    if not diagnosis.unobservable:
+        return ""
+    return (f"; {len(diagnosis.unobservable)} effect(s) cannot be seen in these data (listed above), run the "
+            f"experiments named there to test them")

@@ -28,6 +28,7 @@ from agents.twin.evidence import REVEALING_EXPERIMENTS, effect_evidence, order_c
 from agents.twin.fidelity import rmse
 from agents.twin.least_squares import Problem, fit_problems
 from agents.twin.model import FITTED_PARAMETERS, GreyFit, effect_offset, fitted_parameters, output_error
+from agents.twin.modes import RESONANCE_DAMPING, is_resonance
 from agents.twin.noise_floor import NoiseFloor
 from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
@@ -378,6 +379,10 @@ def _failed_rule(c: dict, cur_heldout: float, cur_train: float, floor: float | N
         return "its effect is too small for the error it removes"
     if n_records < 2 and c["kind"] == "order":
         return "no order grown on one record's training error"
+    damping = (c.get("params") or {}).get("damping") if c["effect"] == "pole_pair" else None
+    if damping is not None and not is_resonance(damping):  # a grown pair named a mode must be one
+        low, high = RESONANCE_DAMPING
+        return f"its mode is no resonance (damping {damping:.2g} outside {low:g}..{high:g})"
     return None
 
 

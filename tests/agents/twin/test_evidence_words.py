@@ -33,7 +33,7 @@ def test_an_overdamped_coupling_is_not_called_a_resonance(data_and_current):
     assert "resonat" not in text and "overdamped (damping 2 >= 1: no resonance)" in text
     light = effect_evidence("compliance", data, current, _with(current, "compliance",
                                                                  {"frequency": 157.0, "damping": 0.05}))
-    assert "a flexible coupling resonating at 157 rad/s with damping 0.05" in light
+    assert "a flexible coupling resonating at 157 rad/s (25 Hz) with damping 0.05" in light
     assert mode_text("a second mode", 66.7, 0.36) == "a second mode at 66.7 rad/s, damped (damping 0.36)"
 
 
