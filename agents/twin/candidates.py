@@ -355,7 +355,42 @@ def candidate_problems(data: Batch, current: GreyFit, name: str, options: Mappin
     for i in order:
         problems.append(make_problem(data, spec, thetas[i], current.y0.copy(), biases[i], rows, lower, upper, scale,
                                      tag=tag, start=current.start))
+    if name == "compliance":  # and at the plant's mode, the linear part profiled under the coupling's factor
+        problems += _mode_problems(data, current, spec, options, lower, upper, scale, tag)
     return problems
+
+
+#: Inertia ratios (load over motor, -) of the profiled starts of a coupling seen from the motor
+#: (:func:`_mode_problems`): half a decade apart.
+MODE_INERTIA_RATIOS = (0.3, 1.0, 3.0)
+
+
+def _mode_problems(data: Batch, current: GreyFit, spec: ModelSpec, options, lower, upper, scale, tag) -> list[Problem]:
+    """A compliance started at the strongest plant mode the residual shows (:func:`agents.twin.modes.plant_modes`),
+    with the linear part profiled under the coupling's factor (:func:`agents.twin.linear_fit.profile`), the best
+    start over the inertia ratios :data:`MODE_INERTIA_RATIOS` where the coupling is seen from the motor.
+
+    The current linear part has bent itself around the mode it lacks (a short record's 2-pole fit drops the
+    motor's second pole): started from it, the fit of six 1 s steps of a flexible beam stopped at twice the
+    noise floor (damping 0.014 where the beam has 0.03).
+    """
+    modes = plant_modes(data, current, n_modes=1)
+    if not modes:
+        return []
+    m = modes[0]
+    motor = dict(options or {}).get("measured") == "motor"
+    ratios = MODE_INERTIA_RATIOS if motor else (None,)
+    best = None
+    for r in ratios:
+        effect = [m.frequency, m.damping] + ([r] if motor else [])
+        theta = np.concatenate([current.theta, np.clip(effect, lower[-len(effect):], upper[-len(effect):])])
+        res = profile(data, spec, theta, max_iter=PROFILE_ITER, tol=PROFILE_TOL)
+        if np.isfinite(res[0]) and (best is None or res[0] < best[0]):
+            best = res
+    if best is None:
+        return []
+    _, theta, y0, bias = best
+    return [make_problem(data, spec, theta, y0, bias, np.arange(data.n_records), lower, upper, scale, tag=tag)]
 
 
 def effect_bounds(data: Batch, current: GreyFit, lower: np.ndarray, upper: np.ndarray,

@@ -110,12 +110,18 @@ def _records_through(data: Batch, blocks: Sequence, output: str) -> Batch:
     """The records with ``u`` replaced by the plant input of the actuator ``blocks`` (speed from the measured y).
 
     A ``drift`` of the plant's gain scales each record's input by its factor
-    (the same as scaling the numerator), so it is profiled the same way.
+    (the same as scaling the numerator), so it is profiled the same way; a ``compliance`` multiplies the plant
+    by its factor ``F(s)`` (``F(0) = 1``), so the input is filtered by it (Tustin).
     """
     u = data.u.copy()
     for block in blocks:
         if block.name == "drift" and block.parameter == "gain":
             u = u * np.array([block.factor(k)[0] for k in data.index])[:, None]
+        if block.name == "compliance" and np.isfinite(block.frequency):  # G F u = G (F u): the factor on the input
+            from scipy.signal import bilinear, lfilter  # scipy.signal takes 0.3 s to import: only where needed
+
+            num, den = bilinear(*block.factor(), fs=1.0 / data.dt)
+            u = u[:, :1] + lfilter(num, den, u - u[:, :1], axis=1)  # F(0) = 1: the rest input kept
     speed = data.y if output != "position" else np.gradient(data.y, data.dt, axis=1)
     actuators = [b for b in blocks if b.side == "actuator"]
     for block in actuators:

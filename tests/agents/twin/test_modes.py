@@ -13,11 +13,12 @@ import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.diagnose import diagnose
 from agents.twin.diagnosis_options import CandidateSearch
 from agents.twin.evidence import excitation_notes, mode_text
-from agents.twin.fits import fit_structure
+from agents.twin.fits import fit_model, fit_structure
 from agents.twin.guesses import effect_starts, residual_frequencies
 from agents.twin.ladder_text import advice
 from agents.twin.model import ModelSpec
 from agents.twin.modes import RESONANCE_DAMPING, plant_modes
+from agents.twin.noise_floor import noise_floor_estimate
 from agents.twin.ranking import _failed_rule
 from agents.twin.records import Batch
 from agents.twin.residual_shape import residual_shape
@@ -89,6 +90,17 @@ def test_far_from_the_floor_the_advice_describes_the_residual(beam_open):
     assert "general candidates tried: pole pair (held-out gain under 2 %" in text and "saturation" not in text
     near = SimpleNamespace(**{**vars(diagnosis), "noise_rmse": linear.rmse / 2.0})
     assert advice(near, [], "beam.csv").startswith("stop adding catalogue effects")
+
+
+def test_the_beam_is_fitted_from_short_open_loop_steps(beam_open):
+    """Six 1 s steps: the coupling started at the plant's mode with the linear part profiled under it reaches the
+    noise floor (from the 2-pole fit's linear part it stopped at twice the floor, damping 0.014 for 0.03)."""
+    data, linear = beam_open
+    fit = fit_model(data, {"compliance": {"measured": "motor"}}, base=linear)
+    params = fit.effect_params["compliance"]
+    assert params["frequency"] == pytest.approx(BEAM, rel=0.03)
+    assert params["damping"] == pytest.approx(FLEX_MODE["damping"], rel=0.3)
+    assert fit.rmse <= 0.6 * linear.rmse and fit.rmse <= 1.5 * noise_floor_estimate(data).rmse
 
 
 @pytest.mark.slow
