@@ -205,7 +205,7 @@ def candidate_plan(data: Batch, current: GreyFit, names: Sequence[str] | None = 
     notes = excitation_notes(data, current.spec.output)
     unobservable = unobservable_effects({n: notes[n] for n in names if n in notes})
     skipped = [n for n in names if n in notes] if skip_unexcited else []
-    candidates = [Candidate(n, _variants(n, data, current.spec)) for n in names if n not in skipped]
+    candidates = [Candidate(n, _variants(n, data, current)) for n in names if n not in skipped]
     if orders:
         spec = current.spec
         candidates += [OrderCandidate(name, poles, zeros) for name, (poles, zeros) in ORDER_CANDIDATES.items()
@@ -213,21 +213,23 @@ def candidate_plan(data: Batch, current: GreyFit, names: Sequence[str] | None = 
     return CandidatePlan(candidates, skipped, notes, unobservable)
 
 
-def _variants(name: str, data: Batch, spec: ModelSpec) -> tuple[dict, ...]:
+def _variants(name: str, data: Batch, current: GreyFit) -> tuple[dict, ...]:
     """Variants of effect ``name`` worth fitting on ``data``.
 
     ``drift`` of the gain and of each denominator coefficient; ``coulomb_friction`` also with a
     level per direction (``asymmetry``) when the speed takes both signs in records whose
     loads the data pin (a reversal within a record, or records that show their rest), since
-    only then do both levels act; ``compliance`` measured on the load's side and on the motor's (where the
-    coupling's anti-resonance shows: an encoder on the motor of a flexible beam).
+    only then do both levels act; ``compliance`` measured on the load's side and, where the residual shows a
+    mode of the plant (:func:`agents.twin.modes.plant_modes`), on the motor's (where the coupling's
+    anti-resonance shows: an encoder on the motor of a flexible beam).
     """
+    spec = current.spec
     if name == "drift":
         dens = [f"den{i}" for i in range(1, spec.n_poles - spec.n_integrators + 1)]
         return tuple({"parameter": p} for p in ["gain", *dens])
     if name == "coulomb_friction" and both_directions(data, spec.output):
         return ({}, {"variant": "asymmetric"})
-    if name == "compliance":
+    if name == "compliance" and plant_modes(data, current):
         return ({}, {"measured": "motor"})
     return ({},)
 

@@ -104,7 +104,7 @@ def effect_starts(name: str, data: Batch, base: GreyFit, with_starts: bool = Tru
     if name == "compliance":
         # from the plant's modes that the residual shows (agents.twin.modes), then a grid; the damping within
         # what a resonance means (RESONANCE_DAMPING): a "coupling" with damping 1.2 explained a short record's
-        # lag, not a mode (issue 56)
+        # lag, not a mode
         top = np.pi / dt  # the Nyquist frequency, rad/s
         found = plant_modes(data, base) if with_starts else []
         low, high = RESONANCE_DAMPING

@@ -185,9 +185,7 @@ def advice(diagnosis, effects: Sequence[str], data: str = "DATA.csv", stopped_at
                 + (f" --effects {','.join(effects)}" if effects else "") + "`), try the model orders (--poles, "
                 "--zeros), or record an experiment that excites what the residual shows"
                 + _unseen_tail(diagnosis))
-    tail = "" if not diagnosis.unobservable else (
-        f"; {len(diagnosis.unobservable)} effect(s) cannot be seen in these data (listed above), run the "
-        f"experiments named there to test them")
+    tail = _unseen_tail(diagnosis)
     return (f"stop adding catalogue effects: none improves the held-out error beyond its complexity cost "
             f"(RMSE {number(diagnosis.current.rmse)} {y}" + ("" if noise is None else f", noise floor estimate "
             f"{number(noise)} {y}") + "); look at the residuals (`gbo twin resid " + data +

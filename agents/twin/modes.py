@@ -90,6 +90,23 @@ def plant_modes(data: Batch, fit: GreyFit, n_modes: int = 2, min_share: float = 
     list of Mode
         Empty when the records are too short (fewer than 16 samples) or no mode stands out.
     """
+    key = (n_modes, float(min_share), data.dt, *(hash(np.ascontiguousarray(a).tobytes())
+                                                    for a in (data.u, data.y, data.mask, fit.y_sim)))
+    if key not in _FOUND:
+        if len(_FOUND) >= CACHE_SIZE:
+            _FOUND.pop(next(iter(_FOUND)))
+        _FOUND[key] = _scan(data, fit, n_modes, min_share)
+    return list(_FOUND[key])
+
+
+#: Scans remembered per process (:func:`plant_modes`): the candidates' starts and their evidence ask for the same
+#: residual's modes several times.
+CACHE_SIZE = 16
+_FOUND: dict = {}
+
+
+def _scan(data: Batch, fit: GreyFit, n_modes: int, min_share: float) -> list[Mode]:
+    """The scan of :func:`plant_modes`."""
     mask = data.mask
     n = int(mask.sum(axis=1).min())
     if n < 16:
