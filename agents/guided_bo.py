@@ -80,11 +80,11 @@ class GuidedBO(BayesianOptimization):
         How the twin guides BO: an object of :mod:`agents.guidance`, a name (``"prior"``,
         ``"iterations"``: its defaults) or a one-key table, ``{"iterations": {"eta1": 2.0}}``.
     safe : bool, default False
-        Safe mode with the twin as a safety filter (:mod:`agents.twin_safety`): every proposal lies
-        in the union of the gains the twin predicts safe by a margin from its measured error and the
-        gains the constraint GPs call safe (``PF >= 1 - delta_t / 2``), so that the run keeps the
-        env's constraints with probability ``>= 1 - safe_delta``; the first experiments are
-        ``safe_start``. Needs an env with constraints, ``safe_start`` and the ``"prior"`` guidance.
+        Safe mode with the twin as a safety filter (:mod:`agents.twin_safety`): every proposal is
+        a gain the twin predicts safe by a margin from its measured error, so that the run keeps the
+        env's constraints with probability ``>= 1 - safe_delta``, or the best feasible gains measured
+        (while nothing is twin-safe); the first experiments are ``safe_start``. Needs an env with
+        constraints, ``safe_start`` and the ``"prior"`` guidance.
     safe_start : array_like of shape (m, n_gains) or (n_gains,), optional
         Gains known to keep every constraint, in the env's units (as ``bo``'s).
     safe_delta : float, default 0.05
@@ -191,14 +191,13 @@ class GuidedBO(BayesianOptimization):
             return super()._ask()
         gains = self.guidance.propose(self, self.keeper_)
         if self.safety_ is not None and self.n_observations >= 1:
-            self.safety_.expect(self.keeper_.twin_env(), gains)  # the twin's prediction, judged at tell()
-            if self.constrained and self.constraint_model.probability(self.space.to_unit(gains)[None])[0] < \
-                    self.safety_.gp_level(self.n_observations + 1):
-                self.safety_.admitted_ += 1
+            twin_env = self.keeper_.twin_env()
+            self.safety_.expect(twin_env, gains)  # the twin's prediction, judged at tell()
+            self.safety_.admitted_ += int(self.safety_.admits(twin_env, gains, self.n_observations + 1)[0])
         return gains
 
     def _constrained_acquisition(self, model):
-        """Safe mode: ``EI x PF`` on the twin-safe and the GP-safe gains, else bo's.
+        """Safe mode: ``EI x PF`` on the twin-safe gains, else bo's.
 
         (:class:`~agents.twin_safety.TwinSafeAcquisition`)."""
         if self.safety_ is None:

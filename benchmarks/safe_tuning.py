@@ -128,20 +128,23 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--plants", nargs="*", default=list(PLANTS), choices=list(PLANTS))
     parser.add_argument("--seeds", type=int, default=30)
+    parser.add_argument("--first-seed", type=int, default=0, help="run the seeds from this one (split a study)")
     parser.add_argument("--budget", type=int, default=35)
     parser.add_argument("--ratio", type=float, default=1.05)
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--tuners", nargs="*", default=list(TUNERS), choices=list(TUNERS))
     parser.add_argument("--out", type=Path, default=Path("out") / "safe_tuning")
+    parser.add_argument("--table-only", action="store_true", help="write the table of the runs so far, run nothing")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     log = args.out / "runs.jsonl"
     runs = [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
     done = {(r["plant"], r["tuner"], r["seed"]) for r in runs if r["budget"] == args.budget}
-    optima = {plant: constrained_optimum(plant, args.out) for plant in args.plants}
+    optima = {} if args.table_only else {plant: constrained_optimum(plant, args.out) for plant in args.plants}
     # plant by plant, seed by seed, every tuner of a seed before the next seed
-    tasks = [(plant, label, seed) for plant in args.plants for seed in range(args.seeds) for label in args.tuners
-             if (plant, label, seed) not in done]
+    seeds = range(args.first_seed, args.seeds)
+    tasks = [(plant, label, seed) for plant in args.plants for seed in seeds for label in args.tuners
+             if (plant, label, seed) not in done and not args.table_only]
     for run in Parallel(n_jobs=args.jobs, return_as="generator_unordered")(
             delayed(one_run)(plant, label, seed, args.budget, optima[plant], args.ratio)
             for plant, label, seed in tasks):

@@ -11,9 +11,9 @@ from scipy import stats
 
 import agents
 import gbo_envs
-from agents.feasibility import run_risk
+from agents.feasibility import ConstraintModel, run_risk
 from agents.twin_keeper import TwinKeeper
-from agents.twin_safety import TwinSafetyFilter
+from agents.twin_safety import TwinSafeAcquisition, TwinSafetyFilter
 
 ENV = "gbo_envs/DCMotor-v0"
 LIMITS = {"overshoot_pct": 2.0, "peak_u": 140.0}
@@ -79,7 +79,7 @@ def test_the_margin_is_the_student_t_prediction_bound_of_the_errors():
     safety = TwinSafetyFilter(gbo_envs.constraints.Constraints(LIMITS), 0.05)
     safety.errors_ = [np.array([0.1, 1.0]), np.array([0.3, -1.0]), np.array([0.2, 0.5])]
     errors = np.vstack(safety.errors_)
-    risk = run_risk(0.05, 4) / 4
+    risk = run_risk(0.05, 4) / 2  # delta_t split over the two constraints
     expected = errors.mean(0) + stats.t.ppf(1 - risk, 2) * errors.std(0, ddof=1) * math.sqrt(1 + 1 / 3)
     np.testing.assert_allclose(safety.margin(4), expected)
     safety.errors_.append(np.array([np.inf, 0.0]))  # the plant diverged where the twin did not
@@ -121,3 +121,22 @@ def test_guided_bo_safe_refuses_without_a_safe_start_constraints_or_the_twin_pri
         agents.make("guided-bo", safe=True, safe_start=SAFE_START).run(gym.make(ENV), budget=2, seed=0)
     with pytest.raises(ValueError, match="delta"):
         agents.make("guided-bo", safe=True, safe_start=SAFE_START, safe_delta=1.5)
+
+
+def test_only_the_twin_admits_gains_the_constraint_gps_weigh_them():
+    twin_env, env = _twin_env()
+    space = agents.GainSpace.from_env(env)
+    model = ConstraintModel(env.unwrapped.constraints.names, env.unwrapped.constraints.limits)
+    env.reset(seed=0)
+    for g in ([0.3, 1.0], [0.25, 0.95]):  # two feasible experiments: the GPs call their neighbourhood safe
+        model.add(space.to_unit(np.array(g)), env.step(np.array(g))[4])
+    model.fit(seed=0)
+    X = space.to_unit(np.array([[0.3, 1.0], [0.28, 0.98], [0.85, 1.07]]))
+    assert model.probability(X[:1])[0] > 0.99
+    safety = TwinSafetyFilter(env.unwrapped.constraints, 0.05)
+    acquisition = TwinSafeAcquisition(None, model, safety, twin_env, space, 3)
+    np.testing.assert_array_equal(acquisition(X), -1.0)  # no measured twin error: nothing is safe
+    safety.errors_ = [np.array([0.0, 0.1]), np.array([0.0, -0.1])] * 3  # a margin of 0.64 on peak_u
+    value = acquisition(X)
+    assert value[0] > 0 and value[1] > 0 and value[2] == -1.0  # the twin admits; PF weighs
+    np.testing.assert_allclose(value[:2], model.probability(X[:2]))
