@@ -90,18 +90,21 @@ def plant_modes(data: Batch, fit: GreyFit, n_modes: int = 2, min_share: float = 
     list of Mode
         Empty when the records are too short (fewer than 16 samples) or no mode stands out.
     """
-    key = (n_modes, float(min_share), data.dt, *(hash(np.ascontiguousarray(a).tobytes())
-                                                    for a in (data.u, data.y, data.mask, fit.y_sim)))
+    kept = max(n_modes, SCAN_MODES)  # one scan answers every n_modes up to SCAN_MODES
+    key = (kept, float(min_share), data.dt, *(hash(np.ascontiguousarray(a).tobytes())
+                                              for a in (data.u, data.y, data.mask, fit.y_sim)))
     if key not in _FOUND:
         if len(_FOUND) >= CACHE_SIZE:
             _FOUND.pop(next(iter(_FOUND)))
-        _FOUND[key] = _scan(data, fit, n_modes, min_share)
-    return list(_FOUND[key])
+        _FOUND[key] = _scan(data, fit, kept, min_share)
+    return list(_FOUND[key][:n_modes])
 
 
 #: Scans remembered per process (:func:`plant_modes`): the candidates' starts and their evidence ask for the same
 #: residual's modes several times.
 CACHE_SIZE = 16
+#: Modes a scan keeps (the most any caller asks for).
+SCAN_MODES = 2
 _FOUND: dict = {}
 
 
