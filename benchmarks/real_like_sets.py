@@ -20,7 +20,11 @@ and records like other machines (issue 56), each from its generator here:
 * ``flexible_load_open`` and ``flexible_load_closed``: :func:`flexible_load_open_records` (six open-loop
   voltage steps, 1 s at 4 ms) and :func:`flexible_load_closed_records` (PI steps and swept sines, 4 s at 2 ms)
   of a DC motor carrying a flexible beam whose mode, near 2.3 Hz (:data:`FLEX_MODE`), the encoder on the
-  motor sees.
+  motor sees;
+* ``belt_tacho``: :func:`belt_tacho_records`, a belt-driven DC motor with a tachogenerator at 10 Hz: a
+  static gain falling from 1.06 at 1 V to 0.85 at 5 V (:data:`BELT_MAP`), Coulomb friction 1 V that
+  decelerates it in ramps at zero drive, a drive and a sensor that work one way only (0 .. 4.3 V), under an
+  open-loop PRBS and a staircase from rest and five closed-loop steps under lead/lag compensators.
 
 Each set is written as a workbench CSV and diagnosed by the command a user runs, ``gbo twin diagnose FILE
 --json --quiet``; one JSON line per set: the best candidate, the RMSE before and after it, the noise floor and
@@ -48,7 +52,7 @@ from scipy.signal import chirp  # noqa: E402
 from agents.twin.csvio import write_csv  # noqa: E402
 from agents.twin.open_loop import simulate_open_loop  # noqa: E402
 from gbo_envs import ClosedLoop, ContinuousPlant, Experiment, PIDController  # noqa: E402
-from gbo_envs.physics.effects import build_effects  # noqa: E402
+from gbo_envs.physics.effects import build_effect, build_effects  # noqa: E402
 from tests.support import real_like_records  # noqa: E402
 
 #: The FOC drive's speed loop seen from the q-axis current: 20 rad/s per A, 50 ms mechanical time constant.
@@ -189,6 +193,63 @@ def flexible_load_closed_records(*, n_steps: int = 3, n_sweeps: int = 4, duratio
     return records
 
 
+#: The belt drive's motor and belt seen from the drive voltage to the tacho voltage: 1 V/V, 0.4 s time constant.
+BELT_PLANT = ContinuousPlant((2.5,), (1.0, 2.5))
+#: Its drive (``input_map`` parameters, V): one way only (nothing below 0 V), the gain falling with the level, so
+#: that with :data:`BELT_FRICTION` the steady tacho voltage over the drive voltage is 1.06 at 1 V, 0.955 at
+#: 3 V and 0.85 at 5 V.
+BELT_MAP = {"k0": -1.0, "k1": 0.0, "k2": 1.0, "k3": 3.0, "k4": 5.0,
+            "v0": 0.0, "v1": 0.0, "v2": 2.06, "v3": 3.865, "v4": 5.25}
+#: Its Coulomb friction (``coulomb_friction`` parameters, V of drive).
+BELT_FRICTION = {"torque": 1.0, "smoothing": 0.2}
+#: The tachogenerator's one-way range (V): it reads nothing below 0 and clips at 4.3 V.
+BELT_SENSOR = (0.0, 4.3)
+
+
+def belt_tacho_records(*, dt: float = 0.1, noise: float = 0.01, seed: int = 0) -> list:
+    """A belt-driven DC motor with a one-way drive and tachogenerator, logged at ``dt`` (10 Hz), from rest.
+
+    Seven records: an open-loop PRBS (0 or 4 V, holds of 1-4 s, 40 s), an open-loop staircase (1 to 5 V in
+    5 s stairs, then 6 s at zero drive), each after 2 s at rest, and five closed-loop steps from rest to a
+    tacho voltage of 1.0-4.0 V (8 s each) under lead/lag compensators (PID with ``Kd`` and a 0.2 s
+    derivative filter, gains drawn per record). The plant (:data:`BELT_PLANT`) gets the drive's map
+    (:data:`BELT_MAP`) of the command less the Coulomb friction (:data:`BELT_FRICTION`): at zero drive the
+    friction decelerates it to standstill in a ramp. The tacho reads the speed with Gaussian noise of std
+    ``noise`` (V) clipped to :data:`BELT_SENSOR`. Open-loop records have ``r = u``.
+
+    Returns
+    -------
+    list of gbo_envs.Experiment
+    """
+    rng = np.random.default_rng(seed)
+    blocks = (build_effect("input_map", BELT_MAP), build_effect("coulomb_friction", BELT_FRICTION))
+    low, high = BELT_SENSOR
+    sensor = build_effect("output_map", {"k0": low - 1.0, "k1": low, "k2": 0.5 * (low + high), "k3": high,
+                                         "k4": high + 1.0, "v0": low, "v1": low, "v2": 0.5 * (low + high),
+                                         "v3": high, "v4": high})
+    rest = int(round(2.0 / dt))
+    holds, level = [], 4.0
+    while sum(len(h) for h in holds) < int(round(38.0 / dt)):
+        holds.append(np.full(int(rng.integers(1, 5) / dt), level if len(holds) % 2 == 0 else 0.0))
+    prbs = np.concatenate([np.zeros(rest), *holds])[: rest + int(round(38.0 / dt))]
+    stairs = np.concatenate([np.zeros(rest), np.repeat(np.arange(1.0, 6.0), int(round(5.0 / dt))),
+                             np.zeros(int(round(6.0 / dt)))])
+    records = []
+    for k, u in enumerate((prbs, stairs)):
+        speed = simulate_open_loop(BELT_PLANT, u[None], dt, blocks, y0=0.0, bias=0.0).y_true[0]
+        y = sensor.measure(speed + noise * rng.standard_normal(speed.size))
+        records.append(Experiment(gains=(), t=np.arange(u.size) * dt, r=u.copy(), u=u, y=y, index=k))
+    for k, r2 in enumerate(np.linspace(1.0, 4.0, 5), start=2):
+        loop = ClosedLoop(BELT_PLANT, PIDController(filter_time=0.2), dt=dt, duration=8.0, r1=0.0, r2=float(r2),
+                          effects=(*blocks, sensor))
+        gains = np.array([rng.uniform(0.6, 1.2), rng.uniform(1.5, 3.0), rng.uniform(0.05, 0.15)])
+        res = loop.simulate(gains[None], rng=rng)
+        y = sensor.measure(res.y[0] + noise * rng.standard_normal(res.y[0].size))
+        # no gains in the record: the open-loop records have none, and a CSV holds one set of gain columns
+        records.append(Experiment(gains=(), t=res.t, r=res.r, u=res.u[0], y=y, index=k))
+    return records
+
+
 def _servo(effects: dict, levels: tuple[float, float]):
     """The servo set with ``effects`` hidden, at the two input ``levels``."""
     return effects, lambda: real_like_records(effects, levels=levels)
@@ -204,6 +265,8 @@ SETS = {
     "speed_rig": ({"time_delay": {"delay": RIG_DELAY}, "quantization": {"step": RIG_QUANTUM}}, speed_rig_records),
     "flexible_load_open": ({"compliance": FLEX_MODE}, flexible_load_open_records),
     "flexible_load_closed": ({"compliance": FLEX_MODE}, flexible_load_closed_records),
+    "belt_tacho": ({"input_map": BELT_MAP, "coulomb_friction": BELT_FRICTION, "output_map": {"range": BELT_SENSOR}},
+                   belt_tacho_records),
 }
 
 

@@ -23,6 +23,7 @@ from agents.twin.compare import compare
 from agents.twin.diagnosis_options import CandidateSearch, DiagnosisRules
 from agents.twin.fits import fit_candidates, fit_structure
 from agents.twin.ladder_text import rung_text
+from agents.twin.map_candidates import with_map_candidates
 from agents.twin.model import GreyFit, ModelSpec
 from agents.twin.noise_floor import NoiseFloor, noise_floor_estimate
 from agents.twin.ranking import Ranking, rank, validated_folds
@@ -200,6 +201,8 @@ def diagnose(data: Batch, effects=None, *, candidates: Sequence[str] | None = No
             current = fit_structure(data, effects, spec, max_iter=search.max_iter)
         # -> candidates
         plan = candidate_plan(data, current, candidates, search.skip_unexcited, search.orders)
+        if search.orders and candidates is None:  # the general structures: grown orders and static maps
+            plan = with_map_candidates(plan, data, current)
         bar = progress_bar(len(plan.candidates) + 2, f"diagnose {current.spec.label}", progress, unit="step",
                            leave=not _nested)
         try:

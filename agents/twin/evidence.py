@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from agents.twin.coast_down import coast_downs, speed_tolerance
 from agents.twin.fidelity import rmse
 from agents.twin.guesses import residual_frequencies
 from agents.twin.model import GreyFit
@@ -99,8 +100,10 @@ def excitation_notes(data: Batch, output: str) -> dict[str, str]:
 
     * ``coulomb_friction``, ``stiction``: observable when a record reverses its speed, when
       a record shows its rest (a start from standstill shows the breakaway; a rest at speed
-      shows the friction as a load, which several directions tell from an offset), or when a
-      record's speed comes to rest after moving (:func:`comes_to_rest`: the friction then holds);
+      shows the friction as a load, which several directions tell from an offset), when a
+      record's speed comes to rest after moving (:func:`comes_to_rest`: the friction then holds), or
+      when a record coasts down to standstill at zero drive (:mod:`agents.twin.coast_down`: the
+      friction alone decelerates it, and stops it in finite time);
     * ``dead_zone``: when a record's input crosses zero, or a record shows its rest;
     * ``offset``: when a record shows its rest;
     * ``backlash``: when a record's input turns back;
@@ -122,16 +125,18 @@ def excitation_notes(data: Batch, output: str) -> dict[str, str]:
     """
     mask = data.mask
     speed = data.y if output != "position" else np.gradient(data.y, data.dt, axis=1)
-    speed_tol = _speed_noise(speed, mask)
+    speed_tol = speed_tolerance(speed, mask)
     u_tol = 1e-6 * max(float(np.max(np.abs(data.u[mask]))), 1e-300)
     reversal = bool(np.any(_both_signs(speed, mask, speed_tol)))
     crossing = bool(np.any(_both_signs(data.u, mask, u_tol)))
     shown = data.initial.pinned
     notes = {}
-    if not reversal and not shown.any() and not np.any(comes_to_rest(speed, mask, speed_tol)):
+    if not reversal and not shown.any() and not np.any(comes_to_rest(speed, mask, speed_tol)) \
+            and not np.any(coast_downs(data, output, speed_tol)):
         for name in ("coulomb_friction", "stiction"):
-            notes[name] = ("no speed reversal in any experiment and no experiment that shows its rest: friction "
-                           "acts as a constant load, absorbed by each experiment's estimated rest level")
+            notes[name] = ("no speed reversal in any experiment, no coast-down at zero drive and no experiment that "
+                           "shows its rest: friction acts as a constant load, absorbed by each experiment's "
+                           "estimated rest level")
     # the play acts on the input path: it shows wherever the input turns back (after an overshoot of the
     # command, as in most PI step responses), whatever the sign of the speed
     step = np.diff(np.where(mask, data.u, np.nan), axis=1)
@@ -160,7 +165,7 @@ def both_directions(data: Batch, output: str) -> bool:
     """
     mask = data.mask
     speed = data.y if output != "position" else np.gradient(data.y, data.dt, axis=1)
-    tol = _speed_noise(speed, mask)
+    tol = speed_tolerance(speed, mask)
     if np.any(_both_signs(speed, mask, tol)):
         return True
     shown = data.initial.pinned
@@ -195,16 +200,6 @@ def comes_to_rest(speed: np.ndarray, mask: np.ndarray, tol: float) -> np.ndarray
         starts, ends = np.flatnonzero(run == 1), np.flatnonzero(run == -1)
         out[k] = bool(np.any(ends - starts >= REST_SAMPLES))
     return out
-
-
-def _speed_noise(speed: np.ndarray, mask: np.ndarray) -> float:
-    """Level below which a speed is not told from standstill: 3 noise std (second differences) plus a quantum."""
-    d2 = np.diff(speed, n=2, axis=1)[mask[:, 2:]]
-    sigma = float(np.sqrt(np.median(d2**2) / (6.0 * 0.4549))) if d2.size >= 10 else 0.0
-    changes = np.abs(np.diff(speed, axis=1)[mask[:, 1:]])
-    changes = changes[changes > 1e-12 * max(float(np.max(np.abs(speed[mask]))), 1e-300)]
-    quantum = float(np.min(changes)) if changes.size else 0.0
-    return 3.0 * sigma + quantum
 
 
 def _both_signs(x: np.ndarray, mask: np.ndarray, tol: float) -> np.ndarray:

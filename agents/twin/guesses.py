@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from agents.twin.coast_down import coast_down_torque
 from agents.twin.model import GreyFit
 from agents.twin.modes import RESONANCE_DAMPING, plant_modes
 from agents.twin.noise_floor import quantization_step
 from agents.twin.records import Batch
+from agents.twin.static_map import map_starts
 from gbo_envs.physics.effects import EFFECT_NAMES
+from gbo_envs.physics.static_map import STATIC_MAPS
 
 __all__ = ["data_scales", "effect_starts", "quantization_scan", "residual_frequencies", "rest_command",
            "standstill_input"]
@@ -45,6 +48,8 @@ def effect_starts(name: str, data: Batch, base: GreyFit, with_starts: bool = Tru
     starts : list of ndarray of shape (n_effect_params,)
     lower, upper, scale : ndarray of shape (n_effect_params,)
     """
+    if name in STATIC_MAPS:
+        return map_starts(name, options)
     sc = data_scales(data, base.spec.output)
     u_max, us, speed, horizon, dt = sc["u_max"], sc["u_scale"], sc["speed"], sc["horizon"], data.dt
     rest = float(np.max(np.abs(rest_command(base))))
@@ -74,6 +79,8 @@ def effect_starts(name: str, data: Batch, base: GreyFit, with_starts: bool = Tru
         return starts, np.array([0.0]), np.array([2 * us]), np.array([us])
     if name == "coulomb_friction":
         levels = [f * us for f in fractions[:-1]] + ([min(held, us)] if held is not None else [])
+        coast = coast_down_torque(data, base) if with_starts else None  # the level the coast-downs show
+        levels += [min(coast, us)] if coast is not None else []
         if dict(options or {}).get("variant") == "asymmetric":  # the level, and its asymmetry in [-1, 1]
             return [np.array([level, 0.0]) for level in levels], np.array([0.0, -0.95]), \
                 np.array([us, 0.95]), np.array([us, 0.3])

@@ -22,6 +22,7 @@ import numpy as np
 
 from gbo_envs.physics.effects import EFFECT_NAMES, EFFECTS, build_effect
 from gbo_envs.physics.lti import ContinuousPlant
+from gbo_envs.physics.static_map import STATIC_MAPS
 
 __all__ = ["FITTED_PARAMETERS", "VARIANT_PARAMETERS", "GreyFit", "ModelSpec", "effect_items", "effect_offset",
            "fitted_parameters", "output_error", "residual_in_increments", "to_increments"]
@@ -41,6 +42,10 @@ FITTED_PARAMETERS: dict[str, tuple[tuple[str, bool], ...]] = {
     "offset": (("value", True),),
     "cogging": (("amplitude", True), ("period", True), ("phase", True)),
     "compliance": (("frequency", True), ("damping", True)),
+    # the static maps (:mod:`agents.twin.static_map`): the values at the inner breakpoints, the outer two
+    # held on the identity (the linear part keeps the gain and the rest levels the offset)
+    "input_map": (("v1", True), ("v2", True), ("v3", True)),
+    "output_map": (("v1", True), ("v2", True), ("v3", True)),
 }
 
 
@@ -50,6 +55,10 @@ FITTED_PARAMETERS: dict[str, tuple[tuple[str, bool], ...]] = {
 VARIANT_PARAMETERS: dict[tuple[str, str, str], tuple[tuple[str, bool], ...]] = {
     ("coulomb_friction", "variant", "asymmetric"): (("torque", True), ("asymmetry", True)),
     ("compliance", "measured", "motor"): (("frequency", True), ("damping", True), ("inertia_ratio", True)),
+    # a map whose signal takes both signs, its breakpoint k1 at zero: held there at zero and at k4 on the
+    # identity, v0 free (a one-way drive or sensor is v0 = 0)
+    ("input_map", "variant", "zero"): (("v0", True), ("v2", True), ("v3", True)),
+    ("output_map", "variant", "zero"): (("v0", True), ("v2", True), ("v3", True)),
 }
 
 
@@ -154,7 +163,7 @@ def _valid(name: str, params: dict) -> dict:
     """Clip fitted values into the block's allowed ranges (the iteration may touch a bound); the pseudo-option
     ``variant`` (which parameters are fitted) is not the block's."""
     out = {key: value for key, value in params.items() if key != "variant"}
-    for spec in EFFECTS[name].parameters:
+    for spec in (STATIC_MAPS.get(name) or EFFECTS[name]).parameters:
         if spec.name in out and not isinstance(out[spec.name], str):
             out[spec.name] = float(np.clip(out[spec.name], spec.low, spec.high))
     return out

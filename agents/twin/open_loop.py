@@ -49,7 +49,7 @@ __all__ = ["MEMORYLESS_EFFECTS", "SAME_IN_EVERY_EXPERIMENT", "OpenLoopResult", "
 #: Catalogue effects that are static maps ignoring the speed (no state): rows whose actuator and
 #: sensor blocks are all of these are simulated without a loop over time (the whole record is
 #: mapped through the blocks at once and filtered exactly by the linear plant).
-MEMORYLESS_EFFECTS = frozenset({"saturation", "dead_zone", "offset", "quantization"})
+MEMORYLESS_EFFECTS = frozenset({"saturation", "dead_zone", "offset", "quantization", "input_map", "output_map"})
 #: Catalogue plant-side blocks whose ``modify_plant`` ignores the experiment index: rows of one plant with
 #: only these share one modified plant whatever their experiment (a drift, or a user's block, does not).
 SAME_IN_EVERY_EXPERIMENT = (Compliance, TimeDelay)

@@ -32,6 +32,7 @@ from agents.twin.modes import RESONANCE_DAMPING, is_resonance
 from agents.twin.noise_floor import NoiseFloor
 from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
+from agents.twin.static_map import MAP_NAMES, map_evidence, map_size
 from agents.twin.uncertainty import parameter_intervals
 from agents.twin.workers import map_independent
 from gbo_envs.physics.effects import EFFECTS, describe_effect
@@ -312,7 +313,8 @@ def rank(data: Batch, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_f
     described = map_independent(_described, [(data, current, fits[name], name) for name in order])
     for i, (name, (grown, params, intervals, size, evidence)) in enumerate(zip(order, described), start=1):
         fit = fits[name]
-        entry = {"effect": name, "kind": "order" if grown else "effect", "rmse": float(np.sqrt(rss[i] / n)),
+        kind = "order" if grown else "map" if name in MAP_NAMES else "effect"
+        entry = {"effect": name, "kind": kind, "rmse": float(np.sqrt(rss[i] / n)),
                  "delta_bic": float(bic[i] - bic[0]), "params": jsonable(params, finite=True),
                  "evidence": evidence, "train_rmse": float(fit.rmse),
                  "share": _share(current, fit), "extra_params": int(fit.n_params - current.n_params),
@@ -358,8 +360,9 @@ def rank(data: Batch, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_f
 
 #: How :func:`rank` orders its candidates, in the words of the printout (the ``verdict`` and ``delta_bic`` columns).
 ORDER_RULE = ("order: the candidates that pass every rule first (verdict 'selected', then 'passes'; effects of the "
-              "catalogue before grown orders, each by delta BIC, except that one explaining a much larger share of "
-              "the residual moves ahead), then the rest by delta BIC (lowest first)")
+              "catalogue before static maps and grown orders, each by delta BIC, except that one explaining a much "
+              "larger share of the residual moves ahead, and a map ahead of an effect only where it explains and "
+              "predicts clearly more), then the rest by delta BIC (lowest first)")
 
 
 def _failed_rule(c: dict, cur_heldout: float, cur_train: float, floor: float | None, n_records: int,
@@ -406,6 +409,10 @@ def _described(data: Batch, current: GreyFit, fit: GreyFit, name: str) -> tuple:
         params = {key: value["value"] for key, value in change.items()}
         intervals = {key: {**value, "std": "n/a"} for key, value in change.items()}
         size = rmse(output_error(fit.y_sim, current.y_sim, data.mask, fit.spec, data.closed_loop), mask=data.mask)
+    elif name in MAP_NAMES:
+        params = {key: value for key, value in fit.effect_params[name].items() if not isinstance(value, str)}
+        return False, params, effect_intervals(data, fit, name), map_size(data, fit, name), \
+            map_evidence(name, data, current, fit)
     else:
         params = fit.effect_params.get(name, {})
         intervals, size = effect_intervals(data, fit, name), effect_size(data, fit)
@@ -440,12 +447,29 @@ def _by_share(good: list[dict]) -> list[dict]:
 
 
 def _physics_first(good: list[dict]) -> list[dict]:
-    """The good catalogue effects first, then the good grown orders, each in the order of ``good``.
+    """The good catalogue effects first, then the good static maps, then the good grown orders, each in the order
+    of ``good``; a map goes ahead of an effect only where it clearly explains and predicts more (:func:`_map_ahead`).
 
     A grown order of the linear part is the fallback for what no effect of the catalogue explains: an extra
     pole pair mimics a friction's lag or a limit's slowing and names no physics, and a rung of the ladder
     spent on it can block the effects. On LinearMotor-v0 with Coulomb friction (guided BO's first 4
     records), a pole pair 8 % ahead held out took the first rung; saturation, then backlash followed, to a
-    held-out RMSE of 1.6e-5 m, where saturation then Coulomb friction reach 2.9e-6 m.
+    held-out RMSE of 1.6e-5 m, where saturation then Coulomb friction reach 2.9e-6 m. A static map
+    (:mod:`agents.twin.static_map`) names no physics either, but it is not a fallback for the catalogue's
+    limits and bands, which it can mimic with its three values: where an effect explains about as much,
+    the effect is named.
     """
-    return [c for c in good if c["kind"] != "order"] + [c for c in good if c["kind"] == "order"]
+    out = [c for c in good if c["kind"] == "effect"]
+    for m in (c for c in good if c["kind"] == "map"):
+        held = [j for j, c in enumerate(out) if c["kind"] == "effect" and not _map_ahead(m, c)]
+        pos = held[-1] + 1 if held else 0  # after the last effect it does not clearly beat
+        while pos < len(out) and out[pos]["kind"] == "map":  # and after the maps placed before it
+            pos += 1
+        out.insert(pos, m)
+    return out + [c for c in good if c["kind"] == "order"]
+
+
+def _map_ahead(m: dict, e: dict) -> bool:
+    """Whether static map ``m`` goes before catalogue effect ``e``: it explains at least :data:`SHARE_POINTS`
+    percentage points more of the residual power and its held-out RMSE is lower by :data:`CLEAR_HELDOUT_GAIN`."""
+    return m["share"] >= e["share"] + SHARE_POINTS and m["rmse"] < (1.0 - CLEAR_HELDOUT_GAIN) * e["rmse"]

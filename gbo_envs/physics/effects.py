@@ -21,6 +21,7 @@ from gbo_envs.physics.compliance import Compliance
 from gbo_envs.physics.friction import CoulombFriction, Stiction, ViscousFriction
 from gbo_envs.physics.plant_effects import Drift, TimeDelay
 from gbo_envs.physics.sensor import Quantization
+from gbo_envs.physics.static_map import STATIC_MAPS
 
 __all__ = ["EFFECTS", "EFFECT_NAMES", "build_effect", "build_effects", "describe_effect"]
 
@@ -36,13 +37,18 @@ EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
 
 
 def _effect_class(name: Any) -> type[EffectBlock]:
+    """The block class of a catalogue effect or of a static map (:data:`gbo_envs.physics.static_map.STATIC_MAPS`)."""
+    if isinstance(name, str) and name in STATIC_MAPS:
+        return STATIC_MAPS[name]
     if not isinstance(name, str) or name not in EFFECTS:
-        raise ValueError(f"unknown effect {name!r}; the catalogue is {EFFECT_NAMES}")
+        raise ValueError(f"unknown effect {name!r}; the catalogue is {EFFECT_NAMES} (and the static maps "
+                         f"{tuple(STATIC_MAPS)})")
     return EFFECTS[name]
 
 
 def build_effect(name: str, params: Mapping[str, Any] | None = None) -> EffectBlock:
-    """One block from its catalogue name and ``{parameter: value}``.
+    """One block from its catalogue name (or a static map's, ``"input_map"``, ``"output_map"``) and
+    ``{parameter: value}``.
 
     Raises
     ------
