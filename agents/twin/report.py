@@ -18,9 +18,11 @@ import numpy as np
 
 from agents.html_page import image_tag, page, scrolling
 from agents.twin.ladder_text import advice, number, pairs_text, params_text, unobservable_lines
+from agents.twin.map_figure import map_figure
 from agents.twin.model import GreyFit
 from agents.twin.ranking import ORDER_RULE
 from agents.twin.records import Batch
+from agents.twin.static_map import MAP_NAMES
 from agents.twin.workbench import Diagnosis, ResidualAnalysis, compare
 from gbo_envs.atomic_write import atomic_write
 from gbo_envs.lazy_pyplot import pyplot
@@ -254,6 +256,16 @@ def _table(rows: Sequence[dict], columns: Sequence[tuple[str, str]], table_id: s
     return scrolling(f"<table{attrs}><tr>{head}</tr>{''.join(body)}</table>")
 
 
+def _maps(fits: Sequence[GreyFit | None]) -> list[tuple[str, GreyFit]]:
+    """``(map name, fit)`` of each static map in ``fits``, the first fit that has it."""
+    out: dict[str, GreyFit] = {}
+    for fit in fits:
+        for name in () if fit is None else fit.spec.effect_names:
+            if name in MAP_NAMES and name not in out:
+                out[name] = fit
+    return list(out.items())
+
+
 def _saturated(fits: Sequence[GreyFit]) -> GreyFit | None:
     """The first of ``fits`` with a fitted saturation limit."""
     return next((f for f in fits if f is not None and "limit" in f.effect_params.get("saturation", {})), None)
@@ -319,6 +331,12 @@ def write_report(out_dir: str | Path, data: Batch, rungs: Sequence[dict], diagno
                   image_tag(saturation_figure(data, saturated, u_unit=u_unit), "commanded input against the limit",
                             f"Commanded input u(t) with the limit ±{number(limit, 4)} {u_unit or 'units of u'} "
                             f"fitted in {saturated.spec.label}: beyond it (shaded) the plant gets the limit.")]
+    for name, fit in _maps([last.current, first.fits.get(first.best or "")]):
+        unit = u_unit if name == "input_map" else y_unit
+        parts += [f"<h2>The fitted {html.escape(name.replace('_', ' '))}</h2>",
+                  image_tag(map_figure(fit, name, unit=unit), f"fitted {name}",
+                            f"The static map of {fit.spec.label} (solid, breakpoints as dots) against the identity "
+                            "of the linear model (dashed).")]
     parts += [
         "<h2>Ranking of the effects (first diagnosis)</h2>",
         f"<p>Model: {html.escape(first.current.spec.label)}; best: <b>{html.escape(str(first.best))}</b>; "
