@@ -19,6 +19,7 @@ import gbo_envs
 from agents.twin.candidates import ORDER_CANDIDATES  # noqa: F401  (registers the envs)
 from agents.twin.open_loop import simulate_open_loop
 from agents.twin.records import Batch
+from agents.twin.static_map import MAP_NAMES
 from agents.twin.workbench import compare, diagnose, fit_model, noise_floor, quantization_step, residuals
 from gbo_envs.physics import build_effects
 from tests.support import loop_records
@@ -82,7 +83,8 @@ def test_linear_plant_gives_no_best_effect():
     assert out["best"] is None
     assert out["rmse"] == pytest.approx(NOISE, rel=0.1)
     assert all(c["rmse"] >= 0.98 * out["heldout_rmse"] for c in out["candidates"])
-    assert {c["effect"] for c in out["candidates"]} == set(gbo_envs.physics.EFFECT_NAMES) | set(ORDER_CANDIDATES)
+    assert {c["effect"] for c in out["candidates"]} == set(gbo_envs.physics.EFFECT_NAMES) | set(ORDER_CANDIDATES) | \
+        set(MAP_NAMES)
 
 
 def test_open_loop_replay_reproduces_the_closed_loop_exactly():
