@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 import agents
+import agents.bo as bo_module
 import gbo_envs  # noqa: F401  (registers the envs)
+from agents import acquisition
 from agents.guided_bo import PRIOR_STARTS
 from agents.twin.prior import TwinMetrics
 from agents.twin_keeper import TwinKeeper
@@ -103,30 +105,32 @@ def test_guided_bo_runs_in_three_and_four_gains_with_the_prior_where_the_acquisi
 
 
 @pytest.mark.slow
-def test_in_three_gains_the_twin_prior_is_simulated_on_the_candidates_once_per_twin():
-    """Under the twin prior the multistart draws the same Sobol candidates at every ask, so an ask with the twin of
-    the previous one simulates only its refinement (from PRIOR_STARTS starts), far fewer gains than the 2048
-    candidates; without the prior (the default BO) every fit draws new candidates, and the ask is unchanged."""
+def test_in_three_gains_the_twin_prior_is_refined_from_prior_starts_starts():
+    """Under the twin prior EI's multistart refines from PRIOR_STARTS starts, each step simulating the twin at
+    starts * (d + 1) gains; its Sobol candidates stay the default BO's (a new scramble every fit), and without the
+    prior the default BO's n_starts."""
     env = gym.make("gbo_envs/DCMotorPID-v0")
     tuner = agents.make("guided-bo")
     tuner.setup(agents.GainSpace.from_env(env), seed=0, env=env)
     env.reset(seed=0)
-    new_rows = []
-    for _ in range(5):
-        fits, before = len(tuner.twin_changes_), tuner.keeper_.metric_simulations_
-        gains = tuner.ask()
-        if tuner.n_observations >= 2 and len(tuner.twin_changes_) == fits:  # the same twin as the last ask
-            new_rows.append(tuner.keeper_.metric_simulations_ - before)
-        info = env.step(np.asarray(gains))[4]
-        tuner.tell(gains, info["cost"], info)
-    assert new_rows and max(new_rows) < tuner.n_candidates / 2
-    assert tuner.metric_prior() is not None
-    rng, starts = tuner.multistart_plan()
-    assert starts == PRIOR_STARTS < tuner.n_starts
-    tuner.use_prior(None)
-    rng_default, starts_default = tuner.multistart_plan()
-    assert starts_default == tuner.n_starts
-    assert not np.array_equal(rng.random(4), rng_default.random(4))
+    starts = []
+    original = acquisition.maximize_multistart
+
+    def spy(*args, **kwargs):
+        starts.append((kwargs["n_starts"], tuner.metric_prior() is not None))
+        return original(*args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(bo_module, "maximize_multistart", spy)
+        for _ in range(3):
+            gains = tuner.ask()
+            info = env.step(np.asarray(gains))[4]
+            tuner.tell(gains, info["cost"], info)
+    assert starts and all(n == (PRIOR_STARTS if prior else tuner.n_starts) for n, prior in starts)
+    assert any(prior for _, prior in starts) and PRIOR_STARTS < tuner.n_starts
+    rng, _ = tuner.multistart_plan()
+    default_rng, default_starts = bo_module.BayesianOptimization.multistart_plan(tuner)
+    assert default_starts == tuner.n_starts and np.array_equal(rng.random(4), default_rng.random(4))
 
 
 def test_the_cascade_overshoot_near_the_optimum_is_below_what_a_twin_can_identify():
