@@ -50,31 +50,34 @@ def add_parser(subparsers) -> None:
                        help="worker processes for the fits (default -1: one per core; 1: none; the result is the "
                             "same)")
 
-    def command(name: str, handler: str, **texts):
-        """A subcommand with the common arguments, run by ``evaluation.twin_cli.<handler>``."""
+    def command(name: str, handler: str, out: str | None = None, json: str | None = "print JSON", **texts):
+        """A subcommand with the common arguments, ``--out`` and ``--json`` (when ``out`` and ``json`` give their
+        help), run by ``evaluation.twin_cli.<handler>``."""
         p = sub.add_parser(name, formatter_class=raw, **texts)
         common(p)
+        if out is not None:
+            p.add_argument("--out", default=None, help=out)
+        if json is not None:
+            p.add_argument("--json", action="store_true", help=json)
         p.set_defaults(handler=Handler(f"evaluation.twin_cli:{handler}"))
         return p
 
     p = command("compare", "_compare", help="fit %% and RMSE per experiment, overlay plots",
                 description="Fit the model to the data and print fit %% and RMSE per experiment; the "
                             "overlay plot goes to out/twin/<data name>/compare.png unless --out says where.",
-                epilog="Example:\n  gbo twin compare data.csv --effects saturation --out out/twin/sat")
-    p.add_argument("--out", default=None, help="folder for compare.png (default: out/twin/<data name>)")
-    p.add_argument("--json", action="store_true", help="print JSON")
+                epilog="Example:\n  gbo twin compare data.csv --effects saturation --out out/twin/sat",
+                out="folder for compare.png (default: out/twin/<data name>)")
     p = command("resid", "_resid", help="residual whiteness, input cross-correlation and where the model fails",
                 description="Residual analysis of the fitted model: whiteness, cross-correlation with the "
                             "input, residual RMS by time, experiment, input and output level.",
-                epilog="Example:\n  gbo twin resid data.csv --effects saturation --out out/twin/sat")
-    p.add_argument("--out", default=None, help="folder for residuals.png")
-    p.add_argument("--json", action="store_true", help="print JSON")
+                epilog="Example:\n  gbo twin resid data.csv --effects saturation --out out/twin/sat",
+                out="folder for residuals.png")
     p = command("diagnose", "_diagnose", help="rank every catalogued effect as an addition to the model",
                 description="Try every catalogued effect as an addition to the model, rank them on held-out "
                             "experiments, list what the data cannot show, and say what to do next.",
                 epilog="Examples:\n  gbo twin diagnose data.csv --y-unit rad/s --u-unit V\n"
-                       "  gbo twin diagnose data.csv --effects saturation   # look for a second effect")
-    p.add_argument("--json", action="store_true", help="print exactly one JSON object")
+                       "  gbo twin diagnose data.csv --effects saturation   # look for a second effect",
+                json="print exactly one JSON object")
     p.add_argument("--folds", type=int_at_least(2), default=None,
                    help="folds of the cross-validation over experiments, 2 to the number of experiments "
                         "(default: 4, or one per experiment when there are fewer)")
@@ -82,7 +85,8 @@ def add_parser(subparsers) -> None:
     p = command("report", "_report", help="self-contained HTML report with the error ladder",
                 description="Build the error ladder (add the best effect, diagnose again, until nothing "
                             "helps), print each step in words, and write one self-contained HTML page.",
-                epilog="Example:\n  gbo twin report data.csv --out out/twin/report --y-unit rad/s --u-unit V")
+                epilog="Example:\n  gbo twin report data.csv --out out/twin/report --y-unit rad/s --u-unit V",
+                json=None)
     p.add_argument("--out", required=True, help="output folder (index.html)")
     p.add_argument("--max-steps", type=positive_int, default=3, help="effects added at most (default 3)")
     jobs(p)
