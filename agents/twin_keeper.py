@@ -170,6 +170,7 @@ class TwinKeeper:
         self.space, self._env = space, env
         self._step_height = abs(float(env.loop.r2) - float(env.loop.r1)) or 1.0
         self._records: list[Experiment] = []  # D~ with the gains and costs told, each record's index its place in it
+        self._stacked: Batch | None = None  # D~ as one Batch, stacked when a linear twin is first fitted on it
         self._costs: list[float] = []  # every cost told
         self._noise_floors: list[float] = []
         self._quanta: list[float | None] = []  # each record's resolution if quantized without visible noise
@@ -231,6 +232,7 @@ class TwinKeeper:
         # eq. (Ds): D~ <- D~ u {(u_i, y_i)}, with the gains and cost as told (a wrapper may edit the cost), the
         # record numbered by its place in D~
         self._records.append(new.replace(gains=gains, cost=float(cost), index=len(self._records)))
+        self._stacked = None
         self._dirty = True
 
     def twin_env(self):
@@ -469,6 +471,7 @@ class TwinKeeper:
     def _reinitialise(self, start: int) -> None:
         """``D~`` restarts from its records after the first ``start`` (eq. (reinit_DTdataset), or a plant change)."""
         self._records = [record.replace(index=k) for k, record in enumerate(self._records[start:])]
+        self._stacked = None
         self._fitted_on = self._diagnosed_on = self._explained_upto = 0
         self.reinitializations_ += 1
 
@@ -505,13 +508,20 @@ class TwinKeeper:
             return twin
         template = self._default_twin() if self.twin == "linear" else self.twin
         twin = previous if previous is not None and previous is not self.twin else clone(template)
-        return twin.fit(self._records)  # warm start from the last fit
+        return twin.fit(self._batch() if isinstance(twin, LinearTwin) else self._records)  # warm start
+
+    def _batch(self) -> Batch:
+        """``D~`` as one :class:`~agents.twin.records.Batch`, stacked once per state of ``D~``: what a linear twin
+        (:class:`~agents.twin.LinearTwin`) fits on as it is. A grey-box twin decimates the records themselves."""
+        if self._stacked is None:
+            self._stacked = Batch.from_records(self._records)
+        return self._stacked
 
     def _linear_twin(self):
         """The paper's SRIVC twin fitted on ``D~``, warm-started from its previous fit in this run."""
         if self._linear is None:
             self._linear = self._default_twin()
-        return self._linear.fit(self._records)
+        return self._linear.fit(self._batch())
 
     def _whole_record_twin(self, twin):
         """The linear twin fitted on the whole records if the decimated ones (``n_samples``) identified ``twin`` no
@@ -527,7 +537,7 @@ class TwinKeeper:
         if self.n_samples is None:
             return twin
         try:
-            whole = self._default_twin(n_samples=None).fit(self._records)
+            whole = self._default_twin(n_samples=None).fit(self._batch())
         except _FIT_ERRORS:
             return twin
         if not whole.rmse_ <= self.explained_rmse_:
