@@ -39,6 +39,7 @@ from agents.twin.ranking import ORDER_RULE
 from agents.twin.record_checks import NonCausalRecordWarning, check_poles
 from agents.twin.records import Batch
 from agents.twin.report import compare_figure, residual_figure, write_report
+from agents.twin.static_map import MAP_NAMES
 from agents.twin.workbench import compare, diagnose, error_ladder, residuals
 from evaluation.figures import save
 from gbo_envs.physics import EFFECT_NAMES
@@ -105,9 +106,10 @@ def _run(handler):
 
 def _check_effects(effects: str) -> None:
     names = [e.strip() for e in effects.split(",") if e.strip()]
-    unknown = [e for e in names if e not in EFFECT_NAMES]
+    unknown = [e for e in names if e not in EFFECT_NAMES and e not in MAP_NAMES]
     if unknown:
-        raise ValueError(f"--effects: unknown effect {unknown[0]!r}; the catalogue is {', '.join(EFFECT_NAMES)}")
+        raise ValueError(f"--effects: unknown effect {unknown[0]!r}; the catalogue is {', '.join(EFFECT_NAMES)}; "
+                         f"the static maps are {', '.join(MAP_NAMES)}")
     twice = [e for i, e in enumerate(names) if e in names[:i]]
     if twice:
         raise ValueError(f"--effects: {twice[0]!r} is named twice; each catalogue effect may be in the model once")

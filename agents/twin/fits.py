@@ -23,6 +23,7 @@ from agents.twin.noise_floor import quantization_step
 from agents.twin.record_checks import check_fit_size
 from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
+from agents.twin.static_map import MAP_NAMES, map_options
 from agents.twin.workers import map_independent
 
 __all__ = ["GIVEN_VALUES_MAX_ITER", "CandidateFits", "fit_candidates", "fit_model", "fit_structure",
@@ -40,8 +41,9 @@ def fit_structure(data: Batch, effects=None, spec: ModelSpec | None = None, max_
     ----------
     data : Batch
     effects : names, comma-separated str or ``{name: {parameter: value}}``, optional
-        Catalogue effects. When every fitted parameter of every effect is given, the linear part is
-        profiled at those values and everything refitted from there (at most
+        Catalogue effects or static maps (a map without breakpoints takes the data's,
+        :func:`agents.twin.static_map.map_options`). When every fitted parameter of every effect is
+        given, the linear part is profiled at those values and everything refitted from there (at most
         ``min(max_iter, GIVEN_VALUES_MAX_ITER)`` trial points); otherwise the effects are added one at a
         time from their data-based starts (:func:`fit_model`).
     spec : ModelSpec, optional
@@ -50,7 +52,9 @@ def fit_structure(data: Batch, effects=None, spec: ModelSpec | None = None, max_
         Trial points of the least-squares fits.
     """
     spec = ModelSpec() if spec is None else ModelSpec(spec.n_poles, spec.n_zeros, spec.n_integrators, spec.output)
-    items = effect_items(effects)
+    items = [(name, map_options(name, data) | given if name in MAP_NAMES else given)  # a map's breakpoints: the data's
+             for name, given in effect_items(effects)]
+    effects = dict(items)
     check_fit_size(data, spec, sum(len(fitted_parameters(name, given)) for name, given in items))
     base = linear_fit(data, spec)
     if items and all(all(p in given for p, _ in fitted_parameters(name, given)) for name, given in items):

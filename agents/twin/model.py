@@ -282,7 +282,8 @@ def effect_items(effects) -> list[tuple[str, dict]]:
     Raises
     ------
     ValueError
-        An effect outside the catalogue :data:`gbo_envs.physics.EFFECT_NAMES`, or one named twice.
+        An effect outside the catalogue :data:`gbo_envs.physics.EFFECT_NAMES` and the static maps
+        (``"input_map"``, ``"output_map"``), or one named twice.
     """
     if effects is None:
         return []
@@ -293,8 +294,9 @@ def effect_items(effects) -> list[tuple[str, dict]]:
     out = []
     for name, given in items:
         name = name.strip()
-        if name not in EFFECTS:
-            raise ValueError(f"unknown effect {name!r}; the catalogue is {EFFECT_NAMES}")
+        if name not in EFFECTS and name not in STATIC_MAPS:
+            raise ValueError(f"unknown effect {name!r}; the catalogue is {EFFECT_NAMES}, the static maps "
+                             f"{tuple(STATIC_MAPS)}")
         if any(name == seen for seen, _ in out):
             raise ValueError(f"effects: {name!r} is named twice; each catalogue effect may be in the model once")
         out.append((name, dict(given or {})))

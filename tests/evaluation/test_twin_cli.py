@@ -17,6 +17,7 @@ import pytest
 from agents.twin.candidates import ORDER_CANDIDATES
 from agents.twin.csvio import write_csv
 from agents.twin.ranking import ORDER_RULE
+from agents.twin.static_map import MAP_NAMES
 from evaluation.cli import main
 from gbo_envs.physics import EFFECT_NAMES
 from tests.support import loop_records
@@ -39,7 +40,7 @@ def test_diagnose_json_is_exactly_one_object(csv_path, capsys):
     assert isinstance(payload["rmse"], float) and isinstance(payload["fit_percent"], float)
     assert isinstance(payload["noise_rmse"], float)
     # every catalogue effect ranked, and the linear part's orders
-    assert {c["effect"] for c in payload["candidates"]} == set(EFFECT_NAMES) | set(ORDER_CANDIDATES)
+    assert {c["effect"] for c in payload["candidates"]} == set(EFFECT_NAMES) | set(ORDER_CANDIDATES) | set(MAP_NAMES)
     first = payload["candidates"][0]
     assert set(first) >= {"effect", "rmse", "delta_bic", "params", "evidence"}
     assert payload["best"] in (None, first["effect"])

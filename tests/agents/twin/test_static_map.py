@@ -9,6 +9,7 @@ import pytest
 from agents.twin.candidates import Candidate
 from agents.twin.coast_down import coast_downs, speed_tolerance
 from agents.twin.diagnose import diagnose
+from agents.twin.fits import fit_structure
 from agents.twin.least_squares import fit_problems
 from agents.twin.linear_fit import linear_fit
 from agents.twin.map_figure import map_figure
@@ -17,6 +18,7 @@ from agents.twin.ranking import _physics_first
 from agents.twin.records import Batch
 from agents.twin.static_map import map_curve, map_options
 from benchmarks.real_like_sets import BELT_SENSOR, belt_tacho_records
+from evaluation.twin_cli import _check_effects
 from gbo_envs import ContinuousPlant, Experiment
 from gbo_envs.physics.effects import EFFECT_NAMES, build_effect
 
@@ -132,3 +134,14 @@ def test_a_hidden_input_map_is_named_by_the_diagnosis():
     d = diagnose(Batch.from_records(_records({"input_map": FALLING})))
     assert d.best == "input_map"
     assert d.fits["input_map"].rmse < 0.2 * d.current.rmse
+
+
+def test_a_map_named_in_effects_is_fitted_as_the_advice_suggests(tmp_path):
+    # the advice after a map says `gbo twin diagnose DATA --effects input_map,...`: that command must run
+    _check_effects("input_map,coulomb_friction")
+    with pytest.raises(ValueError, match="static maps are input_map, output_map"):
+        _check_effects("input_mapp")
+    data = Batch.from_records(belt_tacho_records())
+    linear, mapped = fit_structure(data), fit_structure(data, ["input_map"])
+    assert mapped.spec.effect_names == ("input_map",)
+    assert mapped.rmse < 0.8 * linear.rmse
