@@ -54,7 +54,8 @@ def parameter_intervals(data: Batch, fit: GreyFit, level: float = 0.95) -> dict[
     _, sv, vt = np.linalg.svd(scaled, full_matrices=False)
     keep = sv > sv[0] * 1e-10
     inv = (vt[keep].T / sv[keep] ** 2) @ vt[keep]  # pseudo-inverse of the scaled J^T J
-    var = s2 * np.diag(inv) / norms**2
+    with np.errstate(invalid="ignore"):  # inf * 0 where the fit diverged: a NaN variance, an undetermined parameter
+        var = s2 * np.diag(inv) / norms**2
     # a direction the data do not see (a dropped singular value) leaves its parameters undetermined
     blind = np.abs(vt[~keep]).max(axis=0) > 1e-3 if (~keep).any() else np.zeros(free.size, bool)
     quantile = float(stdtrit(dof, 0.5 + float(level) / 2.0))  # Student's t quantile (scipy.stats.t.ppf's own)

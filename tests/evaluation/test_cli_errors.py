@@ -126,7 +126,7 @@ def test_complex_gains_are_refused_not_truncated(gains):
 
 
 def test_nan_output_noise_is_refused_not_taken_as_no_noise():
-    with pytest.raises(ValueError, match="output_noise_std must be a finite number >= 0"):
+    with pytest.raises(ValueError, match="output_noise_std: must be a finite number >= 0"):
         gym.make(ENV, output_noise_std=math.nan)
 
 
