@@ -139,10 +139,8 @@ class TwinSafetyFilter:
         n_c = len(self.constraints)
         if len(self.errors_) < 2:
             return np.full(n_c, np.inf)
-        errors = np.vstack(self.errors_)
-        if not np.all(np.isfinite(errors)):
-            return np.where(np.all(np.isfinite(errors), axis=0), self._bound(errors, experiment), np.inf)
-        return self._bound(errors, experiment)
+        errors = np.vstack(self.errors_)  # a constraint with an infinite error keeps an infinite margin
+        return np.where(np.all(np.isfinite(errors), axis=0), self._bound(errors, experiment), np.inf)
 
     def _bound(self, errors: np.ndarray, experiment: int) -> np.ndarray:
         n = errors.shape[0]
