@@ -29,6 +29,33 @@ OUT_OF_BOUNDS_POLICIES = ("raise", "clip", "allow")
 NORMALIZER_FLOOR = 1e-9
 
 
+def normalizer_floors(loop: ClosedLoop) -> np.ndarray:
+    """The smallest normalisers ``loop`` can measure, one per metric of :data:`~gbo_envs.metrics.METRIC_NAMES`.
+
+    A quantised sensor of step ``q`` (in output units) reads the overshoot of eq. (zeta) in whole
+    steps, ``100 q / |r2 - r1|`` % each, and a reading of one step may be a true overshoot of
+    anything between 0 and two steps. A normaliser below one step would weigh that unresolved
+    step as several mean overshoots, so the overshoot's floor is one step (the largest step if
+    several sensors quantise). The other metrics, and a loop without quantisation, have
+    :data:`NORMALIZER_FLOOR`.
+
+    Parameters
+    ----------
+    loop : ClosedLoop
+        The loop whose reference experiments give the normalisers.
+
+    Returns
+    -------
+    ndarray of shape (4,)
+        Floors in the metrics' units (%, s, s, s^2).
+    """
+    floors = np.full(len(METRIC_NAMES), NORMALIZER_FLOOR)
+    steps = [block.step for block in loop.sensor_effects if block.name == "quantization"]
+    if steps:
+        floors[METRIC_NAMES.index("overshoot_pct")] = max(NORMALIZER_FLOOR, 100.0 * max(steps) / abs(loop.r2 - loop.r1))
+    return floors
+
+
 #: The constraints of an env that has none.
 _NO_CONSTRAINTS = Constraints()
 
@@ -48,7 +75,7 @@ class ControllerTuningEnv(gym.Env):
     reference_gains : array_like of shape (n_ref, n_gains), optional
         Gains whose mean metrics are the normalisers when ``cost`` has none (paper: 5 gains
         evenly spanning the feasible set), in the controller's units; computed normalisers
-        are at least :data:`NORMALIZER_FLOOR`.
+        are at least :func:`normalizer_floors` (one sensor step of overshoot, else :data:`NORMALIZER_FLOOR`).
     cost_noise_std : float
         Standard deviation of the additive cost noise ``epsilon`` of
         ``J = J_hat + epsilon`` (paper, Sec. II), dimensionless.
@@ -137,10 +164,10 @@ class ControllerTuningEnv(gym.Env):
             raise TypeError(f"cost: expected a CostSpec, got {cost!r}")
         self.weights = np.array(cost.weights)
         normalizers = cost.normalizers
-        if normalizers is None:  # a metric the reference gains never show (e.g. no overshoot) still normalises
+        if normalizers is None:  # a metric the reference gains hardly show (e.g. no overshoot) still normalises
             reference = np.atleast_2d(np.asarray(reference_gains, dtype=float))
             normalizers = np.maximum(expected_outcome(loop, reference, self.expectation_draws, self.expectation_seed,
-                                                      cost=None, record=False)[0].mean(axis=0), NORMALIZER_FLOOR)
+                                                      cost=None, record=False)[0].mean(axis=0), normalizer_floors(loop))
         self.normalizers = validated_vector("normalizers", normalizers, len(METRIC_NAMES), positive=True)
         if not np.isfinite(cost_noise_std) or cost_noise_std < 0.0:
             raise ValueError(f"cost_noise_std: must be a finite number >= 0, got {cost_noise_std}")

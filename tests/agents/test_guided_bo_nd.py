@@ -136,7 +136,7 @@ def test_in_three_gains_the_twin_prior_is_refined_from_prior_starts_starts():
 def test_the_cascade_overshoot_near_the_optimum_is_below_what_a_twin_can_identify():
     """GuidedBO's notes: near the cascade's optimum whether a response reads one encoder count above its final value
     changes with a 1e-5 relative change of the plant's gain at about 40 % of the gains (an overshoot of one count
-    costs 0.4, two thirds of J*), and the plant without its quantized sensor does not overshoot there at all."""
+    costs 0.10, a sixth of J*), and the plant without its quantized sensor does not overshoot there at all."""
     truth = gbo_envs.ground_truth(CASCADE)
     plant = gym.make(CASCADE, noise=False).unwrapped
     low, high = plant.action_space.low, plant.action_space.high
@@ -146,7 +146,7 @@ def test_the_cascade_overshoot_near_the_optimum_is_below_what_a_twin_can_identif
     counts = metrics[:, 0] > 0.0
     assert 0.3 < counts.mean() < 0.9
     one_count = 100.0 * 5e-6 / 0.01  # % of the 10 mm step
-    assert plant.weights[0] * one_count / plant.normalizers[0] == pytest.approx(0.4)
+    assert plant.weights[0] * one_count / plant.normalizers[0] == pytest.approx(0.10)  # the normaliser is one count
     perturbed = gym.make(CASCADE, noise=False, gain=0.44262 * (1 + 1e-5)).unwrapped.evaluate(gains)[0]
     assert 0.3 < np.mean(counts != (perturbed[:, 0] > 0.0)) < 0.6
     unquantized = gym.make(CASCADE, noise=False, sensor_resolution=None).unwrapped.evaluate(gains)[0]

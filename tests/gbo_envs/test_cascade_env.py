@@ -93,11 +93,19 @@ def test_the_box_is_the_widest_that_keeps_the_papers_20_degrees(env):
     np.testing.assert_allclose(env.action_space.high[:3], nominal[:3] * 1.25, atol=0.05)
 
 
-def test_normalizers_are_the_mean_metrics_over_the_16_corners(env):
+def test_normalizers_are_the_mean_metrics_over_the_16_corners_the_overshoot_at_least_one_sensor_count(env):
     corners = corner_gains(env.action_space.low, env.action_space.high)
     metrics, costs = env.evaluate(corners)
-    np.testing.assert_allclose(env.normalizers, metrics.mean(axis=0), rtol=1e-12)
-    assert costs.mean() == pytest.approx(1.01, rel=1e-9) and np.all(costs < 10.0)
+    mean = metrics.mean(axis=0)
+    one_count = 100.0 * 5e-6 / 0.01  # %: one 5 um count of the 10 mm step
+    assert 0.0 < mean[0] < one_count  # the corners hardly overshoot: a quarter count on average
+    np.testing.assert_allclose(env.normalizers, np.r_[one_count, mean[1:]], rtol=1e-12)
+    assert costs.mean() == pytest.approx(0.935, abs=5e-4) and np.all(costs < 10.0)
+    # one count of overshoot costs the overshoot's weight, 0.10, not four times it
+    assert env.weights[0] * one_count / env.normalizers[0] == pytest.approx(0.10)
+    finer = gym.make(ENV_ID, noise=False, sensor_resolution=None).unwrapped  # an ideal sensor: the mean stands
+    fine_metrics, _ = finer.evaluate(corners)
+    np.testing.assert_allclose(finer.normalizers, fine_metrics.mean(axis=0), rtol=1e-12)
 
 
 def test_every_gain_matters_and_a_coarse_search_beats_the_corners_and_the_nominal(env):
