@@ -191,11 +191,31 @@ def hold_spread(record: Experiment, stride: int) -> float:
     nonlinearity (a drive limit, a dead zone) sees the mean instead of the samples, which is
     the same only when this is small. ``0.0`` for a constant command.
     """
-    m = (record.n_steps // stride) * stride
-    held = record.u[:m].reshape(-1, stride)
+    return _hold_spread(record.u, stride)
+
+
+def _hold_spread(u: np.ndarray, stride: int) -> float:
+    """:func:`hold_spread` of the command ``u`` (one record's samples, in order)."""
+    m = (u.size // stride) * stride
+    held = u[:m].reshape(-1, stride)
     within = float(np.sqrt(np.mean((held - held.mean(axis=1, keepdims=True)) ** 2)))
-    excursion = float(np.sqrt(np.mean((record.u[:m] - record.u[-1]) ** 2)))
+    excursion = float(np.sqrt(np.mean((u[:m] - u[-1]) ** 2)))
     return within / excursion if excursion > 0.0 else 0.0
+
+
+def _common_stride(inputs: Sequence[np.ndarray], n_samples: int) -> tuple[int, int]:
+    """The stride of :func:`decimate_records` for records with the commands ``inputs``, and the samples it keeps of
+    each record.
+
+    The first stride is the largest that keeps ``n_samples`` samples of the shortest record; it is shortened while
+    a :func:`hold_spread` exceeds :data:`MAX_HOLD_SPREAD` (``<= 1``: keep the records whole), and keeps the samples
+    within the time span of the first (as many of every record, as no record is shorter than that span).
+    """
+    first = min((u.size - 1) // (n_samples - 1) for u in inputs)
+    stride = first
+    while stride > 1 and max(_hold_spread(u, stride) for u in inputs) > MAX_HOLD_SPREAD:
+        stride -= 1
+    return stride, (n_samples - 1) * first // max(stride, 1) + 1
 
 
 def decimate_records(records: Sequence[Experiment], n_samples: int | None,
@@ -221,15 +241,10 @@ def decimate_records(records: Sequence[Experiment], n_samples: int | None,
     records = list(records)
     if n_samples is None or not records:
         return records
-    first = min((rec.n_steps - 1) // (n_samples - 1) for rec in records)
-    stride = first
-    while stride > 1 and max(hold_spread(rec, stride) for rec in records) > MAX_HOLD_SPREAD:
-        stride -= 1
+    stride, kept = _common_stride([rec.u for rec in records], n_samples)
     if stride <= 1:
         return records
-    span = (n_samples - 1) * first  # the time the first stride's n_samples cover, in samples
-    return [_keep_every(rec, stride, mean_input, min((rec.n_steps - 1) // stride, span // stride) + 1)
-            for rec in records]
+    return [_keep_every(rec, stride, mean_input, kept) for rec in records]
 
 
 @dataclass(frozen=True, eq=False)
@@ -360,11 +375,6 @@ class Batch:
         """Real samples of each record, int of shape (n_records,) (read-only)."""
         return self._lengths
 
-    def record(self, k: int) -> Experiment:
-        """Record ``k``'s real samples as an :class:`~gbo_envs.Experiment` (views of the rows, no copy)."""
-        m = int(self._lengths[k])
-        return Experiment(gains=(), t=self.t[k, :m], r=self.r[k, :m], u=self.u[k, :m], y=self.y[k, :m], index=k)
-
     def record_dt(self, k: int) -> float:
         """Mean sample time of record ``k`` in s, ``(t_last - t_first) / (n - 1)`` over its real samples
         (:attr:`gbo_envs.Experiment.dt`)."""
@@ -416,16 +426,39 @@ class Batch:
         return dataclasses.replace(self, u=u)
 
     def thinned(self, n_samples: int | None, mean_input: bool = False) -> Batch:
-        """The records decimated to about ``n_samples`` samples each (:func:`decimate_records`: one stride,
-        the kept samples' times and values as they are), their starts kept; this batch when nothing is dropped.
+        """The records decimated to about ``n_samples`` samples each, their starts kept; this batch when nothing is
+        dropped.
+
+        The samples :func:`decimate_records` keeps (one stride for all records, shortened while the command moves
+        within a hold, as many samples of each), taken from the rows: their times and values as they are.
+
+        Parameters
+        ----------
+        n_samples : int or None
+            Samples to keep per record at most the stride allows, ``>= 2``; ``None`` keeps the records.
+        mean_input : bool, default False
+            Give each kept sample the mean of ``u`` over its hold interval (:func:`decimate`).
+
+        Returns
+        -------
+        Batch
+            Its ``dt`` is this batch's sample time in s; :meth:`record_dt` gives a row's thinned one.
         """
         if n_samples is None:
             return self
-        records = [self.record(k) for k in range(self.n_records)]
-        kept = decimate_records(records, n_samples, mean_input)
-        if all(a is b for a, b in zip(kept, records)):
+        lengths = self._lengths
+        stride, kept = _common_stride([self.u[k, : lengths[k]] for k in range(self.n_records)], n_samples)
+        if stride <= 1:
             return self
-        arrays, mask = _stacked(kept, grid=False)
+        idx = np.arange(kept) * stride  # every row keeps as many samples, on one grid: no padding
+        arrays = {name: getattr(self, name)[:, idx] for name in ("t", "r", "u", "y")}
+        if mean_input:
+            total = np.concatenate([np.zeros((self.n_records, 1)), np.cumsum(self.u, axis=1)], axis=1)
+            end = np.minimum(idx + stride, lengths[:, None])
+            arrays["u"] = (np.take_along_axis(total, end, axis=1) - total[:, idx]) / (end - idx)
+        mask = np.ones((self.n_records, kept), dtype=bool)
+        for array in (*arrays.values(), mask):
+            array.setflags(write=False)
         return Batch(**arrays, mask=mask, dt=self.dt, index=self.index, first_index=self.first_index,
                      initial=self.initial)
 

@@ -15,7 +15,7 @@ import pytest
 import agents.twin
 import gbo_envs  # noqa: F401  (registers the envs)
 from agents.twin.identify import DelaySearch, IdentifyOptions, SrivcOptions, checked_options, identify, identify_linear
-from agents.twin.records import Batch
+from agents.twin.records import Batch, as_records, decimate_records
 from gbo_envs.experiment import Experiment, RecordError
 
 TWIN = Path(agents.twin.__file__).parent
@@ -63,6 +63,30 @@ def test_thinned_keeps_the_samples_as_they_are_and_the_starts(records):
     np.testing.assert_array_equal(thin.t[:, :101], batch.t[:, : 101 * stride : stride])
     np.testing.assert_array_equal(thin.u[:, :101], batch.u[:, : 101 * stride : stride])
     assert thin.initial is batch.initial and thin.record_dt(0) == pytest.approx(stride * batch.dt, rel=1e-12)
+
+
+@pytest.mark.parametrize("mean_input", [False, True])
+def test_thinned_takes_the_samples_decimate_records_keeps_of_the_records(mean_input):
+    """Rows of three lengths, with a command that moves within the holds of the first stride (that of the shortest
+    row, 12 samples): the thinned rows are :func:`decimate_records` of the records, bit for bit."""
+    t = np.arange(2001) * 1e-3
+    u = 1.0 + np.exp(-t / 0.05) * np.sin(t / 0.05 * 3)
+    rows = [{"t": t[:m], "r": np.ones(m), "u": u[:m] * (1 + k), "y": np.cos(t[:m] * (k + 1))}
+            for k, m in enumerate((2001, 1201, 1733))]
+    batch = Batch.from_records(rows)
+    thin = batch.thinned(101, mean_input)
+    kept = decimate_records(as_records(rows), 101, mean_input)
+    stride = round(kept[0].dt / 1e-3)
+    assert 1 < stride < 12 and kept[0].n_steps == 1200 // stride + 1  # shortened, over the first stride's span
+    assert thin.lengths.tolist() == [rec.n_steps for rec in kept] and thin.mask.all()
+    assert thin.dt == batch.dt and thin.initial is batch.initial and thin.index is batch.index
+    for k, rec in enumerate(kept):
+        for name in ("r", "u", "y"):
+            np.testing.assert_array_equal(getattr(thin, name)[k], getattr(rec, name))
+        np.testing.assert_array_equal(thin.t[k], batch.t[k, : stride * rec.n_steps : stride])
+        assert thin.record_dt(k) == rec.dt
+    assert not thin.u.flags.writeable and not thin.mask.flags.writeable
+    assert batch.thinned(5000, mean_input) is batch
 
 
 def test_groups_are_the_rows_of_one_length(records):
