@@ -46,6 +46,7 @@ from sklearn.base import clone
 
 from agents.parameters import HasMethods, Interval, Options, validate_params
 from agents.twin import make_twin_env
+from agents.twin.greybox_twin import GreyBoxTwin
 from agents.twin.identify import IdentifyOptions, SrivcOptions
 from agents.twin.linear_twin import LinearTwin
 from agents.twin.model import ModelSpec
@@ -170,7 +171,7 @@ class TwinKeeper:
         self.space, self._env = space, env
         self._step_height = abs(float(env.loop.r2) - float(env.loop.r1)) or 1.0
         self._records: list[Experiment] = []  # D~ with the gains and costs told, each record's index its place in it
-        self._stacked: Batch | None = None  # D~ as one Batch, stacked when a linear twin is first fitted on it
+        self._stacked: dict[int | None, Batch] = {}  # D~ as one Batch per n_samples, stacked when first fitted on
         self._costs: list[float] = []  # every cost told
         self._noise_floors: list[float] = []
         self._quanta: list[float | None] = []  # each record's resolution if quantized without visible noise
@@ -232,7 +233,7 @@ class TwinKeeper:
         # eq. (Ds): D~ <- D~ u {(u_i, y_i)}, with the gains and cost as told (a wrapper may edit the cost), the
         # record numbered by its place in D~
         self._records.append(new.replace(gains=gains, cost=float(cost), index=len(self._records)))
-        self._stacked = None
+        self._stacked = {}
         self._dirty = True
 
     def twin_env(self):
@@ -471,7 +472,7 @@ class TwinKeeper:
     def _reinitialise(self, start: int) -> None:
         """``D~`` restarts from its records after the first ``start`` (eq. (reinit_DTdataset), or a plant change)."""
         self._records = [record.replace(index=k) for k, record in enumerate(self._records[start:])]
-        self._stacked = None
+        self._stacked = {}
         self._fitted_on = self._diagnosed_on = self._explained_upto = 0
         self.reinitializations_ += 1
 
@@ -485,7 +486,7 @@ class TwinKeeper:
         if self.twin == "auto":
             effects = getattr(previous, "effect_params_", None) or {}
             # the current structure first: the paper's SRIVC twin, or the diagnosed effects from their last values
-            twin = clone(previous).fit(self._records) if effects else self._linear_twin()
+            twin = clone(previous).fit(self._data_for(previous)) if effects else self._linear_twin()
             n = len(self._records)
             doubled = n >= 2 * self._diagnosed_on and self._diagnosed_on < MAX_DIAGNOSED_RECORDS
             due = self._diagnosed_on == 0 or doubled
@@ -497,7 +498,7 @@ class TwinKeeper:
                 self._diagnosed_on = n
                 # from the linear model, not from the current effects: the ladder only adds effects, and one that
                 # fewer records evidenced (a wrong one, when the true effect showed in only one of them) is dropped
-                diagnosed = diagnosed_twin(self._records, spec, max_effects=MAX_TWIN_EFFECTS,
+                diagnosed = diagnosed_twin(self._batch(self.n_samples), spec, max_effects=MAX_TWIN_EFFECTS,
                                            n_samples=self.n_samples)[0]
                 if diagnosed.rmse_ < twin.rmse_:
                     twin = diagnosed
@@ -508,14 +509,24 @@ class TwinKeeper:
             return twin
         template = self._default_twin() if self.twin == "linear" else self.twin
         twin = previous if previous is not None and previous is not self.twin else clone(template)
-        return twin.fit(self._batch() if isinstance(twin, LinearTwin) else self._records)  # warm start
+        return twin.fit(self._data_for(twin))  # warm start
 
-    def _batch(self) -> Batch:
-        """``D~`` as one :class:`~agents.twin.records.Batch`, stacked once per state of ``D~``: what a linear twin
-        (:class:`~agents.twin.LinearTwin`) fits on as it is. A grey-box twin decimates the records themselves."""
-        if self._stacked is None:
-            self._stacked = Batch.from_records(self._records)
-        return self._stacked
+    def _batch(self, n_samples: int | None = None) -> Batch:
+        """``D~`` as one :class:`~agents.twin.records.Batch` decimated to ``n_samples`` per record (``None``: whole),
+        validated and stacked once per state of ``D~`` (:meth:`~agents.twin.records.Batch.from_records`)."""
+        if n_samples not in self._stacked:
+            self._stacked[n_samples] = Batch.from_records(self._records, n_samples=n_samples)
+        return self._stacked[n_samples]
+
+    def _data_for(self, twin):
+        """``D~`` as ``twin`` fits on it: one batch of the whole records for a linear twin (SRIVC decimates inside,
+        :class:`~agents.twin.LinearTwin`), one decimated to its ``n_samples`` for a grey-box twin
+        (:class:`~agents.twin.GreyBoxTwin`), the :class:`~gbo_envs.Experiment` records for any other estimator."""
+        if isinstance(twin, LinearTwin):
+            return self._batch()
+        if isinstance(twin, GreyBoxTwin):
+            return self._batch(twin.n_samples)
+        return self._records
 
     def _linear_twin(self):
         """The paper's SRIVC twin fitted on ``D~``, warm-started from its previous fit in this run."""

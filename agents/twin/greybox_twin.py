@@ -16,7 +16,7 @@ from agents.twin.guesses import rest_command
 from agents.twin.identify import check_orders, linear_constraints
 from agents.twin.least_squares import fit_problems, make_problem
 from agents.twin.model import GreyFit, ModelSpec, output_error
-from agents.twin.records import Batch
+from agents.twin.records import Batch, as_batch
 from agents.twin.simulation import simulate_sets
 from gbo_envs.physics.effects import build_effect
 
@@ -127,7 +127,8 @@ class GreyBoxTwin(TwinEstimator):
         ----------
         records : Batch, mapping, sequence of mappings or of arrays (n_steps, 4), or DataFrame
             Experiment records with ``t, r, u, y`` (see :func:`agents.twin.records.as_records`),
-            or already stacked :class:`agents.twin.records.Batch`.
+            or an :class:`agents.twin.records.Batch` stacked with this twin's ``n_samples``
+            (:func:`agents.twin.records.as_batch`).
         y : None
             Ignored (scikit-learn signature).
 
@@ -190,11 +191,7 @@ class GreyBoxTwin(TwinEstimator):
 
     def _data(self, records) -> Batch:
         """The records stacked (decimated to ``n_samples``; their :attr:`~gbo_envs.Experiment.index` kept)."""
-        if isinstance(records, Batch):
-            if self.n_samples is not None:
-                raise ValueError("n_samples: must be None when the records are given as a Batch (already stacked)")
-            return records
-        return Batch.from_records(records, n_samples=self.n_samples)
+        return as_batch(records, self.n_samples)
 
     def _store(self, data: Batch, fit: GreyFit) -> None:
         spec = fit.spec

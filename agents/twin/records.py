@@ -25,8 +25,8 @@ from agents.twin.initial import InitialConditions, initial_conditions
 from agents.twin.record_checks import check_magnitudes, warn_if_non_causal
 from gbo_envs.experiment import SIGNALS, Experiment, RecordError, validate_signals
 
-__all__ = ["BATCH_SAMPLES", "Batch", "MAX_HOLD_SPREAD", "UNIFORM_RTOL", "as_records", "decimate", "decimate_records",
-           "hold_spread"]
+__all__ = ["BATCH_SAMPLES", "Batch", "MAX_HOLD_SPREAD", "UNIFORM_RTOL", "as_batch", "as_records", "decimate",
+           "decimate_records", "hold_spread"]
 
 #: Largest relative deviation of a sample step from the median step that identification accepts.
 UNIFORM_RTOL = 1e-6
@@ -272,6 +272,9 @@ class Batch:
     initial : InitialConditions, optional
         How each record starts (:mod:`agents.twin.initial`): at a rest its data show (the rest
         level and command are pinned), at an unobserved rest, or moving; default: detected.
+    decimated_to : int or None, default None
+        The ``n_samples`` per record :meth:`from_records` decimated the records to (:func:`decimate_records`, with
+        the mean input over each hold); ``None``: the records as given.
     """
 
     t: np.ndarray
@@ -283,6 +286,7 @@ class Batch:
     index: np.ndarray
     first_index: int = 0
     initial: InitialConditions | None = None
+    decimated_to: int | None = None
 
     def __post_init__(self) -> None:
         if self.initial is None:
@@ -345,7 +349,8 @@ class Batch:
         arrays, mask = _stacked(data, grid=True)
         check_magnitudes(arrays, index + 1)
         start = initial_conditions(arrays["r"], arrays["u"], arrays["y"], mask, initial)
-        batch = cls(**arrays, mask=mask, dt=float(dts[0]), index=index - first, first_index=first, initial=start)
+        batch = cls(**arrays, mask=mask, dt=float(dts[0]), index=index - first, first_index=first, initial=start,
+                    decimated_to=n_samples)
         if n_samples is None:  # a closed loop's held mean input answers the outputs within the hold: not tested
             warn_if_non_causal(batch)
         return batch
@@ -407,7 +412,7 @@ class Batch:
         """The records ``rows`` (experiment indices kept)."""
         rows = np.asarray(rows, dtype=int)
         return Batch(self.t[rows], self.r[rows], self.u[rows], self.y[rows], self.mask[rows], self.dt,
-                     self.index[rows], self.first_index, self.initial.subset(rows))
+                     self.index[rows], self.first_index, self.initial.subset(rows), self.decimated_to)
 
     def with_input(self, u: np.ndarray) -> Batch:
         """The records with the input ``u`` (shape of :attr:`u`; e.g. the plant input an actuator block makes of
@@ -479,6 +484,32 @@ class Batch:
             size = max(1, max_samples // n_steps)
             out.extend(np.array(group[start : start + size]) for start in range(0, len(group), size))
         return out
+
+
+def as_batch(records, n_samples: int | None = None) -> Batch:
+    """The records as one :class:`Batch`, decimated to ``n_samples``: a batch as it is, other records stacked once.
+
+    Parameters
+    ----------
+    records : Batch, or records as :func:`as_records` takes them
+        A batch is taken as it is when ``n_samples`` is ``None`` or the one it was stacked with
+        (:attr:`Batch.decimated_to`); other records are validated and stacked by :meth:`Batch.from_records`.
+    n_samples : int, optional
+        Samples per record, ``>= 2`` (:func:`decimate_records`, with the mean input over each hold);
+        ``None`` keeps every sample.
+
+    Raises
+    ------
+    ValueError
+        A batch stacked with another ``n_samples``, or bad records (:meth:`Batch.from_records`).
+    """
+    if not isinstance(records, Batch):
+        return Batch.from_records(records, n_samples=n_samples)
+    if n_samples is not None and records.decimated_to != n_samples:
+        raise ValueError(f"n_samples: must be None, or the n_samples the records were stacked with "
+                         f"(Batch.from_records(records, n_samples={n_samples})), when they are given as a Batch; "
+                         f"got n_samples={n_samples} for a batch stacked with n_samples={records.decimated_to}")
+    return records
 
 
 def _stacked(records: Sequence[Experiment], grid: bool) -> tuple[dict, np.ndarray]:

@@ -16,7 +16,7 @@ from agents.twin.greybox_twin import GreyBoxTwin
 from agents.twin.ladder import error_ladder
 from agents.twin.model import ModelSpec
 from agents.twin.noise_floor import white_noise_floor
-from agents.twin.records import Batch
+from agents.twin.records import Batch, as_batch
 from gbo_envs.physics.effects import EFFECTS
 
 __all__ = ["TWIN_CANDIDATES", "diagnosed_twin", "measurement_noise"]
@@ -28,7 +28,7 @@ __all__ = ["TWIN_CANDIDATES", "diagnosed_twin", "measurement_noise"]
 TWIN_CANDIDATES = tuple(name for name, cls in EFFECTS.items() if cls.side != "sensor" and name != "drift")
 
 
-def diagnosed_twin(records: Sequence, spec: ModelSpec, effects: Mapping | None = None, max_effects: int = 2,
+def diagnosed_twin(records: Batch | Sequence, spec: ModelSpec, effects: Mapping | None = None, max_effects: int = 2,
                    n_samples: int | None = 100) -> tuple[GreyBoxTwin, list[dict]]:
     """Diagnose the records and fit the twin with every effect they evidence, up to ``max_effects``.
 
@@ -40,8 +40,9 @@ def diagnosed_twin(records: Sequence, spec: ModelSpec, effects: Mapping | None =
 
     Parameters
     ----------
-    records : sequence of Experiment or mappings
-        Plant experiments with ``t, r, u, y``.
+    records : Batch, or sequence of Experiment or mappings
+        Plant experiments with ``t, r, u, y``, or a :class:`~agents.twin.records.Batch` of them stacked with
+        ``n_samples`` (:func:`agents.twin.records.as_batch`).
     spec : ModelSpec
         Orders and output kind of the linear part.
     effects : dict, optional
@@ -59,7 +60,7 @@ def diagnosed_twin(records: Sequence, spec: ModelSpec, effects: Mapping | None =
     rungs : list of dict
         The ladder: ``{"model", "added", "rmse", "fit_percent", "heldout_rmse", "params"}`` per rung.
     """
-    data = Batch.from_records(records, n_samples=n_samples)
+    data = as_batch(records, n_samples)
     steps = max(int(max_effects) - len(effects or {}), 0)
     rungs, diagnoses = error_ladder(data, effects=dict(effects or {}), spec=spec, max_steps=steps,
                                     candidates=TWIN_CANDIDATES)

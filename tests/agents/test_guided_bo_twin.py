@@ -15,6 +15,7 @@ from agents import twin_keeper
 from agents.guidance import TwinIterations
 from agents.guided_bo import GuidedBO
 from agents.twin import GreyBoxTwin, IdentifyOptions, LinearTwin, SrivcOptions, make_twin_env
+from agents.twin.records import Batch
 from agents.twin_keeper import TwinKeeper
 from tests.support import flexible_coupling_env
 
@@ -338,7 +339,7 @@ def test_a_diagnosis_drops_a_wrong_effect_that_fewer_records_evidenced(monkeypat
     diagnosed, calls = twin_keeper.diagnosed_twin, []
 
     def wrong_at_first(records, *args, **kwargs):
-        calls.append(len(records))
+        calls.append(records.n_records)
         return (wrong, []) if len(calls) == 1 else diagnosed(records, *args, **kwargs)
 
     monkeypatch.setattr(twin_keeper, "diagnosed_twin", wrong_at_first)
@@ -349,6 +350,26 @@ def test_a_diagnosis_drops_a_wrong_effect_that_fewer_records_evidenced(monkeypat
     assert calls == [2, 4]
     assert set(keeper.twin_.effect_params_) == {"saturation"}, keeper.twin_.effect_params_
     assert keeper.twin_.effect_params_["saturation"]["limit"] == pytest.approx(138.0, abs=0.1)
+
+
+def test_the_keeper_stacks_its_records_once_for_the_grey_box_refit_and_the_diagnosis(monkeypatch):
+    """D~ is validated and decimated into one Batch per state: the refit of a grey-box twin and the diagnosis after
+    it fit on that batch (the records stacked once, none unstacked and stacked again)."""
+    keeper = _keeper(gym.make("gbo_envs/DCMotor-v0", **SATURATED))
+    records = _records(gym.make("gbo_envs/DCMotor-v0", **SATURATED), [[0.17, 1.7], [0.52, 1.22], [0.4, 1.5],
+                                                                      [0.9, 2.0]])
+    wrong = GreyBoxTwin(effects=["coulomb_friction"], n_samples=keeper.n_samples).fit(records[:2])
+    diagnosed, fitted, grey_fit = [], [], GreyBoxTwin.fit
+    monkeypatch.setattr(twin_keeper, "diagnosed_twin", lambda data, *_, **__: diagnosed.append(data) or (wrong, []))
+    monkeypatch.setattr(GreyBoxTwin, "fit", lambda twin, data, y=None: fitted.append(data) or grey_fit(twin, data))
+    _tell(keeper, records[:2])
+    keeper.twin_env()
+    _tell(keeper, records[2:])
+    keeper.twin_env()  # the friction twin refitted on the four records, then (it replays them badly) a diagnosis
+    assert len(diagnosed) == 2 and len(fitted) == 1
+    assert isinstance(fitted[0], Batch) and fitted[0] is diagnosed[1]
+    assert fitted[0].n_records == 4 and fitted[0].decimated_to == keeper.n_samples
+    assert fitted[0].lengths.max() <= keeper.n_samples
 
 
 def _cost_error(twin_env, records) -> float:

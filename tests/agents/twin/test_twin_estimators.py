@@ -121,6 +121,11 @@ def test_greybox_twin_follows_sklearn_conventions(saturating):
         GreyBoxTwin(max_iter=-1).fit(records)
     with pytest.raises(ValueError, match="n_samples: must be None"):
         GreyBoxTwin(n_samples=100).fit(Batch.from_records(records))
+    with pytest.raises(ValueError, match="stacked with n_samples=60"):
+        GreyBoxTwin(n_samples=100).fit(Batch.from_records(records, n_samples=60))
+    stacked = GreyBoxTwin(n_samples=60).fit(Batch.from_records(records, n_samples=60))  # as the records themselves
+    np.testing.assert_array_equal(stacked.greybox_.theta, GreyBoxTwin(n_samples=60).fit(records).greybox_.theta)
+    assert stacked.n_samples_ == 60
 
 
 def test_rmse_masks_normalises_and_flags_divergence():
