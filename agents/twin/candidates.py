@@ -13,7 +13,7 @@ diagnosis fits, and which effects the data cannot show (:func:`agents.twin.evide
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,13 +23,13 @@ from agents.twin.guesses import effect_starts, residual_frequencies, rest_comman
 from agents.twin.least_squares import Problem, make_problem
 from agents.twin.linear_fit import PROFILE_EFFECTS, profile
 from agents.twin.model import GreyFit, ModelSpec, fitted_parameters
-from agents.twin.modes import plant_modes
+from agents.twin.modes import Mode, plant_modes
 from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
 from gbo_envs.physics.effects import EFFECT_NAMES
 
-__all__ = ["MAX_POLES", "ORDER_CANDIDATES", "Candidate", "CandidatePlan", "OrderCandidate", "candidate_plan",
-           "candidate_problems", "effect_bounds", "forward_bias", "refit_problem"]
+__all__ = ["MAX_POLES", "MODE_CANDIDATES", "ORDER_CANDIDATES", "Candidate", "CandidatePlan", "OrderCandidate",
+           "candidate_plan", "candidate_problems", "effect_bounds", "forward_bias", "read_modes", "refit_problem"]
 
 #: The linear part's structure tried as candidates beside the catalogue's effects: name -> (extra poles,
 #: extra zeros). A lightly damped pole pair is a resonance (a flexible coupling, a belt, a mount); a real
@@ -37,6 +37,9 @@ __all__ = ["MAX_POLES", "ORDER_CANDIDATES", "Candidate", "CandidatePlan", "Order
 ORDER_CANDIDATES: dict[str, tuple[int, int]] = {"pole_pair": (2, 0), "pole": (1, 0), "zero": (0, 1)}
 #: Most poles an order candidate grows the linear part to.
 MAX_POLES = 6
+#: The candidates whose variants, starts or evidence read the plant's modes that the residual shows
+#: (:func:`agents.twin.modes.plant_modes`).
+MODE_CANDIDATES = ("compliance", "pole_pair")
 #: SRIVC iterations (and relative tolerance) of a point on a new effect's profile, from the state-variable
 #: filter. Six made the starts a fifth cheaper but lost the Coulomb friction of ``benchmarks/real_like_sets.py``'s
 #: asymmetric-friction set (cogging was named: RMSE 3.22 -> 2.28, where ten give -> 0.595; docs/design.md).
@@ -47,6 +50,11 @@ PROFILE_TOL = 1e-5
 #: refinement between the best point's neighbours take the full :data:`PROFILE_ITER` from the state-variable filter).
 SCANNED_EFFECTS = ("saturation",)
 SCAN_PROFILE_ITER = 3
+
+
+def read_modes(names: Iterable[str]) -> bool:
+    """Whether one of the candidates ``names`` reads the plant's modes (:data:`MODE_CANDIDATES`)."""
+    return any(name in MODE_CANDIDATES for name in names)
 
 
 @dataclass(frozen=True)
@@ -66,11 +74,13 @@ class Candidate:
     name: str
     variants: tuple = ({},)
 
-    def problems(self, data: Batch, current: GreyFit) -> list[Problem]:
-        """The starting problems of every variant added to ``current``, tagged with :attr:`name`."""
+    def problems(self, data: Batch, current: GreyFit, modes: Sequence[Mode] | None = None) -> list[Problem]:
+        """The starting problems of every variant added to ``current``, tagged with :attr:`name`; ``modes``: the
+        plant's modes in the residual of ``current`` (:func:`agents.twin.modes.plant_modes`; ``None``: scanned here
+        where the candidate needs them)."""
         out = []
         for options in self.variants:
-            out += candidate_problems(data, current, self.name, options, tag=self.name)
+            out += candidate_problems(data, current, self.name, options, tag=self.name, modes=modes)
         return out
 
 
@@ -95,10 +105,12 @@ class OrderCandidate:
         return ModelSpec(spec.n_poles + self.poles, spec.n_zeros + self.zeros, spec.n_integrators, spec.output,
                          spec.effects)
 
-    def problems(self, data: Batch, current: GreyFit, n_keep: int = 2) -> list[Problem]:
+    def problems(self, data: Batch, current: GreyFit, n_keep: int = 2, *,
+                 modes: Sequence[Mode] | None = None) -> list[Problem]:
         """Starts of the grown structure: SRIVC at the new orders under the current effects
         (:func:`agents.twin.linear_fit.profile`), and the current linear part times a factor of the
-        new poles or zeros (:meth:`factor_starts`), the best ``n_keep`` of them by simulation error."""
+        new poles or zeros (:meth:`factor_starts`, from the plant's ``modes``), the best ``n_keep`` of them by
+        simulation error."""
         spec = self.spec(current.spec)
         old = current.spec
         n_eff = current.theta.size - old.n_linear - 1
@@ -112,7 +124,7 @@ class OrderCandidate:
                                         max_iter=10, tol=1e-5)
         if np.isfinite(cost):
             problems.append(make_problem(data, spec, theta, y0, bias, rows, lower, upper, scale, tag=self.name))
-        thetas = [np.concatenate([linear, [delay], effects]) for linear in self.factor_starts(data, current)]
+        thetas = [np.concatenate([linear, [delay], effects]) for linear in self.factor_starts(data, current, modes)]
         sims = simulate_sets(data, [(spec, np.concatenate([th, current.nuisance()]), rows) for th in thetas])
         with np.errstate(over="ignore"):  # a diverged start's output overflows its square: its cost is inf
             costs = [float(np.sum(np.where(data.mask, y - data.y, 0.0) ** 2)) for y in sims]
@@ -122,20 +134,23 @@ class OrderCandidate:
                                              lower, upper, scale, tag=self.name, start=current.start))
         return problems
 
-    def factor_starts(self, data: Batch, current: GreyFit) -> list[np.ndarray]:
+    def factor_starts(self, data: Batch, current: GreyFit, modes: Sequence[Mode] | None = None) -> list[np.ndarray]:
         """Linear parameters ``[b_0..b_m, a_1..a_(n-k)]`` of the current plant times ``F(s)`` with ``F(0) = 1``.
 
         A pole pair ``w^2 / (s^2 + 2 zeta w s + w^2)`` at the plant's modes that the residual shows
         (:func:`agents.twin.modes.plant_modes`, at their damping and 0.05), and at the frequencies where the
         residual rings (:func:`agents.twin.guesses.residual_frequencies`) and on a geometric grid, ``zeta``
         0.05 and 0.3; a pole ``p / (s + p)`` or a zero ``s / z + 1`` on the grid. The grid spans four times the
-        records' fundamental to a quarter of the Nyquist frequency (rad/s).
+        records' fundamental to a quarter of the Nyquist frequency (rad/s). ``modes``: the plant's modes in the
+        residual of ``current`` (``None``: scanned here).
         """
         span = float(data.mask.sum(axis=1).min() * data.dt)
         grid = list(np.geomspace(8.0 * np.pi / span, 0.25 * np.pi / data.dt, 8))
         factors = []
         if self.poles == 2:
-            pairs = [(m.frequency, zeta) for m in plant_modes(data, current) for zeta in sorted({m.damping, 0.05})]
+            if modes is None:
+                modes = plant_modes(data, current)
+            pairs = [(m.frequency, zeta) for m in modes for zeta in sorted({m.damping, 0.05})]
             pairs += [(w, zeta) for w in residual_frequencies(data, current) + grid for zeta in (0.05, 0.3)]
             for w, zeta in pairs:
                 factors.append((np.array([w**2]), np.array([1.0, 2.0 * zeta * w, w**2])))
@@ -172,12 +187,16 @@ class CandidatePlan:
         ``{effect: reason}`` for every effect the data cannot show (:func:`excitation_notes`).
     unobservable : list of dict
         ``{"effect", "reason", "experiment"}`` of the tried effects the data cannot show.
+    modes : tuple of Mode or None
+        The plant's modes in the residual of the current model (:func:`agents.twin.modes.plant_modes`), scanned
+        once where a candidate reads them (:data:`MODE_CANDIDATES`), else ``None``.
     """
 
     candidates: list
     skipped: list
     notes: dict
     unobservable: list
+    modes: tuple | None = None
 
     @property
     def names(self) -> list[str]:
@@ -205,15 +224,16 @@ def candidate_plan(data: Batch, current: GreyFit, names: Sequence[str] | None = 
     notes = excitation_notes(data, current.spec.output)
     unobservable = unobservable_effects({n: notes[n] for n in names if n in notes})
     skipped = [n for n in names if n in notes] if skip_unexcited else []
-    candidates = [Candidate(n, _variants(n, data, current)) for n in names if n not in skipped]
-    if orders:
-        spec = current.spec
-        candidates += [OrderCandidate(name, poles, zeros) for name, (poles, zeros) in ORDER_CANDIDATES.items()
-                       if spec.n_poles + poles <= MAX_POLES and spec.n_zeros + zeros < spec.n_poles + poles]
-    return CandidatePlan(candidates, skipped, notes, unobservable)
+    spec = current.spec
+    grown = [OrderCandidate(name, poles, zeros) for name, (poles, zeros) in ORDER_CANDIDATES.items()
+             if spec.n_poles + poles <= MAX_POLES and spec.n_zeros + zeros < spec.n_poles + poles] if orders else []
+    tried = [n for n in names if n not in skipped]
+    modes = tuple(plant_modes(data, current)) if read_modes([*tried, *(c.name for c in grown)]) else None
+    candidates = [Candidate(n, _variants(n, data, current, modes)) for n in tried]
+    return CandidatePlan(candidates + grown, skipped, notes, unobservable, modes)
 
 
-def _variants(name: str, data: Batch, current: GreyFit) -> tuple[dict, ...]:
+def _variants(name: str, data: Batch, current: GreyFit, modes: Sequence[Mode] | None) -> tuple[dict, ...]:
     """Variants of effect ``name`` worth fitting on ``data``.
 
     ``drift`` of the gain and of each denominator coefficient; ``coulomb_friction`` also with a
@@ -221,7 +241,8 @@ def _variants(name: str, data: Batch, current: GreyFit) -> tuple[dict, ...]:
     loads the data pin (a reversal within a record, or records that show their rest), since
     only then do both levels act; ``compliance`` measured on the load's side and, where the residual shows a
     mode of the plant (:func:`agents.twin.modes.plant_modes`), on the motor's (where the coupling's
-    anti-resonance shows: an encoder on the motor of a flexible beam).
+    anti-resonance shows: an encoder on the motor of a flexible beam); ``modes`` are those of the residual of
+    ``current``.
     """
     spec = current.spec
     if name == "drift":
@@ -229,7 +250,7 @@ def _variants(name: str, data: Batch, current: GreyFit) -> tuple[dict, ...]:
         return tuple({"parameter": p} for p in ["gain", *dens])
     if name == "coulomb_friction" and both_directions(data, spec.output):
         return ({}, {"variant": "asymmetric"})
-    if name == "compliance" and plant_modes(data, current):
+    if name == "compliance" and modes:
         return ({}, {"measured": "motor"})
     return ({},)
 
@@ -317,15 +338,19 @@ def _profile_problems(data, current, spec, name, starts, lo, hi, lower, upper, s
 
 
 def candidate_problems(data: Batch, current: GreyFit, name: str, options: Mapping | None = None,
-                       n_keep: int = 2, tag=None) -> list[Problem]:
+                       n_keep: int = 2, tag=None, modes: Sequence[Mode] | None = None) -> list[Problem]:
     """Problems for ``current`` plus effect ``name``: its data-based starts, screened, the best ``n_keep`` kept.
 
     Actuator effects of :data:`agents.twin.linear_fit.PROFILE_EFFECTS` and ``time_delay`` start
     from the SRIVC profile (one problem); the others from the starts of
-    :func:`agents.twin.guesses.effect_starts` screened by their simulation error.
+    :func:`agents.twin.guesses.effect_starts` screened by their simulation error. ``modes``: the plant's
+    modes in the residual of ``current`` (:func:`agents.twin.modes.plant_modes`; ``None``: scanned here where
+    ``name`` needs them).
     """
+    if modes is None and read_modes([name]):
+        modes = plant_modes(data, current)
     spec = current.spec.with_effect(name, options)
-    starts, lo, hi, sc = effect_starts(name, data, current, options=options)
+    starts, lo, hi, sc = effect_starts(name, data, current, options=options, modes=modes)
     rows = np.arange(data.n_records)
     n_old = current.theta.size - current.spec.n_linear - 1
     lower, upper, scale = effect_bounds(
@@ -358,7 +383,7 @@ def candidate_problems(data: Batch, current: GreyFit, name: str, options: Mappin
         problems.append(make_problem(data, spec, thetas[i], current.y0.copy(), biases[i], rows, lower, upper, scale,
                                      tag=tag, start=current.start))
     if name == "compliance":  # and at the plant's mode, the linear part profiled under the coupling's factor
-        problems += _mode_problems(data, current, spec, options, lower, upper, scale, tag)
+        problems += _mode_problems(data, current, spec, options, lower, upper, scale, tag, modes)
     return problems
 
 
@@ -367,8 +392,10 @@ def candidate_problems(data: Batch, current: GreyFit, name: str, options: Mappin
 MODE_INERTIA_RATIOS = (0.3, 1.0, 3.0)
 
 
-def _mode_problems(data: Batch, current: GreyFit, spec: ModelSpec, options, lower, upper, scale, tag) -> list[Problem]:
-    """A compliance started at the strongest plant mode the residual shows (:func:`agents.twin.modes.plant_modes`),
+def _mode_problems(data: Batch, current: GreyFit, spec: ModelSpec, options, lower, upper, scale, tag,
+                   modes: Sequence[Mode]) -> list[Problem]:
+    """A compliance started at the strongest of the plant's ``modes`` that the residual shows
+    (:func:`agents.twin.modes.plant_modes`),
     with the linear part profiled under the coupling's factor (:func:`agents.twin.linear_fit.profile`), the best
     start over the inertia ratios :data:`MODE_INERTIA_RATIOS` where the coupling is seen from the motor.
 
@@ -376,7 +403,6 @@ def _mode_problems(data: Batch, current: GreyFit, spec: ModelSpec, options, lowe
     motor's second pole): started from it, the fit of six 1 s steps of a flexible beam stopped at twice the
     noise floor (damping 0.014 where the beam has 0.03).
     """
-    modes = plant_modes(data, current, n_modes=1)
     if not modes:
         return []
     m = modes[0]

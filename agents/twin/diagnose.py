@@ -18,13 +18,14 @@ import numpy as np
 from agents.jsonable import jsonable
 from agents.run_display import progress_bar
 from agents.thread_limits import single_thread
-from agents.twin.candidates import candidate_plan
+from agents.twin.candidates import candidate_plan, read_modes
 from agents.twin.compare import compare
 from agents.twin.diagnosis_options import CandidateSearch, DiagnosisRules
 from agents.twin.fits import fit_candidates, fit_structure
 from agents.twin.ladder_text import rung_text
 from agents.twin.map_candidates import with_map_candidates
 from agents.twin.model import GreyFit, ModelSpec
+from agents.twin.modes import plant_modes
 from agents.twin.noise_floor import NoiseFloor, noise_floor_estimate
 from agents.twin.ranking import Ranking, rank, validated_folds
 from agents.twin.records import Batch
@@ -54,6 +55,9 @@ class Diagnosis:
     unobservable : list of dict
         The effects the data cannot show: ``{"effect", "reason", "experiment"}`` (why, and the
         experiment that would show them).
+    modes : tuple of Mode or None
+        The plant's modes in the residual of ``current`` (:func:`agents.twin.modes.plant_modes`), scanned once
+        where a candidate's evidence names them, else ``None``.
     """
 
     current: GreyFit
@@ -63,6 +67,7 @@ class Diagnosis:
     fit_percent: float
     unobservable: list = field(default_factory=list)
     data_: Batch | None = field(default=None, repr=False)
+    modes: tuple | None = field(default=None, repr=False)
 
     @property
     def candidates(self) -> list[dict]:
@@ -211,15 +216,18 @@ def diagnose(data: Batch, effects=None, *, candidates: Sequence[str] | None = No
             fitted = fit_candidates(data, current, plan, search.max_iter, search.screen_iter, progress=bar,
                                     noise=noise.rmse)
             bar.update(1)
-            # -> ranking
+            # -> ranking, with the plant's modes of the model diagnosed (scanned once; the plan's, if it is unchanged)
+            modes = plan.modes if fitted.current is current else None
+            if modes is None and read_modes(fitted.fits):
+                modes = tuple(plant_modes(data, fitted.current))
             ranking = rank(data, fitted.current, fitted.fits, plan, noise, n_folds, rules.bic_margin, rules.min_gain,
-                           rules.noise_gain, progress=bar)
+                           rules.noise_gain, progress=bar, modes=modes)
             bar.update(1)
         finally:
             bar.close()
     # -> report
     return Diagnosis(fitted.current, fitted.fits, ranking, noise, compare(data, fitted.current).fit_percent_all,
-                     plan.unobservable, data)
+                     plan.unobservable, data, modes)
 
 
 def as_step(rung: dict, before: dict, added: str, intervals: dict, units, output: str) -> dict:

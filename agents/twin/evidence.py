@@ -3,13 +3,15 @@ experiment would separate two effects that explain the data equally well."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from agents.twin.coast_down import coast_downs, speed_tolerance
 from agents.twin.fidelity import rmse
 from agents.twin.guesses import residual_frequencies
 from agents.twin.model import GreyFit
-from agents.twin.modes import RESONANCE_DAMPING, plant_modes
+from agents.twin.modes import RESONANCE_DAMPING, Mode, plant_modes
 from agents.twin.records import Batch
 from agents.twin.residuals import residuals
 
@@ -273,11 +275,12 @@ def mode_text(what: str, frequency: float, damping: float) -> str:
     return f"{what} at {frequency:.3g} rad/s, overdamped (damping {damping:.2g} >= 1: no resonance)"
 
 
-def ringing(data: Batch, current: GreyFit) -> str:
-    """Where the residual of ``current`` rings, in words: the strongest plant mode it shows
-    (:func:`agents.twin.modes.plant_modes`, in rad/s and Hz), else its periodogram's peak
+def ringing(data: Batch, current: GreyFit, modes: Sequence[Mode] | None = None) -> str:
+    """Where the residual of ``current`` rings, in words: the strongest plant mode it shows (of ``modes``, else
+    :func:`agents.twin.modes.plant_modes`, in rad/s and Hz), else its periodogram's peak
     (:func:`agents.twin.guesses.residual_frequencies`)."""
-    modes = plant_modes(data, current, n_modes=1)
+    if modes is None:
+        modes = plant_modes(data, current, n_modes=1)
     if modes:
         m = modes[0]
         return (f"residual rings at {m.frequency:.3g} rad/s ({m.hertz:.3g} Hz), a mode of the plant: it follows the "
@@ -296,11 +299,12 @@ def zero_text(tau: float) -> str:
     return f"the response leads the model: a zero of time constant {tau:.3g} s"
 
 
-def _order_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit, tail: str) -> str:
+def _order_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit, tail: str,
+                    modes: Sequence[Mode] | None) -> str:
     change = order_change(name, current, fit)
     if name == "pole_pair" and change:
         w, zeta = change["frequency"]["value"], change["damping"]["value"]
-        return f"{ringing(data, current)}: {mode_text('a second mode of the linear part', w, zeta)}" + tail
+        return f"{ringing(data, current, modes)}: {mode_text('a second mode of the linear part', w, zeta)}" + tail
     if name == "pole" and change:
         return f"the response lags the model: an extra lag of time constant {change['time_constant']['value']:.3g} s" \
             + tail
@@ -309,7 +313,7 @@ def _order_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit, tail
     return f"a {name.replace('_', ' ')} in the linear part" + tail
 
 
-def effect_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit) -> str:
+def effect_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit, modes: Sequence[Mode] | None = None) -> str:
     """The residual signature of effect ``name`` in the current model's residual.
 
     Parameters
@@ -321,6 +325,9 @@ def effect_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit) -> s
         The model diagnosed.
     fit : GreyFit
         ``current`` with ``name`` added.
+    modes : sequence of Mode, optional
+        The plant's modes in the residual of ``current`` (:func:`agents.twin.modes.plant_modes`; default: scanned
+        here where the evidence names them).
 
     Returns
     -------
@@ -336,7 +343,7 @@ def effect_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit) -> s
     speed = data.y if current.spec.output != "position" else np.gradient(data.y, data.dt, axis=1)
     tail = f"; adding it explains {share:.0f} % of the residual power"
     if fit.spec.n_linear != current.spec.n_linear:  # an order candidate: the linear part grew
-        return _order_evidence(name, data, current, fit, tail)
+        return _order_evidence(name, data, current, fit, tail, modes)
     if name == "saturation":
         limit = params.get("limit", np.inf)
         over = np.abs(data.u[m]) > limit
@@ -387,5 +394,5 @@ def effect_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit) -> s
                 f"{POSITION_UNITS[current.spec.output]} (r={r:.2f})") + tail
     if name == "compliance":
         mode = mode_text("a flexible coupling", params.get("frequency", 0.0), params.get("damping", 0.0))
-        return f"{ringing(data, current)}: {mode} (r={r:.2f})" + tail
+        return f"{ringing(data, current, modes)}: {mode} (r={r:.2f})" + tail
     return f"r={r:.2f}" + tail

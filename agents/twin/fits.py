@@ -14,11 +14,19 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from agents.thread_limits import single_thread
-from agents.twin.candidates import CandidatePlan, candidate_problems, effect_bounds, forward_bias, refit_problem
+from agents.twin.candidates import (
+    CandidatePlan,
+    candidate_problems,
+    effect_bounds,
+    forward_bias,
+    read_modes,
+    refit_problem,
+)
 from agents.twin.guesses import quantization_scan
 from agents.twin.least_squares import Problem, fit_problems, make_problem
 from agents.twin.linear_fit import linear_fit, profile
 from agents.twin.model import GreyFit, ModelSpec, effect_items, effect_offset, fitted_parameters
+from agents.twin.modes import plant_modes
 from agents.twin.noise_floor import quantization_step
 from agents.twin.record_checks import check_fit_size
 from agents.twin.records import Batch
@@ -166,7 +174,8 @@ def fit_candidates(data: Batch, current: GreyFit, plan: CandidatePlan, max_iter:
     A candidate starts from its own profile fit of the linear part, which can land in a
     better minimum than the current model's; if that minimum survives switching the new
     effect off (:func:`_without_new_effect`), the current model is replaced by it and every
-    candidate is fitted once more, from its first fit.
+    candidate is fitted once more, from its first fit; a candidate without one from its starts at that model
+    (the plant's modes in that model's residual, :func:`agents.twin.modes.plant_modes`, scanned once for them).
 
     Parameters
     ----------
@@ -180,11 +189,13 @@ def fit_candidates(data: Batch, current: GreyFit, plan: CandidatePlan, max_iter:
     progress : tqdm bar, optional
         Advanced once per candidate's starts and once per round of fits.
     """
-    starts = None
+    starts, modes = None, plan.modes
     for restarted in (False, True):
         problems = [refit_problem(data, current, tag="__current__")]
         fresh = [c for c in plan.candidates if starts is None or c.name not in starts]
-        made = _starting_problems(data, current, fresh, progress if not restarted else None)
+        if restarted:  # the modes of the new current model, for the candidates that start from them
+            modes = tuple(plant_modes(data, current)) if read_modes(c.name for c in fresh) else None
+        made = _starting_problems(data, current, fresh, progress if not restarted else None, modes)
         for candidate in plan.candidates:
             if starts is not None and candidate.name in starts:  # the second round: from the first round's fit
                 problems.append(refit_problem(data, starts[candidate.name], tag=candidate.name))
@@ -208,11 +219,14 @@ def fit_candidates(data: Batch, current: GreyFit, plan: CandidatePlan, max_iter:
     raise AssertionError("unreachable")
 
 
-def _starting_problems(data: Batch, current: GreyFit, candidates: list, progress=None) -> dict[str, list]:
+def _starting_problems(data: Batch, current: GreyFit, candidates: list, progress=None,
+                       modes: tuple | None = None) -> dict[str, list]:
     """``{name: problems}``: each candidate's starting problems (SRIVC profiles, screening simulations), which
-    do not depend on one another's (in the worker processes of :func:`agents.twin.workers.worker_processes`)."""
+    do not depend on one another's (in the worker processes of :func:`agents.twin.workers.worker_processes`);
+    ``modes``: the plant's modes in the residual of ``current`` (``None``: scanned by the candidates that need them)."""
     made = {}
-    for candidate, problems in zip(candidates, map_independent(_problems_of, [(c, data, current) for c in candidates])):
+    pieces = [(c, data, current, modes) for c in candidates]
+    for candidate, problems in zip(candidates, map_independent(_problems_of, pieces)):
         made[candidate.name] = problems
         if progress is not None:
             progress.set_postfix_str(f"starts of {candidate.name}")
@@ -220,8 +234,8 @@ def _starting_problems(data: Batch, current: GreyFit, candidates: list, progress
     return made
 
 
-def _problems_of(candidate, data: Batch, current: GreyFit) -> list[Problem]:
-    return candidate.problems(data, current)
+def _problems_of(candidate, data: Batch, current: GreyFit, modes: tuple | None) -> list[Problem]:
+    return candidate.problems(data, current, modes=modes)
 
 
 def _best_variant(data: Batch, problems: list[Problem], floor: float | None = None, margin: float = 10.0,

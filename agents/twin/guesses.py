@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from agents.twin.coast_down import coast_down_torque
 from agents.twin.model import GreyFit
-from agents.twin.modes import RESONANCE_DAMPING, plant_modes
+from agents.twin.modes import RESONANCE_DAMPING, Mode, plant_modes
 from agents.twin.noise_floor import quantization_step
 from agents.twin.records import Batch
 from agents.twin.static_map import map_starts
@@ -35,13 +37,14 @@ def data_scales(data: Batch, output: str = "speed") -> dict[str, float]:
 SATURATION_GRID_RATIO = 1.02
 
 
-def effect_starts(name: str, data: Batch, base: GreyFit, with_starts: bool = True, options=None) -> tuple[
-        list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
+def effect_starts(name: str, data: Batch, base: GreyFit, with_starts: bool = True, options=None,
+                  modes: Sequence[Mode] | None = None) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
     """Starting values, bounds and scales of the fitted parameters of effect ``name``, from the data.
 
     ``with_starts=False`` skips the (for quantization and drift, costlier) starting values;
     ``options`` are the effect's (its ``variant`` adds parameters:
-    :data:`agents.twin.model.VARIANT_PARAMETERS`).
+    :data:`agents.twin.model.VARIANT_PARAMETERS`); ``modes`` the plant's modes in the residual of ``base``
+    (:func:`agents.twin.modes.plant_modes`; ``None``: scanned here where the starts need them).
 
     Returns
     -------
@@ -113,7 +116,7 @@ def effect_starts(name: str, data: Batch, base: GreyFit, with_starts: bool = Tru
         # what a resonance means (RESONANCE_DAMPING): a "coupling" with damping 1.2 explained a short record's
         # lag, not a mode
         top = np.pi / dt  # the Nyquist frequency, rad/s
-        found = plant_modes(data, base) if with_starts else []
+        found = (plant_modes(data, base) if modes is None else modes) if with_starts else []
         low, high = RESONANCE_DAMPING
         grid = sorted(set(np.geomspace(8.0 * np.pi / horizon, 0.25 * top, 6)))
         starts = [np.array([m.frequency, zeta]) for m in found for zeta in sorted({m.damping, 0.05})]

@@ -178,7 +178,7 @@ def advice(diagnosis, effects: Sequence[str], data: str = "DATA.csv", stopped_at
     far = noise is not None and noise > 0 and diagnosis.current.rmse > FAR_FROM_FLOOR * noise
     data_ = getattr(diagnosis, "data_", None)
     if far and data_ is not None:  # not at the floor: what the residual looks like, and what was tried
-        shape = residual_shape(data_, diagnosis.current)
+        shape = residual_shape(data_, diagnosis.current, getattr(diagnosis, "modes", None))
         tried = tried_general(getattr(diagnosis, "candidates", []))
         return (f"no candidate passes the rules, but the model is not at the noise floor: "
                 f"{shape_text(shape, tried, noise, units)}. Look at the residuals (`gbo twin resid {data}"

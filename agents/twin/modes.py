@@ -88,28 +88,10 @@ def plant_modes(data: Batch, fit: GreyFit, n_modes: int = 2, min_share: float = 
     Returns
     -------
     list of Mode
-        Empty when the records are too short (fewer than 16 samples) or no mode stands out.
+        Empty when the records are too short (fewer than 16 samples) or no mode stands out. The first
+        ``k`` modes do not depend on ``n_modes >= k``: one scan of a model serves every caller (a diagnosis
+        scans each model once, :func:`agents.twin.diagnose.diagnose`, and passes the modes down).
     """
-    kept = max(n_modes, SCAN_MODES)  # one scan answers every n_modes up to SCAN_MODES
-    key = (kept, float(min_share), data.dt, *(hash(np.ascontiguousarray(a).tobytes())
-                                              for a in (data.u, data.y, data.mask, fit.y_sim)))
-    if key not in _FOUND:
-        if len(_FOUND) >= CACHE_SIZE:
-            _FOUND.pop(next(iter(_FOUND)))
-        _FOUND[key] = _scan(data, fit, kept, min_share)
-    return list(_FOUND[key][:n_modes])
-
-
-#: Scans remembered per process (:func:`plant_modes`): the candidates' starts and their evidence ask for the same
-#: residual's modes several times.
-CACHE_SIZE = 16
-#: Modes a scan keeps (the most any caller asks for).
-SCAN_MODES = 2
-_FOUND: dict = {}
-
-
-def _scan(data: Batch, fit: GreyFit, n_modes: int, min_share: float) -> list[Mode]:
-    """The scan of :func:`plant_modes`."""
     mask = data.mask
     n = int(mask.sum(axis=1).min())
     if n < 16:

@@ -276,8 +276,12 @@ class Ranking:
 
 
 def rank(data: Batch, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_folds: int,
-         bic_margin: float = 10.0, min_gain: float = 0.02, noise_gain: float = 0.05, progress=None) -> Ranking:
+         bic_margin: float = 10.0, min_gain: float = 0.02, noise_gain: float = 0.05, progress=None,
+         modes: tuple | None = None) -> Ranking:
     """Rank the candidate ``fits`` against ``current`` and select the best; see :func:`agents.twin.diagnose.diagnose`.
+
+    ``modes`` are the plant's modes in the residual of ``current`` (:func:`agents.twin.modes.plant_modes`), which
+    the evidence of a compliance or a pole pair names (``None``: scanned for each where needed).
 
     Rules, in order: a candidate is *good* when its ``delta_bic < -bic_margin``, its held-out
     RMSE is below ``(1 - min_gain)`` times the current model's and at least ``noise_gain``
@@ -310,7 +314,7 @@ def rank(data: Batch, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_f
         validation = "training error (one experiment: nothing to hold out)"
     bic = n * np.log(np.maximum(rss, 1e-300) / n) + np.array([m.n_params for m in models]) * np.log(n)
     cands = []
-    described = map_independent(_described, [(data, current, fits[name], name) for name in order])
+    described = map_independent(_described, [(data, current, fits[name], name, modes) for name in order])
     for i, (name, (grown, params, intervals, size, evidence)) in enumerate(zip(order, described), start=1):
         fit = fits[name]
         kind = "order" if grown else "map" if name in MAP_NAMES else "effect"
@@ -398,11 +402,12 @@ def _refit_note(refitted: list, n_folds: int) -> str:
             f"model; {worst[2]:.3g} from the all-data parameters)")
 
 
-def _described(data: Batch, current: GreyFit, fit: GreyFit, name: str) -> tuple:
+def _described(data: Batch, current: GreyFit, fit: GreyFit, name: str, modes: tuple | None = None) -> tuple:
     """``(grown, params, intervals, effect_rms, evidence)`` of candidate ``name`` fitted as ``fit``: whether it grows
     the linear part, its parameters with their intervals, the RMS its effect itself makes (or, for a grown
-    order, the change of the output) and the evidence in words. Each candidate's apart from the others' (in the
-    worker processes of :func:`agents.twin.workers.worker_processes`)."""
+    order, the change of the output) and the evidence in words (``modes``: the plant's modes in the residual of
+    ``current``). Each candidate's apart from the others' (in the worker processes of
+    :func:`agents.twin.workers.worker_processes`)."""
     grown = fit.spec.n_linear != current.spec.n_linear  # an order candidate
     if grown:
         change = order_change(name, current, fit)
@@ -416,7 +421,7 @@ def _described(data: Batch, current: GreyFit, fit: GreyFit, name: str) -> tuple:
     else:
         params = fit.effect_params.get(name, {})
         intervals, size = effect_intervals(data, fit, name), effect_size(data, fit)
-    return grown, params, intervals, size, effect_evidence(name, data, current, fit)
+    return grown, params, intervals, size, effect_evidence(name, data, current, fit, modes)
 
 
 def _share(current: GreyFit, fit: GreyFit) -> float:

@@ -11,12 +11,12 @@ outside the catalogue of effects) that were tried and why each failed.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from agents.twin.model import GreyFit, output_error
-from agents.twin.modes import plant_modes
+from agents.twin.modes import Mode, plant_modes
 from agents.twin.records import Batch
 from gbo_envs.physics.effects import EFFECT_NAMES
 
@@ -28,8 +28,11 @@ FAR_FROM_FLOOR = 3.0
 PADDING = 4
 
 
-def residual_shape(data: Batch, fit: GreyFit) -> dict:
+def residual_shape(data: Batch, fit: GreyFit, modes: Sequence[Mode] | None = None) -> dict:
     """The residual ``y - y_sim`` of ``fit`` described: its spectral peak, its plant mode and its correlations.
+
+    ``modes`` are the plant's modes in the residual of ``fit`` (:func:`agents.twin.modes.plant_modes`; default:
+    scanned here).
 
     Returns
     -------
@@ -53,7 +56,8 @@ def residual_shape(data: Batch, fit: GreyFit) -> dict:
             i = np.flatnonzero(band)[np.argmax(power[band])]
             out.update(peak_hz=float(f[i]), peak_rad_s=float(2.0 * np.pi * f[i]),
                        peak_ratio=float(power[i] / max(np.median(power[band]), 1e-300)))
-    modes = plant_modes(data, fit, n_modes=1)
+    if modes is None:
+        modes = plant_modes(data, fit, n_modes=1)
     if modes:
         m = modes[0]
         out["mode"] = {"frequency": m.frequency, "hertz": m.hertz, "damping": m.damping, "share": m.share}

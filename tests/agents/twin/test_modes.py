@@ -134,3 +134,31 @@ def test_friction_on_cascade_records_is_named():
     assert d.best == "coulomb_friction"
     assert d.fits["coulomb_friction"].effect_params["coulomb_friction"]["torque"] == pytest.approx(0.5, rel=0.05)
     assert d.fits["coulomb_friction"].rmse < 0.2 * d.current.rmse
+
+
+def test_a_diagnosis_scans_each_model_for_modes_once(monkeypatch):
+    """The candidates' variants and starts, their evidence and the stop advice read the plant's modes of one
+    model: each model a diagnosis looks at is scanned once (:func:`plant_modes` wherever it is imported), and the
+    modes the diagnosis keeps are its current model's."""
+    import sys
+
+    from agents.twin import modes as modes_module
+    from tests.support import loop_records
+
+    scanned = []
+
+    def counted(data, fit, *args, **kwargs):
+        scanned.append(fit.y_sim.tobytes())
+        return original(data, fit, *args, **kwargs)
+
+    original = modes_module.plant_modes
+    for module in [m for name, m in sys.modules.items() if name.startswith("agents.")]:
+        if getattr(module, "plant_modes", None) is original:
+            monkeypatch.setattr(module, "plant_modes", counted)
+    records = loop_records({"compliance": {"frequency": 15.0, "damping": 0.1}}, gains=[[0.3, 1.0], [0.6, 1.5],
+                                                                                        [0.9, 1.2]], duration=1.0)
+    data = Batch.from_records(records)
+    d = diagnose(data, candidates=["compliance", "offset"])
+    advice(d, d.current.spec.effect_names, "data.csv")
+    assert scanned and len(scanned) == len(set(scanned))  # no model scanned twice
+    assert d.modes == tuple(original(data, d.current))
