@@ -180,7 +180,7 @@ class GuidedBO(BayesianOptimization):
         self.keeper_ = TwinKeeper(self.twin, twin_poles=self.twin_poles, n_samples=self.n_samples, delta=self.delta,
                                   eta2=self.eta2, noise_std=self.noise_std,
                                   refit_on_cost_miss=self.guidance.refit_on_cost_miss)
-        self.keeper_.setup(self.space, plant_env)
+        self.keeper_.setup(self.space, plant_env, constraints=plant_env.constraints if self.safe else None)
         self.activations_ = self.twin_evaluations_ = self.repeats_ = 0
         self.since_activation_ = np.inf
         self._prior = None  # the twin's metrics while they are the metric GPs' prior mean
@@ -191,9 +191,9 @@ class GuidedBO(BayesianOptimization):
             return super()._ask()
         gains = self.guidance.propose(self, self.keeper_)
         if self.safety_ is not None and self.n_observations >= 1:
-            twin_env = self.keeper_.twin_env()
-            self.safety_.expect(twin_env, gains)  # the twin's prediction, judged at tell()
-            self.safety_.admitted_ += int(self.safety_.admits(twin_env, gains, self.n_observations + 1)[0])
+            simulation = self.keeper_.twin_simulation()  # the prior's simulations of the twin: each gain once
+            self.safety_.expect(simulation, gains)  # the twin's prediction, judged at tell()
+            self.safety_.admitted_ += int(self.safety_.admits(simulation, gains, self.n_observations + 1)[0])
         return gains
 
     def _constrained_acquisition(self, model):
@@ -203,8 +203,8 @@ class GuidedBO(BayesianOptimization):
         if self.safety_ is None:
             return super()._constrained_acquisition(model)
         acquisition = super()._constrained_acquisition(model)
-        return TwinSafeAcquisition(acquisition.ei, self.constraint_model, self.safety_, self.keeper_.twin_env(),
-                                   self.space, self.n_observations + 1)
+        return TwinSafeAcquisition(acquisition.ei, self.constraint_model, self.safety_,
+                                   self.keeper_.twin_simulation(), self.space, self.n_observations + 1)
 
     def _tell(self, gains: np.ndarray, cost: float, record: dict | None) -> None:
         super()._tell(gains, cost, record)

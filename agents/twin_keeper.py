@@ -51,7 +51,7 @@ from agents.twin.identify import IdentifyOptions, SrivcOptions
 from agents.twin.linear_twin import LinearTwin
 from agents.twin.model import ModelSpec
 from agents.twin.noise_floor import noiseless_quantum
-from agents.twin.prior import TwinMetrics
+from agents.twin.prior import TwinMetrics, TwinSimulation
 from agents.twin.records import Batch
 from agents.twin.selection import diagnosed_twin, measurement_noise
 from gbo_envs.experiment import SIGNALS, Experiment
@@ -157,7 +157,7 @@ class TwinKeeper:
         self.eta2, self.noise_std = params["eta2"], params["noise_std"]
         self.refit_on_cost_miss = refit_on_cost_miss
 
-    def setup(self, space, env) -> None:
+    def setup(self, space, env, constraints=None) -> None:
         """Start a run (forgets every record) on the feasible set ``space`` of the plant env ``env``.
 
         Parameters
@@ -165,10 +165,13 @@ class TwinKeeper:
         space : agents.GainSpace
         env : gbo_envs.ControllerTuningEnv
             The unwrapped plant env: its closed loop is the twin's (``env.loop``).
+        constraints : gbo_envs.constraints.Constraints, optional
+            Limits that :meth:`twin_simulation` judges on the twin's simulated records too
+            (guided BO's safety filter); ``None``: the metrics alone.
         """
         if not hasattr(env, "loop"):
             raise ValueError("env: the twin keeper needs the unwrapped plant env, with its closed loop (env.loop)")
-        self.space, self._env = space, env
+        self.space, self._env, self._constraints = space, env, constraints
         self._step_height = abs(float(env.loop.r2) - float(env.loop.r1)) or 1.0
         self._records: list[Experiment] = []  # D~ with the gains and costs told, each record's index its place in it
         self._stacked: dict[int | None, Batch] = {}  # D~ as one Batch per n_samples, stacked when first fitted on
@@ -183,8 +186,9 @@ class TwinKeeper:
         self._broken = None  # (theta_T, theta_I, delivered improvement, records) of the promise that failed
         self._linear = None  # the SRIVC twin of twin="auto", refitted in place (warm start)
         self._twin_env = None
-        self._metrics = None  # the current twin's TwinMetrics
-        self._retired_simulations = 0  # simulations of the TwinMetrics of former twins
+        self._simulation = None  # the current twin's TwinSimulation
+        self._metrics = None  # the current twin's TwinMetrics (reading self._simulation)
+        self._retired_simulations = 0  # simulations of former twins (their TwinSimulation and TwinMetrics)
         self._events: list[str] = []
         self.twin_ = None
         self.changes_: list[dict] = []
@@ -254,20 +258,38 @@ class TwinKeeper:
             return False
         return self.trusted
 
-    def twin_metrics(self) -> TwinMetrics | None:
-        """The current twin's raw metrics ``f~(X)`` at unit-box gains ``X`` of shape (m, n_gains), cached per twin.
+    def twin_simulation(self) -> TwinSimulation | None:
+        """The current twin's noise-free simulations (metrics, cost and the setup's constraint slacks), cached per twin.
 
-        A :class:`~agents.twin.prior.TwinMetrics`: any ``X`` (the acquisition grid or any other
-        points), each row simulated once per twin; ``None`` without a twin.
+        A :class:`~agents.twin.prior.TwinSimulation`: each gain simulated once per twin, read by
+        :meth:`twin_metrics` and by guided BO's safety filter; ``None`` without a twin.
         """
         twin_env = self.twin_env()
         if twin_env is None:
             return None
-        if self._metrics is None or self._metrics.twin_env is not twin_env:
-            if self._metrics is not None:
-                self._retired_simulations += self._metrics.simulations_
-            self._metrics = TwinMetrics(twin_env, self.space)
+        if self._simulation is None or self._simulation.twin_env is not twin_env:
+            self._retired_simulations += self._current_simulations()
+            self._simulation, self._metrics = TwinSimulation(twin_env, self._constraints), None
+        return self._simulation
+
+    def twin_metrics(self) -> TwinMetrics | None:
+        """The current twin's raw metrics ``f~(X)`` at unit-box gains ``X`` of shape (m, n_gains), cached per twin.
+
+        A :class:`~agents.twin.prior.TwinMetrics` reading :meth:`twin_simulation`: any ``X`` (the
+        acquisition grid or any other points), each row simulated once per twin; ``None`` without a twin.
+        """
+        simulation = self.twin_simulation()
+        if simulation is None:
+            return None
+        if self._metrics is None:
+            self._metrics = TwinMetrics(simulation, self.space)
         return self._metrics
+
+    def _current_simulations(self) -> int:
+        """Simulations of the current twin: its noise-free ones, and its prior's expected ones."""
+        if self._metrics is not None:
+            return self._metrics.simulations_
+        return 0 if self._simulation is None else self._simulation.simulations_
 
     def twin_cost(self, gains) -> float:
         """The last fitted twin's expected cost at one gain vector (physical units), ``unstable_cost`` if it diverges.
@@ -283,8 +305,8 @@ class TwinKeeper:
 
     @property
     def metric_simulations_(self) -> int:
-        """Twin simulations made by :meth:`twin_metrics` so far, over every twin of the run."""
-        return self._retired_simulations + (0 if self._metrics is None else self._metrics.simulations_)
+        """Twin simulations made by :meth:`twin_simulation` and :meth:`twin_metrics` so far, over every twin of the run."""
+        return self._retired_simulations + self._current_simulations()
 
     @property
     def records_(self) -> tuple[Experiment, ...]:

@@ -49,11 +49,9 @@ import numpy as np
 from scipy.special import stdtrit
 
 from agents.feasibility import ConstrainedAcquisition, ConstraintModel, run_risk
+from agents.twin.prior import TwinSimulation
 
-__all__ = ["EVALUATION_BATCH", "TwinSafeAcquisition", "TwinSafetyFilter"]
-
-#: Gains per batched twin simulation of the constraints (bounds the memory of the records ``u``).
-EVALUATION_BATCH = 1024
+__all__ = ["TwinSafeAcquisition", "TwinSafetyFilter"]
 
 
 class TwinSafetyFilter:
@@ -83,38 +81,38 @@ class TwinSafetyFilter:
         self.constraints, self.delta = constraints, float(delta)
         self.errors_: list[np.ndarray] = []
         self.admitted_ = 0
-        self._cache_env = None
-        self._rows: dict[bytes, np.ndarray] = {}
+        self._simulation: TwinSimulation | None = None
         self._pending: tuple[np.ndarray, np.ndarray] | None = None
 
     # -- the twin's prediction ------------------------------------------------------------------------
-    def predicted_slacks(self, twin_env, gains: np.ndarray) -> np.ndarray:
+    def simulation(self, twin) -> TwinSimulation:
+        """The simulations of ``twin`` the filter reads: a :class:`~agents.twin.prior.TwinSimulation` as given
+        (shared with the metrics prior, :meth:`agents.twin_keeper.TwinKeeper.twin_simulation`), or a twin env's,
+        made on first use and kept while the twin is the same."""
+        if isinstance(twin, TwinSimulation):
+            names = None if twin.constraints is None else twin.constraints.names
+            if names != self.constraints.names:
+                raise ValueError(f"twin: the simulation judges the constraints {names}, the filter "
+                                 f"{self.constraints.names}")
+            return twin
+        if self._simulation is None or self._simulation.twin_env is not twin:
+            self._simulation = TwinSimulation(twin, self.constraints)
+        return self._simulation
+
+    def predicted_slacks(self, twin, gains: np.ndarray) -> np.ndarray:
         """``c~(theta)``: the noise-free twin's slacks at physical gains of shape (m, d), shape (m, n_c).
 
-        Cached per twin env and gain (the EI grid is simulated once per twin); a diverging twin loop
-        gives ``+inf``.
+        ``twin``: a twin env or its :class:`~agents.twin.prior.TwinSimulation`, which simulates each
+        gain once per twin (the EI grid once); a diverging twin loop gives ``+inf``.
         """
-        gains = np.atleast_2d(np.asarray(gains, dtype=float))
-        if twin_env is not self._cache_env:
-            self._cache_env, self._rows = twin_env, {}
-        keys = [row.tobytes() for row in gains]
-        missing = list(dict.fromkeys(key for key in keys if key not in self._rows))
-        if missing:
-            new = np.vstack([np.frombuffer(key, dtype=float) for key in missing])
-            noise_free = twin_env.noise_free()
-            for start in range(0, new.shape[0], EVALUATION_BATCH):
-                batch = new[start:start + EVALUATION_BATCH]
-                _, slacks, feasible = noise_free.evaluate_constraints(batch, constraints=self.constraints)
-                diverged = ~feasible & np.all(slacks <= 0.0, axis=1)  # infeasible with every limit kept: unstable
-                slacks = np.where(diverged[:, None] | ~np.isfinite(slacks), np.inf, slacks)
-                self._rows.update(zip(missing[start:start + EVALUATION_BATCH], slacks))
-        return np.vstack([self._rows[key] for key in keys])
+        return self.simulation(twin).outcome(gains)[2]
 
     # -- the twin's error ------------------------------------------------------------------------------
-    def expect(self, twin_env, gains) -> None:
-        """The twin, fitted on the records so far, predicts the next plant experiment at ``gains`` (physical)."""
+    def expect(self, twin, gains) -> None:
+        """The twin (env or simulation), fitted on the records so far, predicts the next plant experiment at
+        ``gains`` (physical)."""
         gains = np.asarray(gains, dtype=float)
-        self._pending = None if twin_env is None else (gains.copy(), self.predicted_slacks(twin_env, gains[None])[0])
+        self._pending = None if twin is None else (gains.copy(), self.predicted_slacks(twin, gains[None])[0])
 
     def observe(self, gains, record: dict | None) -> None:
         """The plant experiment at ``gains`` ran: its error against the prediction of :meth:`expect`, if any.
@@ -149,15 +147,16 @@ class TwinSafetyFilter:
         quantile = float(stdtrit(n - 1, 1.0 - risk))
         return finite.mean(axis=0) + quantile * finite.std(axis=0, ddof=1) * math.sqrt(1.0 + 1.0 / n)
 
-    def admits(self, twin_env, gains: np.ndarray, experiment: int) -> np.ndarray:
+    def admits(self, twin, gains: np.ndarray, experiment: int) -> np.ndarray:
         """Whether each physical gain (m, d) is twin-safe at experiment ``t``: ``c~_j + m_j <= 0`` for all ``j``.
 
-        Shape (m,); nothing is twin-safe without a twin or with an infinite margin."""
+        ``twin``: a twin env or its simulation. Shape (m,); nothing is twin-safe without a twin or with an
+        infinite margin."""
         gains = np.atleast_2d(np.asarray(gains, dtype=float))
         margin = self.margin(experiment)
-        if twin_env is None or not np.all(np.isfinite(margin)):
+        if twin is None or not np.all(np.isfinite(margin)):
             return np.zeros(gains.shape[0], dtype=bool)
-        return np.all(self.predicted_slacks(twin_env, gains) + margin <= 0.0, axis=1)
+        return np.all(self.predicted_slacks(twin, gains) + margin <= 0.0, axis=1)
 
 
 
@@ -171,8 +170,8 @@ class TwinSafeAcquisition:
     constraints : ConstraintModel
         The fitted constraint GPs.
     safety : TwinSafetyFilter
-    twin_env : agents.twin.TwinEnv or None
-        The current twin (``None``: nothing is admitted).
+    twin_env : agents.twin.TwinEnv, agents.twin.prior.TwinSimulation or None
+        The current twin, or its simulations shared with the metrics prior (``None``: nothing is admitted).
     space : agents.GainSpace
         Maps the unit-box inputs to physical gains.
     experiment : int

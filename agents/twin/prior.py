@@ -8,16 +8,19 @@ plant's controller, step and noise floor). Where the twin is right the
 discrepancy is flat and the posterior follows the twin everywhere, also far
 from the plant data; where it is wrong, the plant data correct it locally.
 
-The twin is simulated once per candidate point and twin: :class:`TwinMetrics`
+The twin is simulated once per candidate point and twin: :class:`TwinSimulation`
 keeps every row it has simulated, so the EI grid (10^4 gains) costs one batched
-simulation per fitted twin, and every later GP prediction is a look-up.
+simulation per fitted twin, and every later GP prediction is a look-up. One
+simulation, two readers: :class:`TwinMetrics` reads the metrics, and guided BO's
+safety filter (:class:`agents.twin_safety.TwinSafetyFilter`) the constraint slacks
+of the same simulated records.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["TwinMetrics", "unstable_metrics"]
+__all__ = ["EVALUATION_BATCH", "TwinMetrics", "TwinSimulation", "unstable_metrics"]
 
 
 def unstable_metrics(env) -> np.ndarray:
@@ -42,22 +45,91 @@ NOISY_BATCH = 512
 NOISY_MAX_GAINS = 512
 
 
+#: Gains per batched twin simulation that records the constraints (bounds the memory of the records ``u``).
+EVALUATION_BATCH = 1024
+
+
+class TwinSimulation:
+    """The noise-free twin's metrics, cost and constraint slacks at physical gains, each gain simulated once.
+
+    Parameters
+    ----------
+    twin_env : agents.twin.TwinEnv
+        The twin in the plant's closed loop; its :meth:`~agents.twin.TwinEnv.noise_free` loop is
+        simulated.
+    constraints : gbo_envs.constraints.Constraints, optional
+        Limits judged on the simulated records as well (:meth:`gbo_envs.ControllerTuningEnv.evaluate_outcome`,
+        in batches of :data:`EVALUATION_BATCH` gains); ``None``: the metrics alone, without the records.
+
+    Attributes
+    ----------
+    simulations_ : int
+        Gains simulated so far (each once).
+
+    Notes
+    -----
+    The metrics and cost are the twin's as simulated (:class:`TwinMetrics` prices a diverging loop);
+    a slack is ``+inf`` where the twin's loop diverged or the slack is not finite.
+    """
+
+    def __init__(self, twin_env, constraints=None) -> None:
+        self.twin_env = twin_env
+        self.constraints = constraints if constraints else None
+        self._noise_free = getattr(twin_env, "noise_free", lambda: twin_env)()
+        self._rows: dict[bytes, tuple[np.ndarray, float, np.ndarray | None]] = {}
+        self.simulations_ = 0
+
+    @property
+    def noise_free_env(self):
+        """The twin env that is simulated (the twin itself if it has no random parts)."""
+        return self._noise_free
+
+    def outcome(self, gains: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Metrics (m, n_metrics), cost (m,) and slacks (m, n_c) or ``None`` at physical gains of shape (m, d)."""
+        gains = np.atleast_2d(np.asarray(gains, dtype=float))
+        keys = [row.tobytes() for row in gains]
+        missing = list(dict.fromkeys(key for key in keys if key not in self._rows))
+        if missing:
+            self._simulate(missing)
+        rows = [self._rows[key] for key in keys]
+        slacks = None if self.constraints is None else np.vstack([row[2] for row in rows])
+        return np.vstack([row[0] for row in rows]), np.array([row[1] for row in rows]), slacks
+
+    def _simulate(self, keys: list[bytes]) -> None:
+        new = np.vstack([np.frombuffer(key, dtype=float) for key in keys])
+        self.simulations_ += len(keys)
+        if self.constraints is None:  # one batched call without the records
+            metrics, cost = self._noise_free.evaluate(new)[:2]
+            self._rows.update(zip(keys, zip(metrics, cost, [None] * len(keys))))
+            return
+        for start in range(0, new.shape[0], EVALUATION_BATCH):
+            batch = slice(start, start + EVALUATION_BATCH)
+            metrics, cost, slacks, feasible = self._noise_free.evaluate_outcome(new[batch],
+                                                                               constraints=self.constraints)
+            diverged = ~feasible & np.all(slacks <= 0.0, axis=1)  # infeasible with every limit kept: unstable
+            slacks = np.where(diverged[:, None] | ~np.isfinite(slacks), np.inf, slacks)
+            self._rows.update(zip(keys[batch], zip(metrics, cost, slacks)))
+
+
 class TwinMetrics:
     """``prior(X) -> f~`` of a twin env at unit-box gains: the twin's expected raw metrics, cached per row.
 
     Parameters
     ----------
-    twin_env : agents.twin.TwinEnv
+    twin_env : agents.twin.TwinEnv or TwinSimulation
         The twin in the plant's closed loop; :meth:`~agents.twin.TwinEnv.evaluate` gives its
-        expected metrics (over its measurement noise draws, if any).
+        expected metrics (over its measurement noise draws, if any). A :class:`TwinSimulation`
+        of it: its noise-free metrics are read from there (shared with its other readers).
     space : agents.GainSpace
         Maps unit-box inputs to physical gains.
 
     Attributes
     ----------
+    simulation : TwinSimulation
+        The noise-free twin's simulations this prior reads.
     simulations_ : int
-        Gains simulated so far (each once; a noisy twin's gain counts once more if its
-        expected metrics were simulated too).
+        Gains simulated so far (each noise-free gain once, by :attr:`simulation`; a noisy
+        twin's gain counts once more if its expected metrics were simulated too).
     best_expected_cost_ : float
         A noisy twin's lowest expected cost found so far (``inf`` before any, and for a
         twin without noise).
@@ -85,13 +157,19 @@ class TwinMetrics:
     """
 
     def __init__(self, twin_env, space) -> None:
-        self.twin_env = twin_env
+        self.simulation = twin_env if isinstance(twin_env, TwinSimulation) else TwinSimulation(twin_env)
+        self.twin_env = self.simulation.twin_env
         self.space = space
-        self._unstable = unstable_metrics(twin_env)
+        self._unstable = unstable_metrics(self.twin_env)
         self._rows: dict[bytes, np.ndarray] = {}
         self._last: tuple[np.ndarray, np.ndarray] | None = None
-        self.simulations_ = 0
+        self._expected_simulations = 0
         self.best_expected_cost_ = np.inf
+
+    @property
+    def simulations_(self) -> int:
+        """Gains simulated so far: the noise-free ones of :attr:`simulation`, then the expected ones."""
+        return self.simulation.simulations_ + self._expected_simulations
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         """Raw twin metrics of shape (m, n_metrics) at unit-box inputs of shape (m, d)."""
@@ -111,9 +189,8 @@ class TwinMetrics:
 
     def _simulate(self, gains: np.ndarray) -> np.ndarray:
         """The twin's metrics (m, n_metrics) at physical gains (m, d): expected where they may matter."""
-        noise_free = getattr(self.twin_env, "noise_free", lambda: self.twin_env)()
-        metrics, cost = self._evaluate(noise_free, gains)
-        if noise_free is self.twin_env:
+        metrics, cost = self._priced(*self.simulation.outcome(gains)[:2])
+        if self.simulation.noise_free_env is self.twin_env:
             return metrics
         order, start = np.argsort(cost, kind="stable"), 0
         while start < min(order.size, NOISY_MAX_GAINS):
@@ -123,14 +200,14 @@ class TwinMetrics:
             batch = batch[cost[batch] <= NOISY_COST_FACTOR * self.best_expected_cost_]
             if batch.size == 0:
                 break  # sorted: no later gain is admitted either
-            metrics[batch], expected = self._evaluate(self.twin_env, gains[batch])
+            metrics[batch], expected = self._priced(*self.twin_env.evaluate(gains[batch])[:2])
+            self._expected_simulations += batch.size
             self.best_expected_cost_ = min(self.best_expected_cost_, float(np.min(expected)))
             start += size
         return metrics
 
-    def _evaluate(self, twin_env, gains: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Metrics (m, n_metrics) and cost (m,) of ``twin_env``, diverging rows priced at ``unstable_cost``."""
-        metrics, cost = twin_env.evaluate(gains)[:2]
+    def _priced(self, metrics: np.ndarray, cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Metrics (m, n_metrics) and cost (m,) of the twin, diverging rows priced at ``unstable_cost``."""
         bad = ~np.all(np.isfinite(metrics), axis=1) | ~np.isfinite(cost)
-        self.simulations_ += len(gains)
-        return np.where(bad[:, None], self._unstable, metrics), np.where(bad, float(twin_env.unstable_cost), cost)
+        return (np.where(bad[:, None], self._unstable, metrics),
+                np.where(bad, float(self.twin_env.unstable_cost), cost))

@@ -348,6 +348,14 @@ class ControllerTuningEnv(gym.Env):
                              constraints: Constraints | None = None) -> tuple[np.ndarray, ...]:
         """Ground truth with :attr:`constraints`: cost, ``value - limit`` and feasibility of a batch of gains.
 
+        :meth:`evaluate_outcome` without the metrics.
+        """
+        return self.evaluate_outcome(gains, experiment_index, constraints)[1:]
+
+    def evaluate_outcome(self, gains: np.ndarray, experiment_index: int | None = None,
+                         constraints: Constraints | None = None) -> tuple[np.ndarray, ...]:
+        """Ground truth with :attr:`constraints`: metrics, cost, ``value - limit`` and feasibility of a batch of gains.
+
         Each gain is judged as ``noise=False`` :meth:`step` judges it: the expected metrics and
         cost of :meth:`evaluate`, ``peak_u`` and user functions on the record of noise draw 0
         (the noise-free experiment of a noise-free loop), an unstable one infeasible.
@@ -362,6 +370,8 @@ class ControllerTuningEnv(gym.Env):
 
         Returns
         -------
+        metrics : ndarray of shape (batch, 4)
+            The expected metrics of :meth:`evaluate`, from the same simulation.
         cost : ndarray of shape (batch,)
         slacks : ndarray of shape (batch, n_constraints)
             ``value - limit`` in the constraints' order.
@@ -379,7 +389,7 @@ class ControllerTuningEnv(gym.Env):
         limits = self.constraints if constraints is None else Constraints(constraints)
         slacks = limits.batch_slacks(metrics, response.u, record)
         feasible = ~np.asarray(response.unstable, dtype=bool) & np.all(slacks <= 0.0, axis=1)
-        return cost, slacks, feasible
+        return metrics, cost, slacks, feasible
 
     def _expected(self, loop: ClosedLoop, gains: np.ndarray, record: bool = True):
         """:func:`expected_outcome` of this env's cost on ``loop`` (the record of draw 0 if ``record``)."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import math
 
 import gymnasium as gym
@@ -12,6 +13,7 @@ from scipy import stats
 import agents
 import gbo_envs
 from agents.feasibility import ConstraintModel, run_risk
+from agents.twin.env import TwinEnv
 from agents.twin_keeper import TwinKeeper
 from agents.twin_safety import TwinSafeAcquisition, TwinSafetyFilter
 
@@ -140,3 +142,48 @@ def test_only_the_twin_admits_gains_the_constraint_gps_weigh_them():
     value = acquisition(X)
     assert value[0] > 0 and value[1] > 0 and value[2] == -1.0  # the twin admits; PF weighs
     np.testing.assert_allclose(value[:2], model.probability(X[:2]))
+
+
+# -- one twin simulation, two readers -----------------------------------------------------------------------
+@pytest.fixture
+def simulated_rows(monkeypatch):
+    """Counter of the gain rows each twin env simulates, keyed by (twin env, gains)."""
+    rows = collections.Counter()
+    expected = TwinEnv._expected
+
+    def counted(self, loop, gains, record=True):
+        rows.update((id(self), row.tobytes()) for row in np.atleast_2d(gains))
+        return expected(self, loop, gains, record)
+
+    monkeypatch.setattr(TwinEnv, "_expected", counted)
+    return rows
+
+
+def test_the_metrics_prior_and_the_filter_read_one_simulation_of_each_gain(simulated_rows):
+    env = _env()
+    keeper = TwinKeeper(twin="linear")
+    keeper.setup(agents.GainSpace.from_env(env), env.unwrapped, constraints=env.unwrapped.constraints)
+    env.reset(seed=0)
+    info = env.step(np.array(SAFE_START[0]))[4]
+    keeper.tell(info["gains"], info["cost"], info)
+    X = np.random.default_rng(0).random((300, 2))
+    safety = TwinSafetyFilter(env.unwrapped.constraints, 0.05)
+    slacks = safety.predicted_slacks(keeper.twin_simulation(), keeper.space.from_unit(X))
+    metrics = keeper.twin_metrics()(X)
+    assert sum(simulated_rows.values()) == 300 == keeper.metric_simulations_  # the prior read the filter's
+    _, plain_slacks, _ = keeper.twin_env().evaluate_constraints(keeper.space.from_unit(X),
+                                                                constraints=env.unwrapped.constraints)
+    np.testing.assert_array_equal(slacks, plain_slacks)
+    np.testing.assert_array_equal(metrics, keeper.twin_env().evaluate(keeper.space.from_unit(X))[0])
+    with pytest.raises(ValueError, match="constraints"):  # a simulation without the filter's limits
+        keeper.setup(keeper.space, env.unwrapped)
+        keeper.tell(info["gains"], info["cost"], info)
+        safety.predicted_slacks(keeper.twin_simulation(), X)
+
+
+def test_guided_bo_safe_simulates_each_gain_once_per_twin(simulated_rows):
+    result = agents.make("guided-bo", safe=True, safe_start=SAFE_START).run(_env(), budget=5, seed=0)
+    repeats = sum(count - 1 for count in simulated_rows.values())
+    assert len(simulated_rows) > 1000  # the EI grid on the twin
+    # the keeper's check of each measured cost against its twin is the only second simulation of a gain
+    assert repeats <= 5 and result.info["twin_evaluations"] == len(simulated_rows)
