@@ -80,13 +80,60 @@ def test_the_filter_predicts_the_slacks_the_twin_simulates_and_refuses_them_beyo
 def test_the_margin_is_the_student_t_prediction_bound_of_the_errors():
     safety = TwinSafetyFilter(gbo_envs.constraints.Constraints(LIMITS), 0.05)
     safety.errors_ = [np.array([0.1, 1.0]), np.array([0.3, -1.0]), np.array([0.2, 0.5])]
+    safety.error_twins_ = [0, 0, 0]  # one twin predicted them all
     errors = np.vstack(safety.errors_)
     risk = run_risk(0.05, 4) / 2  # delta_t split over the two constraints
     expected = errors.mean(0) + stats.t.ppf(1 - risk, 2) * errors.std(0, ddof=1) * math.sqrt(1 + 1 / 3)
     np.testing.assert_allclose(safety.margin(4), expected)
     safety.errors_.append(np.array([np.inf, 0.0]))  # the plant diverged where the twin did not
+    safety.error_twins_.append(0)
     margin = safety.margin(5)
     assert margin[0] == np.inf and np.isfinite(margin[1])
+    safety.error_twins_.pop()
+    with pytest.raises(ValueError, match="error_twins_"):
+        safety.margin(5)
+
+
+class _BiasedTwin:
+    """A twin env whose peak command is ``bias`` V below the plant's (``139.2 + 30 (Kp - 0.3)`` V), no overshoot."""
+
+    def __init__(self, bias: float) -> None:
+        self.bias = bias
+
+    def noise_free(self):
+        return self
+
+    def evaluate_outcome(self, gains, constraints=None):
+        peak = 139.2 + 30.0 * (gains[:, 0] - 0.3) - self.bias
+        slacks = np.column_stack([np.full(len(gains), -2.0), peak - 140.0])
+        return np.zeros((len(gains), 4)), np.ones(len(gains)), slacks, np.all(slacks <= 0.0, axis=1)
+
+    def evaluate_constraints(self, gains, constraints=None):
+        return self.evaluate_outcome(gains, constraints)[1:]
+
+
+def test_the_margin_bounds_the_current_twins_error_with_the_spread_within_each_twin():
+    # DCMotorRig-v0, seed 0: the refitted twins' peak command errors at the safe start were 8.87 V (5 experiments),
+    # then 7.27 V and 5.09 V; one sample of all of them gave a margin of 13-15 V, above every twin's error
+    safety = TwinSafetyFilter(gbo_envs.constraints.Constraints(LIMITS), 0.05)
+    start, rng = np.array([0.3, 1.0]), np.random.default_rng(0)
+    errors = {8.87: 5, 5.09: 2}
+    for bias, count in errors.items():
+        twin = _BiasedTwin(bias)
+        for _ in range(count):
+            safety.expect(twin, start)
+            plant = -0.8 + 0.01 * rng.standard_normal()
+            safety.observe(start, {"constraints": {"overshoot_pct": -2.0, "peak_u": plant}})
+    # the start: twin slack -5.9 V; (0.33, 1.0): -5.0 V, within the margin of the current twin's 5.1 V error
+    assert safety.admits(twin, np.array([start, [0.33, 1.0]]), 8).tolist() == [True, False]
+    assert safety.error_twins_ == [0] * 5 + [1] * 2
+    e = np.vstack(safety.errors_)[:, 1]
+    first, second = e[:5], e[5:]
+    within = math.sqrt((np.sum((first - first.mean()) ** 2) + np.sum((second - second.mean()) ** 2)) / (7 - 2))
+    bound = second.mean() + stats.t.ppf(1 - run_risk(0.05, 8) / 2, 5) * within * math.sqrt(1 + 1 / 2)
+    assert safety.margin(8)[1] == pytest.approx(bound, rel=1e-12)
+    assert 5.09 < safety.margin(8)[1] < 5.5 < np.mean(e)  # the current twin's bias, not the mix of the two
+    assert not safety.admits(_BiasedTwin(9.0), start, 9).any()  # a refitted twin, its bias not measured yet
 
 
 def test_the_filter_learns_only_from_gains_it_predicted():
@@ -139,6 +186,7 @@ def test_only_the_twin_admits_gains_the_constraint_gps_weigh_them():
     acquisition = TwinSafeAcquisition(None, model, safety, twin_env, space, 3)
     np.testing.assert_array_equal(acquisition(X), -1.0)  # no measured twin error: nothing is safe
     safety.errors_ = [np.array([0.0, 0.1]), np.array([0.0, -0.1])] * 3  # a margin of 0.64 on peak_u
+    safety.error_twins_ = [0] * 6  # errors of the twin the acquisition simulates
     value = acquisition(X)
     assert value[0] > 0 and value[1] > 0 and value[2] == -1.0  # the twin admits; PF weighs
     np.testing.assert_allclose(value[:2], model.probability(X[:2]))
