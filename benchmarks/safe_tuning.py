@@ -5,12 +5,16 @@ The plants (:data:`PLANTS`) and their limits:
 * ``DCMotor-v0``: overshoot <= 2 % and peak command <= 140 (issue 55's limits).
 * ``DCMotorRig-v0``: the same limits on the rig (encoder-measured speed, friction and the other
   effects of :class:`gbo_envs.envs.rigs.DCMotorRigEnv`), where the twin is not the plant.
-* ``LinearMotorCascade-v0`` (4 gains): overshoot <= 0.025 %, i.e. not one count of the 5 um
-  encoder beyond the 10 mm target (the slide never passes its target: a press fit, an end stop),
-  and peak current command <= 6.5 A, below the drive's 7 A current limit (a move that saturates
-  the current loop is no longer the linear cascade the symmetric optimum designs, and its speed
-  integrator winds against the clamp). Full velocity feed-forward drives the current into the
-  limit, so the limit binds at the unconstrained optimum.
+* ``LinearMotorCascade-v0`` (4 gains): overshoot <= 0.1 %, i.e. at most two counts of the 5 um
+  encoder beyond the 10 mm target (10 um of clearance before an end stop), and peak current
+  command <= 6.5 A, below the drive's 7 A current limit (a move that saturates the current loop is
+  no longer the linear cascade the symmetric optimum designs, and its speed integrator winds
+  against the clamp). Full velocity feed-forward drives the current into the limit, so the limit
+  binds at the unconstrained optimum. The overshoot limit is two counts, not less: near its
+  setpoint the quantised loop chatters by a count, so a reading of one count is no measured
+  overshoot (the plant without its sensor's quantisation does not overshoot there by a tenth of a
+  count, ``tests/agents/test_guided_bo_nd.py``), and a limit of half a count admitted only the gains
+  of the safe start (30 seeds: guided-bo safe and bo safe missed 1.05 J*_c in 29 and 30 runs).
 
 For every plant, tuner and seed (shared seeds, budget 35): the share of real experiments that
 broke a constraint (``feasible`` false), the violations after the safe start, and the real
@@ -47,7 +51,7 @@ PLANTS = {
     # safe start: overshoot 0.21 %, peak command 139.2 (its ground truth computed live: 25 x 25 cells)
     "DCMotorRig-v0": ("gbo_envs/DCMotorRig-v0", {"overshoot_pct": 2.0, "peak_u": 140.0}, [[0.3, 1.0]], 25),
     # safe start: the nominal feedback gains without feed-forward (overshoot 0, peak current 3.9 A)
-    "LinearMotorCascade-v0": ("gbo_envs/LinearMotorCascade-v0", {"overshoot_pct": 0.025, "peak_u": 6.5},
+    "LinearMotorCascade-v0": ("gbo_envs/LinearMotorCascade-v0", {"overshoot_pct": 0.1, "peak_u": 6.5},
                               [[41.7, 26.7, 83.3, 0.0]], 16),
 }
 #: label -> (registry name, parameters, whether it takes the plant's safe start)
