@@ -305,7 +305,7 @@ class TwinKeeper:
 
     @property
     def metric_simulations_(self) -> int:
-        """Twin simulations made by :meth:`twin_simulation` and :meth:`twin_metrics` so far, over every twin of the run."""
+        """Twin simulations made by :meth:`twin_simulation` and :meth:`twin_metrics` so far, over every twin."""
         return self._retired_simulations + self._current_simulations()
 
     @property
