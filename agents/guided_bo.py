@@ -131,8 +131,8 @@ class GuidedBO(BayesianOptimization):
     maximum of a response reads one count above its final value (an overshoot of 0.05 %, 0.10 in cost:
     the env's overshoot normaliser is one count, :func:`~gbo_envs.envs.base.normalizer_floors`) changes
     with a relative change of the plant's gain of 1e-5 at 43 % of the gains near the optimum (1e-6:
-    20 %). There the twin's overshoot is no forecast of the plant's: on ``LinearMotorCascade-v0`` a twin from three records has its
-    optimum within 1.005 J* of the plant's (the plant's cost at the twin's optimum), yet at the best
+    20 %). There the twin's overshoot is no forecast of the plant's: on ``LinearMotorCascade-v0`` a twin
+    from three records has its optimum within 1.005 J* of the plant's (the plant's cost at the twin's optimum), yet at the best
     twin costs of 4096 Sobol gains the plant overshoots by a count.
     """
 
