@@ -127,13 +127,13 @@ class GuidedBO(BayesianOptimization):
     ``y`` the speed, as under PI.
 
     What a twin cannot identify is the response below one quantum. The cascade's speed estimate is a
-    difference of encoder counts, so near its setpoint the loop chatters by a count, and whether the
-    maximum of a response reads one count above its final value (an overshoot of 0.05 %, 0.10 in cost:
-    the env's overshoot normaliser is one count, :func:`~gbo_envs.envs.base.normalizer_floors`) changes
-    with a relative change of the plant's gain of 1e-5 at 43 % of the gains near the optimum (1e-6:
-    20 %). There the twin's overshoot is no forecast of the plant's: on ``LinearMotorCascade-v0`` a twin
-    from three records has its optimum within 1.005 J* of the plant's (the plant's cost at the twin's optimum), yet at the best
-    twin costs of 4096 Sobol gains the plant overshoots by a count.
+    difference of encoder counts, so near its setpoint the loop chatters by a count, and whether the maximum
+    of a response reads one count above its final value (an overshoot of 0.05 %, 0.10 in cost: the env's
+    overshoot normaliser is one count, :func:`~gbo_envs.envs.base.normalizer_floors`) changes with a
+    relative change of the plant's gain of 1e-5 at 43 % of the gains near the optimum (1e-6: 20 %). There
+    the twin's overshoot is no forecast of the plant's: on ``LinearMotorCascade-v0`` a twin from three
+    records has its optimum within 1.005 J* of the plant's (the plant's cost at the twin's optimum), yet at
+    the best twin costs of 4096 Sobol gains the plant overshoots by a count.
     """
 
     name = "guided-bo"
