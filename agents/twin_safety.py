@@ -171,16 +171,19 @@ class TwinSafetyFilter:
         if twin is None:
             twin = self._twins_seen - 1 if self._twin is not None else (int(labels[-1]) if labels.size else 0)
         mine = labels == twin
-        if not np.any(mine) or labels.size - np.unique(labels).size < 1:
+        groups, index = np.unique(labels, return_inverse=True)
+        dof = labels.size - groups.size  # n - g
+        if not np.any(mine) or dof < 1:
             return np.full(n_c, np.inf)
         errors = np.vstack(self.errors_)  # a constraint with an infinite error keeps an infinite margin
-        return np.where(np.all(np.isfinite(errors), axis=0), self._bound(errors, labels, mine, experiment), np.inf)
+        return np.where(np.all(np.isfinite(errors), axis=0),
+                        self._bound(errors, index, groups.size, mine, experiment), np.inf)
 
-    def _bound(self, errors: np.ndarray, labels: np.ndarray, mine: np.ndarray, experiment: int) -> np.ndarray:
+    def _bound(self, errors: np.ndarray, index: np.ndarray, n_groups: int, mine: np.ndarray,
+               experiment: int) -> np.ndarray:
         finite = np.where(np.isfinite(errors), errors, 0.0)
-        groups, index = np.unique(labels, return_inverse=True)
-        means = np.vstack([finite[index == k].mean(axis=0) for k in range(groups.size)])
-        dof = labels.size - groups.size
+        means = np.vstack([finite[index == k].mean(axis=0) for k in range(n_groups)])
+        dof = index.size - n_groups
         within = np.sqrt(np.sum((finite - means[index]) ** 2, axis=0) / dof)
         risk = run_risk(self.delta, experiment) / errors.shape[1]
         quantile = float(stdtrit(dof, 1.0 - risk))
