@@ -40,7 +40,7 @@ from gbo_envs.ground_truth_tables import fingerprint, save_search_table, save_ta
 #: Envs whose default 100 x 100 ground truth is shipped (live: well over the 3 s target).
 GRID_ENVS = ("gbo_envs/DCMotorRig-v0", "gbo_envs/LinearMotorRig-v0")
 #: Envs with three or more gains whose default certified search is shipped.
-SEARCH_ENVS = ("gbo_envs/DCMotorPID-v0", "gbo_envs/LinearMotorCascade-v0")
+SEARCH_ENVS = ("gbo_envs/DCMotorPID-v0", "gbo_envs/LinearMotorCascade-v0", "gbo_envs/LinearMotorCascadeRig-v0")
 TABLE_ENVS = GRID_ENVS + SEARCH_ENVS
 RESOLUTION = 100
 RESULTS = Path(__file__).resolve().parent / "results" / "ground_truth_tables.json"

@@ -55,7 +55,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                        help="import MODULE first (in every worker too), found as `python -m` finds it (the current "
                             "folder first): it registers your tuner; repeatable")
     suite.add_argument("--suite", choices=("standard", "quick"), default="standard",
-                       help="standard: 12 plants x 30 seeds (default); quick: 3 plants x 3 seeds")
+                       help="standard: every suite plant x 30 seeds (default); quick: 3 plants x 3 seeds")
     suite.add_argument("--seeds", type=positive_int, help="seeds per plant (default: the suite's, 30 or 3)")
     suite.add_argument("--rebuild-references", action="store_true",
                        help="rerun the stale and missing reference results (see --tuner) and write them into the "
