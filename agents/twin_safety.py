@@ -97,44 +97,48 @@ class TwinSafetyFilter:
         self.errors_: list[np.ndarray] = []
         self.error_twins_: list[int] = []
         self.admitted_ = 0
-        self._simulation: TwinSimulation | None = None
         self._twin, self._twins_seen = None, 0  # the latest twin env and how many twins were seen
         self._pending: tuple[np.ndarray, np.ndarray, int] | None = None
 
-    def _twin_number(self, twin) -> int:
-        """The number of ``twin`` (env or simulation), a new one for a twin not seen last."""
-        env = twin.twin_env if isinstance(twin, TwinSimulation) else twin
-        if env is not self._twin:
-            self._twin, self._twins_seen = env, self._twins_seen + 1
+    def _twin_number(self, twin: TwinSimulation) -> int:
+        """The number of ``twin``'s twin env, a new one for a twin not seen last."""
+        if twin.twin_env is not self._twin:
+            self._twin, self._twins_seen = twin.twin_env, self._twins_seen + 1
         return self._twins_seen - 1
 
     # -- the twin's prediction ------------------------------------------------------------------------
-    def simulation(self, twin) -> TwinSimulation:
-        """The simulations of ``twin`` the filter reads: a :class:`~agents.twin.prior.TwinSimulation` as given
-        (shared with the metrics prior, :meth:`agents.twin_keeper.TwinKeeper.twin_simulation`), or a twin env's,
-        made on first use and kept while the twin is the same."""
-        if isinstance(twin, TwinSimulation):
-            names = None if twin.constraints is None else twin.constraints.names
-            if names != self.constraints.names:
-                raise ValueError(f"twin: the simulation judges the constraints {names}, the filter "
-                                 f"{self.constraints.names}")
-            return twin
-        if self._simulation is None or self._simulation.twin_env is not twin:
-            self._simulation = TwinSimulation(twin, self.constraints)
-        return self._simulation
+    def checked(self, twin: TwinSimulation) -> TwinSimulation:
+        """``twin`` if it is a :class:`~agents.twin.prior.TwinSimulation` judging the filter's constraints
+        (the keeper's, :meth:`agents.twin_keeper.TwinKeeper.twin_simulation`, shared with the metrics prior).
 
-    def predicted_slacks(self, twin, gains: np.ndarray) -> np.ndarray:
+        Raises
+        ------
+        TypeError
+            ``twin`` is not a TwinSimulation (a twin env: wrap it, ``TwinSimulation(twin_env, constraints)``).
+        ValueError
+            The simulation judges other constraints than the filter.
+        """
+        if not isinstance(twin, TwinSimulation):
+            raise TypeError(f"twin: expected an agents.twin.prior.TwinSimulation (a twin env goes in "
+                            f"TwinSimulation(twin_env, constraints)), got {type(twin).__name__}")
+        names = None if twin.constraints is None else twin.constraints.names
+        if names != self.constraints.names:
+            raise ValueError(f"twin: the simulation judges the constraints {names}, the filter "
+                             f"{self.constraints.names}")
+        return twin
+
+    def predicted_slacks(self, twin: TwinSimulation, gains: np.ndarray) -> np.ndarray:
         """``c~(theta)``: the noise-free twin's slacks at physical gains of shape (m, d), shape (m, n_c).
 
-        ``twin``: a twin env or its :class:`~agents.twin.prior.TwinSimulation`, which simulates each
-        gain once per twin (the EI grid once); a diverging twin loop gives ``+inf``.
+        ``twin``: the twin's :class:`~agents.twin.prior.TwinSimulation` (:meth:`checked`), which simulates
+        each gain once per twin (the EI grid once); a diverging twin loop gives ``+inf``.
         """
-        return self.simulation(twin).outcome(gains)[2]
+        return self.checked(twin).outcome(gains)[2]
 
     # -- the twin's error ------------------------------------------------------------------------------
-    def expect(self, twin, gains) -> None:
-        """The twin (env or simulation), fitted on the records so far, predicts the next plant experiment at
-        ``gains`` (physical)."""
+    def expect(self, twin: TwinSimulation | None, gains) -> None:
+        """The twin's simulation (:meth:`checked`), fitted on the records so far, predicts the next plant
+        experiment at ``gains`` (physical); ``None``: no twin, no prediction."""
         gains = np.asarray(gains, dtype=float)
         self._pending = None if twin is None else (gains.copy(), self.predicted_slacks(twin, gains[None])[0],
                                                    self._twin_number(twin))
@@ -190,14 +194,15 @@ class TwinSafetyFilter:
         n_twin = int(np.sum(mine))
         return finite[mine].mean(axis=0) + quantile * within * math.sqrt(1.0 + 1.0 / n_twin)
 
-    def admits(self, twin, gains: np.ndarray, experiment: int) -> np.ndarray:
+    def admits(self, twin: TwinSimulation | None, gains: np.ndarray, experiment: int) -> np.ndarray:
         """Whether each physical gain (m, d) is twin-safe at experiment ``t``: ``c~_j + m_j <= 0`` for all ``j``.
 
-        ``twin``: a twin env or its simulation. Shape (m,); nothing is twin-safe without a twin or with an
-        infinite margin."""
+        ``twin``: the twin's simulation (:meth:`checked`), ``None`` without a twin. Shape (m,); nothing is
+        twin-safe without a twin or with an infinite margin."""
         gains = np.atleast_2d(np.asarray(gains, dtype=float))
         if twin is None:
             return np.zeros(gains.shape[0], dtype=bool)
+        twin = self.checked(twin)
         margin = self.margin(experiment, self._twin_number(twin))
         if not np.all(np.isfinite(margin)):
             return np.zeros(gains.shape[0], dtype=bool)
@@ -215,22 +220,23 @@ class TwinSafeAcquisition:
     constraints : ConstraintModel
         The fitted constraint GPs.
     safety : TwinSafetyFilter
-    twin_env : agents.twin.TwinEnv, agents.twin.prior.TwinSimulation or None
-        The current twin, or its simulations shared with the metrics prior (``None``: nothing is admitted).
+    twin : agents.twin.prior.TwinSimulation or None
+        The current twin's simulations, shared with the metrics prior (``None``: nothing is admitted).
     space : agents.GainSpace
         Maps the unit-box inputs to physical gains.
     experiment : int
         ``t``, the number of the experiment proposed.
     """
 
-    def __init__(self, ei, constraints: ConstraintModel, safety: TwinSafetyFilter, twin_env, space,
-                 experiment: int) -> None:
+    def __init__(self, ei, constraints: ConstraintModel, safety: TwinSafetyFilter, twin: TwinSimulation | None,
+                 space, experiment: int) -> None:
         self.base = ConstrainedAcquisition(ei, constraints)
-        self.safety, self.twin_env, self.space, self.experiment = safety, twin_env, space, experiment
+        self.safety, self.twin, self.space, self.experiment = (safety, None if twin is None else safety.checked(twin),
+                                                               space, experiment)
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         X = np.atleast_2d(X)
-        admitted = self.safety.admits(self.twin_env, self.space.from_unit(X), self.experiment)
+        admitted = self.safety.admits(self.twin, self.space.from_unit(X), self.experiment)
         if not np.any(admitted):
             return np.full(X.shape[0], -1.0)
         return np.where(admitted, self.base(X), -1.0)

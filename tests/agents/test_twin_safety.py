@@ -14,6 +14,7 @@ import agents
 import gbo_envs
 from agents.feasibility import ConstraintModel, run_risk
 from agents.twin.env import TwinEnv
+from agents.twin.prior import TwinSimulation
 from agents.twin_keeper import TwinKeeper
 from agents.twin_safety import TwinSafeAcquisition, TwinSafetyFilter
 
@@ -28,15 +29,19 @@ def _env():
     return gym.make(ENV, constraints=LIMITS)
 
 
-def _twin_env():
-    """The linear twin of DCMotor-v0 fitted on one record at the safe start, and the plant env."""
+def _twin():
+    """The simulations of the linear twin of DCMotor-v0 fitted on one record at the safe start, and the plant env."""
     env = _env()
     keeper = TwinKeeper(twin="linear")
-    keeper.setup(agents.GainSpace.from_env(env), env.unwrapped)
+    keeper.setup(agents.GainSpace.from_env(env), env.unwrapped, constraints=env.unwrapped.constraints)
     env.reset(seed=0)
     info = env.step(np.array(SAFE_START[0]))[4]
     keeper.tell(info["gains"], info["cost"], info)
-    return keeper.twin_env(), env
+    return keeper.twin_simulation(), env
+
+
+def _biased(bias: float) -> TwinSimulation:
+    return TwinSimulation(_BiasedTwin(bias), gbo_envs.constraints.Constraints(LIMITS))
 
 
 # -- the run's risk -----------------------------------------------------------------------------------------
@@ -61,19 +66,19 @@ def test_bo_safe_breaks_no_limit_on_the_dc_motor():
 
 # -- the filter ---------------------------------------------------------------------------------------------
 def test_the_filter_predicts_the_slacks_the_twin_simulates_and_refuses_them_beyond_the_margin():
-    twin_env, env = _twin_env()
+    twin, env = _twin()
     safety = TwinSafetyFilter(env.unwrapped.constraints, 0.05)
     gains = np.array([[0.3, 1.0], [0.85, 1.07], [0.41, 1.3]])
-    predicted = safety.predicted_slacks(twin_env, gains)
+    predicted = safety.predicted_slacks(twin, gains)
     _, plant, _ = env.unwrapped.evaluate_constraints(gains)
     np.testing.assert_allclose(predicted, plant, atol=0.2)  # the linear twin of the linear plant, from a noisy record
-    assert not safety.admits(twin_env, gains, 3).any()  # no measured error yet: the twin admits nothing
+    assert not safety.admits(twin, gains, 3).any()  # no measured error yet: the twin admits nothing
     for g in gains[[0, 2]]:  # two out-of-sample errors of the twin, where the plant keeps the limits
-        safety.expect(twin_env, g)
+        safety.expect(twin, g)
         env.reset(seed=1)
         safety.observe(g, env.step(g)[4])
     assert len(safety.errors_) == 2 and np.all(np.isfinite(safety.margin(3)))
-    admitted = safety.admits(twin_env, gains, 3)
+    admitted = safety.admits(twin, gains, 3)
     assert admitted[0] and not admitted[1]  # (0.85, 1.07) breaks both limits on the twin as on the plant
 
 
@@ -119,7 +124,7 @@ def test_the_margin_bounds_the_current_twins_error_with_the_spread_within_each_t
     start, rng = np.array([0.3, 1.0]), np.random.default_rng(0)
     errors = {8.87: 5, 5.09: 2}
     for bias, count in errors.items():
-        twin = _BiasedTwin(bias)
+        twin = _biased(bias)
         for _ in range(count):
             safety.expect(twin, start)
             plant = -0.8 + 0.01 * rng.standard_normal()
@@ -133,13 +138,13 @@ def test_the_margin_bounds_the_current_twins_error_with_the_spread_within_each_t
     bound = second.mean() + stats.t.ppf(1 - run_risk(0.05, 8) / 2, 5) * within * math.sqrt(1 + 1 / 2)
     assert safety.margin(8)[1] == pytest.approx(bound, rel=1e-12)
     assert 5.09 < safety.margin(8)[1] < 5.5 < np.mean(e)  # the current twin's bias, not the mix of the two
-    assert not safety.admits(_BiasedTwin(9.0), start, 9).any()  # a refitted twin, its bias not measured yet
+    assert not safety.admits(_biased(9.0), start, 9).any()  # a refitted twin, its bias not measured yet
 
 
 def test_the_filter_learns_only_from_gains_it_predicted():
-    twin_env, env = _twin_env()
+    twin, env = _twin()
     safety = TwinSafetyFilter(env.unwrapped.constraints, 0.05)
-    safety.expect(twin_env, np.array([0.3, 1.0]))
+    safety.expect(twin, np.array([0.3, 1.0]))
     env.reset(seed=0)
     safety.observe(np.array([0.4, 1.2]), env.step(np.array([0.4, 1.2]))[4])  # other gains: no error learned
     assert safety.errors_ == []
@@ -147,6 +152,20 @@ def test_the_filter_learns_only_from_gains_it_predicted():
         TwinSafetyFilter(env.unwrapped.constraints, 0.0)
     with pytest.raises(ValueError, match="constraints"):
         TwinSafetyFilter(gbo_envs.constraints.Constraints({}), 0.05)
+
+
+def test_the_filter_takes_only_a_twin_simulation_of_its_constraints():
+    twin, env = _twin()
+    safety = TwinSafetyFilter(env.unwrapped.constraints, 0.05)
+    gains = np.array([[0.3, 1.0]])
+    for call in (lambda: safety.predicted_slacks(twin.twin_env, gains), lambda: safety.expect(twin.twin_env, gains[0]),
+                 lambda: safety.admits(twin.twin_env, gains, 3),
+                 lambda: TwinSafeAcquisition(None, None, safety, twin.twin_env, None, 3)):
+        with pytest.raises(TypeError, match="twin: expected an agents.twin.prior.TwinSimulation .* got TwinEnv"):
+            call()
+    with pytest.raises(ValueError, match="twin: the simulation judges the constraints None"):
+        safety.admits(TwinSimulation(twin.twin_env), gains, 3)
+    assert not safety.admits(None, gains, 3).any() and safety.checked(twin) is twin
 
 
 # -- guided BO in safe mode ---------------------------------------------------------------------------------
@@ -173,7 +192,7 @@ def test_guided_bo_safe_refuses_without_a_safe_start_constraints_or_the_twin_pri
 
 
 def test_only_the_twin_admits_gains_the_constraint_gps_weigh_them():
-    twin_env, env = _twin_env()
+    twin, env = _twin()
     space = agents.GainSpace.from_env(env)
     model = ConstraintModel(env.unwrapped.constraints.names, env.unwrapped.constraints.limits)
     env.reset(seed=0)
@@ -183,7 +202,7 @@ def test_only_the_twin_admits_gains_the_constraint_gps_weigh_them():
     X = space.to_unit(np.array([[0.3, 1.0], [0.28, 0.98], [0.85, 1.07]]))
     assert model.probability(X[:1])[0] > 0.99
     safety = TwinSafetyFilter(env.unwrapped.constraints, 0.05)
-    acquisition = TwinSafeAcquisition(None, model, safety, twin_env, space, 3)
+    acquisition = TwinSafeAcquisition(None, model, safety, twin, space, 3)
     np.testing.assert_array_equal(acquisition(X), -1.0)  # no measured twin error: nothing is safe
     safety.errors_ = [np.array([0.0, 0.1]), np.array([0.0, -0.1])] * 3  # a margin of 0.64 on peak_u
     safety.error_twins_ = [0] * 6  # errors of the twin the acquisition simulates
