@@ -2,8 +2,8 @@
 
 The suite is the study ``evaluation/studies/suite.toml``: every registered env, the
 effect plants of the guided-BO ablation and the time-varying envs, each at its target
-optimality ratio (1.05 on the DC motors, 1.01 on the linear motors), 30 seeds, the
-env's episode length as budget; ``quick`` is its ``[suite]`` subset (3 plants, 3
+optimality ratio (1.05 on the DC motors and the loops of 3 and 4 gains, 1.01 on the 2-gain
+linear motors), 30 seeds, the env's episode length as budget; ``quick`` is its ``[suite]`` subset (3 plants, 3
 seeds). :func:`run_suite` runs a tuner on it through the study engine
 (:func:`evaluation.study_runner.run_study`: every finished run saved at once, a rerun
 skips it, joblib or Dask), reads the reference tuners' shipped runs on the same plants
