@@ -206,7 +206,7 @@ class TwinSafetyFilter:
         margin = self.margin(experiment, self._twin_number(twin))
         if not np.all(np.isfinite(margin)):
             return np.zeros(gains.shape[0], dtype=bool)
-        return np.all(self.predicted_slacks(twin, gains) + margin <= 0.0, axis=1)
+        return np.all(twin.outcome(gains)[2] + margin <= 0.0, axis=1)  # c~(theta), twin checked above
 
 
 
