@@ -52,7 +52,7 @@ from agents.twin.linear_twin import LinearTwin
 from agents.twin.model import ModelSpec
 from agents.twin.noise_floor import noiseless_quantum
 from agents.twin.prior import TwinMetrics, TwinSimulation
-from agents.twin.records import Batch
+from agents.twin.records import Batch, as_records
 from agents.twin.selection import diagnosed_twin, measurement_noise
 from gbo_envs.experiment import SIGNALS, Experiment
 from gbo_envs.physics.sensor import Quantization
@@ -220,8 +220,11 @@ class TwinKeeper:
         new = _identifiable(record)
         if new is None:
             return  # nothing to identify from (or a diverging response)
+        # eq. (Ds): D~ <- D~ u {(u_i, y_i)}, with the gains and cost as told (a wrapper may edit the cost), the
+        # record numbered by its place in D~; validated here once (as_records), stacked unchecked (Batch.stack)
+        new = as_records(new, min_steps=3)[0].replace(gains=gains, cost=float(cost), index=len(self._records))
         if self.twin != "linear":
-            single = Batch.from_records([new])
+            single = Batch.stack([new])
             self._noise_floors.append(measurement_noise(single) / self._step_height)
             self._quanta.append(noiseless_quantum(single))
         if self._twin_env is not None:
@@ -234,9 +237,7 @@ class TwinKeeper:
                 self._reinitialise(len(self._records))
             elif self.refit_on_cost_miss and abs(cost - predicted) > 3.0 * self.sigma_eps:
                 self._cost_missed = True  # the twin's cost is off by more than the cost noise explains
-        # eq. (Ds): D~ <- D~ u {(u_i, y_i)}, with the gains and cost as told (a wrapper may edit the cost), the
-        # record numbered by its place in D~
-        self._records.append(new.replace(gains=gains, cost=float(cost), index=len(self._records)))
+        self._records.append(new)
         self._stacked = {}
         self._dirty = True
 
@@ -535,9 +536,10 @@ class TwinKeeper:
 
     def _batch(self, n_samples: int | None = None) -> Batch:
         """``D~`` as one :class:`~agents.twin.records.Batch` decimated to ``n_samples`` per record (``None``: whole),
-        validated and stacked once per state of ``D~`` (:meth:`~agents.twin.records.Batch.from_records`)."""
+        stacked once per state of ``D~`` from the records :meth:`tell` validated
+        (:meth:`~agents.twin.records.Batch.stack`)."""
         if n_samples not in self._stacked:
-            self._stacked[n_samples] = Batch.from_records(self._records, n_samples=n_samples)
+            self._stacked[n_samples] = Batch.stack(self._records, n_samples=n_samples)
         return self._stacked[n_samples]
 
     def _data_for(self, twin):

@@ -226,8 +226,17 @@ class Experiment:
                              index=found.index if index is None else index)
 
     def replace(self, **changes) -> Experiment:
-        """A copy with ``changes`` applied (validated again)."""
-        return dataclasses.replace(self, **changes)
+        """A copy with ``changes`` applied: the changed fields validated, the signals again only if one changes."""
+        if any(name in changes for name in SIGNALS) or self.t is None:
+            return dataclasses.replace(self, **changes)
+        kept = ("gains", "cost", "metrics", "source", "index")
+        fields = {name: changes.pop(name, getattr(self, name)) for name in kept}
+        if changes:
+            raise TypeError(f"replace: unknown field(s) {sorted(changes)}")
+        copy = type(self)(**fields)  # validates the fields other than the signals
+        for name in SIGNALS:
+            object.__setattr__(copy, name, getattr(self, name))  # validated and frozen at construction
+        return copy
 
     @property
     def has_signals(self) -> bool:

@@ -332,7 +332,32 @@ class Batch:
         agents.twin.record_checks.NonCausalRecordWarning
             Records whose output answers their input in the same sample (not tested with ``n_samples``).
         """
-        data = as_records(records, min_steps=3)
+        return cls.stack(as_records(records, min_steps=3), experiment_index, initial, n_samples=n_samples)
+
+    @classmethod
+    def stack(cls, records: Sequence[Experiment], experiment_index: Sequence[int] | None = None,
+              initial: str = "auto", *, n_samples: int | None = None) -> Batch:
+        """Stack records that :func:`as_records` validated into read-only arrays, without validating them again.
+
+        Parameters
+        ----------
+        records : sequence of Experiment
+            Records as :func:`as_records` returns them (or copies of those with other gains, cost or
+            index, :meth:`~gbo_envs.Experiment.replace`).
+        experiment_index, initial, n_samples
+            As in :meth:`from_records`.
+
+        Raises
+        ------
+        ValueError
+            As in :meth:`from_records`, but for the checks of :func:`as_records`.
+
+        Warns
+        -----
+        agents.twin.record_checks.NonCausalRecordWarning
+            As in :meth:`from_records`.
+        """
+        data = list(records)
         if n_samples is not None:
             data = decimate_records(data, n_samples, mean_input=True)  # uniform samples of validated records
         dts = np.array([rec.dt for rec in data])

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import logging
 from types import SimpleNamespace
+from unittest import mock
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
 import agents
-import gbo_envs  # noqa: F401
+import agents.twin.records
+import gbo_envs.experiment
 from agents import twin_keeper
 from agents.guidance import TwinIterations
 from agents.guided_bo import GuidedBO
@@ -175,6 +177,22 @@ def test_the_keeper_needs_the_unwrapped_plant_env():
     env = gym.make("gbo_envs/DCMotor-v0")
     with pytest.raises(ValueError, match="env: the twin keeper needs the unwrapped plant env"):
         TwinKeeper().setup(agents.GainSpace.from_env(env), SimpleNamespace())
+
+
+@pytest.mark.parametrize("twin", ["auto", "linear"])
+def test_the_keeper_validates_each_record_once_on_its_way_in(twin):
+    env = gym.make("gbo_envs/DCMotor-v0")
+    records = _records(env, [[0.9, 1.0], [0.52, 1.16], [0.6, 1.5]])
+    keeper = _keeper(env, twin=twin)
+    with mock.patch.object(agents.twin.records, "validate_signals",
+                           wraps=agents.twin.records.validate_signals) as in_records, \
+            mock.patch.object(gbo_envs.experiment, "validate_signals",
+                              wraps=gbo_envs.experiment.validate_signals) as in_experiment:
+        _tell(keeper, records)
+        assert keeper.twin_env() is not None  # a fit on D~ stacks the records told
+    assert in_records.call_count + in_experiment.call_count == len(records)
+    assert [record.index for record in keeper.records_] == [0, 1, 2]
+    assert [record.cost for record in keeper.records_] == [info["cost"] for info in records]
 
 
 # -- trust -----------------------------------------------------------------------------------------------
