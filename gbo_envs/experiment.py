@@ -229,7 +229,7 @@ class Experiment:
         """A copy with ``changes`` applied: the changed fields validated, the signals again only if one changes."""
         if any(name in changes for name in SIGNALS) or self.t is None:
             return dataclasses.replace(self, **changes)
-        kept = ("gains", "cost", "metrics", "source", "index")
+        kept = [f.name for f in dataclasses.fields(self) if f.name not in SIGNALS]
         fields = {name: changes.pop(name, getattr(self, name)) for name in kept}
         if changes:
             raise TypeError(f"replace: unknown field(s) {sorted(changes)}")
