@@ -21,15 +21,16 @@ chromium:
 	    echo "note: chromium not found (as root: apt-get install -y chromium); the browser test of the reports will skip"; \
 	  fi; }
 
-# torch first, pinned to the CPU build, so that stable-baselines3 never pulls a CUDA build; then the project's
+# torch first, pinned to the CPU build, so that stable-baselines3 never pulls a CUDA build; then the project with
+# the versions of constraints.txt (those the shipped references ran with); then the project's
 # bytecode, as pip writes it for a regular install: where PYTHONDONTWRITEBYTECODE is set (Docker images, CI) every
 # command would otherwise compile the project's modules again (0.17 s of each gbo twin diagnose); then the compiled
 # simulation, into numba's cache beside the package (gbo_envs/physics/kernels.py): compiled once here (it prints the seconds), not
 # by the first command, nor by each process of make test that needs it first
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install --progress-bar on "torch==2.13.0"
-	$(PIP) install --progress-bar on -e ".[all]"
+	$(PIP) install --progress-bar on -c constraints.txt -e ".[all]"
 	$(PY) -m compileall -q agents gbo_envs evaluation
 	$(PY) -c "from gbo_envs.physics.kernels import warm_up; print(f'compiled kernels: {warm_up():.1f} s')"
 	touch $(STAMP)

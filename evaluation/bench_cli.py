@@ -37,7 +37,8 @@ __all__ = ["bench", "suite"]
 #: Options of `gbo bench suite` only, and of a study only: their flags and the values that mean "not given".
 _SUITE_ONLY = {"tuner": ("--tuner", []), "tuner_kwargs": ("--tuner-kwargs", {}), "label": ("--label", None),
                "imports": ("--import", []), "seeds": ("--seeds", None),
-               "rebuild_references": ("--rebuild-references", False), "force": ("--force", False)}
+               "rebuild_references": ("--rebuild-references", False), "force": ("--force", False),
+               "plant": ("--plant", [])}
 _STUDY_ONLY = {"batches": ("--batches", None), "list": ("--list", False), "no_report": ("--no-report", False),
                "rerun": ("--rerun", [])}
 
@@ -110,8 +111,8 @@ def suite(args: argparse.Namespace) -> int:
                   "standard suite with the kwargs of evaluation/studies/suite.toml)", file=sys.stderr)
             return EXIT_BAD_INPUT
         done = rebuild(load_suite("standard"), tuners=args.tuner or None, out=Path(args.out or "out/references"),
-                       force=args.force, backend=args.backend, address=args.address, workers=args.workers,
-                       progress=progress)
+                       force=args.force, plants=args.plant or None, backend=args.backend, address=args.address,
+                       workers=args.workers, progress=progress)
         for tuner, plants in done.items():
             if tuner in ("interrupted", "failed"):
                 continue
@@ -123,9 +124,10 @@ def suite(args: argparse.Namespace) -> int:
             print(f"gbo bench suite: runs failed ({done['failed']}); rerun to retry them", file=sys.stderr)
             return 1
         return 0
-    if args.force:
-        print("gbo bench suite: --force only with --rebuild-references", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    for flag, value in (("--force", args.force), ("--plant", args.plant)):
+        if value:
+            print(f"gbo bench suite: {flag} only with --rebuild-references", file=sys.stderr)
+            return EXIT_BAD_INPUT
     if len(args.tuner) != 1:
         print("gbo bench suite: give one --tuner NAME (a registered tuner; yours with --import MODULE), "
               f"got {len(args.tuner)}", file=sys.stderr)

@@ -288,7 +288,8 @@ def load_references(study: Study, optima: dict[str, np.ndarray], folder: Path | 
 
 # -- rebuilding ---------------------------------------------------------------------------------------
 def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Path("out") / "references",
-            folder: Path | str = REFERENCES_DIR, force: bool = False, backend: str = "local",
+            folder: Path | str = REFERENCES_DIR, force: bool = False, plants: list[str] | None = None,
+            backend: str = "local",
             address: str | None = None, workers: int | None = None, progress: bool | None = False,
             log=None) -> dict:
     """Restamp the current references of ``study`` (:func:`restamp`), then rerun the stale and missing ones and
@@ -312,6 +313,8 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
         The references folder.
     force : bool
         Rebuild current references too.
+    plants : list of str, optional
+        Plant labels to rebuild on (default: every suite plant); the others are left as they are.
     backend, address, workers, progress, log
         As :func:`evaluation.study_runner.run_study`.
 
@@ -325,6 +328,9 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
     unknown = [t for t in (tuners or []) if t not in labels]
     if unknown:
         raise ValueError(f"--tuner: {unknown} are not reference tuners; references: {', '.join(labels)}")
+    unknown = [p for p in (plants or []) if p not in study.plant_labels]
+    if unknown:
+        raise ValueError(f"--plant: {unknown} are not suite plants; plants: {', '.join(study.plant_labels)}")
     folder, out = Path(folder), Path(out)
     tasks = plan_batches(study)
     budgets = {task.plant: task.budget for task in tasks}
@@ -334,13 +340,13 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
     refs = load_references(study, optima, folder)
     done: dict = {}
     for entry in _selected(study, tuners):
-        plants = [p.label for p in study.plants if study.runs_on(entry, p)
+        chosen = [p.label for p in study.plants if study.runs_on(entry, p) and (not plants or p.label in plants)
                   and (force or refs.status(entry.label, p.label) != "current")]
-        done[entry.label] = plants
-        if not plants:
+        done[entry.label] = chosen
+        if not chosen:
             continue
-        part = study.subset(plants=plants, tuners=(entry,), name=f"{study.name}-{slugify(entry.label)}")
-        before = {p: current[(entry.label, p)] for p in plants}
+        part = study.subset(plants=chosen, tuners=(entry,), name=f"{study.name}-{slugify(entry.label)}")
+        before = {p: current[(entry.label, p)] for p in chosen}
         # one working folder per source version: an interrupted rebuild resumes, one of changed code starts anew
         version = hashlib.sha256(json.dumps(sorted((p, f.tuner_hash, f.plant_hash) for p, f in before.items()))
                                  .encode()).hexdigest()[:10]
@@ -351,22 +357,22 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
             return done
         new = load_curves(work, part, optima=optima)
         modules = set(fingerprint.tuner_modules(entry.name))
-        for plant in plants:
+        for plant in chosen:
             modules.update(fingerprint.plant_modules(study.plant(plant).env_id))
         stamp = fingerprint.git_commit(sorted(modules)) or "unknown"
         fingerprint.reread_sources()
         again = current_fingerprints(part, optima)
-        changed = [p for p in plants if again[(entry.label, p)] != before[p]]
+        changed = [p for p in chosen if again[(entry.label, p)] != before[p]]
         if changed:
             raise RuntimeError(f"the sources of {entry.label} on {changed} changed while its references were "
                                "built; rebuild again")
         new = new.assign(commit=stamp, tuner_hash=[before[p].tuner_hash for p in new["plant"]],
                          plant_hash=[before[p].plant_hash for p in new["plant"]],
-                         tuner_behaviour=behaviour.tuner_behaviour(entry.name, before[plants[0]].params),
+                         tuner_behaviour=behaviour.tuner_behaviour(entry.name, before[chosen[0]].params),
                          plant_behaviour=[behaviour.plant_behaviour(before[p].env_id, before[p].env_kwargs)
                                           for p in new["plant"]], source="engine")
         old = read_curves(reference_file(entry.label, folder))
-        keep = old[~old["plant"].isin(plants)] if len(old) else old
+        keep = old[~old["plant"].isin(chosen)] if len(old) else old
         merged = pd.concat([frame for frame in (keep, new) if len(frame)], ignore_index=True)
         order = {p.label: i for i, p in enumerate(study.plants)}
         merged = merged.sort_values(["plant", "batch"], key=lambda s: s.map(order) if s.name == "plant" else s,

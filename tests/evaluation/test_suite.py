@@ -203,6 +203,18 @@ def test_references_go_stale_when_a_fingerprint_input_changes_and_rebuild_fixes_
     assert not load_references(suite, optima, refs).stale
 
 
+def test_a_rebuild_on_chosen_plants_reruns_only_those_and_names_an_unknown_plant(tmp_path):
+    suite = tiny_suite([{"name": "random", "label": "bo"}])
+    refs = tmp_path / "refs"
+    assert rebuild(suite, out=tmp_path / "work", folder=refs, workers=1, plants=["DCStep"]) == {"bo": ["DCStep"]}
+    loaded = load_references(suite, suite_optima(suite, {"DC": 4, "DCStep": 5}, refs), refs)
+    assert loaded.missing == [("bo", "DC")] and set(loaded.curves["plant"]) == {"DCStep"}
+    assert rebuild(suite, out=tmp_path / "work", folder=refs, workers=1, plants=["DC"]) == {"bo": ["DC"]}
+    assert set(read_curves(reference_file("bo", refs))["plant"]) == {"DC", "DCStep"}  # the first plant's rows kept
+    with pytest.raises(ValueError, match=r"--plant: \['Nope'\] are not suite plants; plants: DC, DCStep"):
+        rebuild(suite, out=tmp_path / "work", folder=refs, workers=1, plants=["Nope"])
+
+
 def test_the_shipped_references_cover_the_quick_suite():
     suite = load_suite("quick")
     budgets = {"DCMotor-v0": 35, "DCMotorRig-v0": 35, "LinearMotor-v0": 25}
