@@ -102,13 +102,19 @@ class Tuner(abc.ABC):
 
         Parameters
         ----------
-        space : GainSpace
+        space : GainSpace or gymnasium.spaces.Box
+            The feasible set; an env's ``action_space`` is read as :meth:`GainSpace.from_env` reads it (with the
+            gain names of ``env`` when it is that env's).
         seed : int, optional
             Seeds :attr:`rng`; the same seed gives the same proposals for the same costs.
         env : gymnasium.Env, optional
             The plant env, for tuners that use more than the cost (e.g. a twin).
         """
         seed = checked_seed(seed)
+        if not isinstance(space, GainSpace):
+            plant = getattr(env, "unwrapped", None)
+            own = plant is not None and space is getattr(plant, "action_space", None)
+            space = GainSpace.from_env(env) if own else GainSpace.from_box(space)
         self.space = space
         self.seed = seed
         self.rng = np.random.default_rng(seed)

@@ -42,10 +42,19 @@ class GainSpace:
     def from_env(cls, env) -> GainSpace:
         """Feasible set of a plant env (wrappers allowed): its action ``Box`` and gain names."""
         plant = env.unwrapped
-        box = plant.action_space
-        names = tuple(getattr(plant, "gain_names", [f"gain_{i}" for i in range(box.shape[0])]))
-        units = tuple(getattr(plant, "gain_units", ()))
-        return cls(names=names, low=np.asarray(box.low, float), high=np.asarray(box.high, float), units=units)
+        return cls.from_box(plant.action_space, names=getattr(plant, "gain_names", None),
+                            units=tuple(getattr(plant, "gain_units", ())))
+
+    @classmethod
+    def from_box(cls, box, names=None, units: tuple[str, ...] = ()) -> GainSpace:
+        """Feasible set of a one-dimensional ``gymnasium.spaces.Box`` of gains (named ``gain_0, ...`` without
+        ``names``); anything else raises ``TypeError`` naming ``space``."""
+        low, high = getattr(box, "low", None), getattr(box, "high", None)
+        if low is None or high is None or np.ndim(low) != 1:
+            raise TypeError(f"space: expected a GainSpace (GainSpace.from_env(env)) or an env's one-dimensional "
+                            f"action_space Box, got {type(box).__name__}")
+        names = tuple(names) if names is not None else tuple(f"gain_{i}" for i in range(np.size(low)))
+        return cls(names=names, low=np.asarray(low, float), high=np.asarray(high, float), units=units)
 
     @property
     def dim(self) -> int:

@@ -41,3 +41,16 @@ def test_told_gains_must_not_be_booleans(gains):
     tuner.setup(GainSpace.from_env(gym.make(ENV)), seed=0)
     with pytest.raises(TypeError, match=r"tell\(gains\): must be real numbers, got the boolean"):
         tuner.tell(gains, 1.0)
+
+
+def test_setup_takes_the_envs_action_space_as_run_does_and_names_a_wrong_space():
+    env = gym.make(ENV)
+    by_box, by_space = agents.make("bo"), agents.make("bo")
+    by_box.setup(env.action_space, seed=3, env=env)  # was AttributeError: 'Box' object has no attribute 'dim'
+    by_space.setup(GainSpace.from_env(env), seed=3, env=env)
+    assert by_box.space.names == ("Kp", "Ki") and by_box.ask() == by_space.ask()
+    anonymous = agents.make("random")
+    anonymous.setup(gym.spaces.Box(0.0, 1.0, shape=(3,)), seed=0)
+    assert anonymous.space.names == ("gain_0", "gain_1", "gain_2")
+    with pytest.raises(TypeError, match="space: expected a GainSpace .* got list"):
+        agents.make("random").setup([0.0, 1.0], seed=0)
