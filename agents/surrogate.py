@@ -120,7 +120,8 @@ class GPSurrogate:
             kernel = kernel + WhiteKernel(float(np.clip(1e-2, *self.noise_bounds)), self.noise_bounds)
         return kernel
 
-    def fit(self, X: np.ndarray, y: np.ndarray, seed: int | None = None, optimize: bool = True) -> GPSurrogate:
+    def fit(self, X: np.ndarray, y: np.ndarray, seed: int | None = None, optimize: bool = True,
+            scale: float | None = None) -> GPSurrogate:
         """Fit to inputs of shape (n, d) (the unit box) and costs of shape (n,).
 
         Parameters
@@ -138,6 +139,9 @@ class GPSurrogate:
             ``False`` keeps the previous fit's hyperparameters and only conditions
             the GP on the new data (one Cholesky factorisation): guided BO's
             iterations on the twin use it.
+        scale : float, optional
+            The output scale (units of ``y``) by which a ``y`` that does not vary (std <= 1e-12) is standardised,
+            ``> 0``: the prior std of what the points do not show. Default 1.
 
         Returns
         -------
@@ -156,8 +160,8 @@ class GPSurrogate:
             return self._fit_outputs(X, y, seed, optimize)
         # Constant mean by standardisation: mu = mean(y) (paper, subsec. BO, constant prior mean).
         self.y_mean_ = float(np.mean(y))
-        scale = float(np.std(y)) if y.size > 1 else 0.0
-        self.y_scale_ = scale if scale > 1e-12 else 1.0
+        spread = float(np.std(y)) if y.size > 1 else 0.0
+        self.y_scale_ = spread if spread > 1e-12 else (1.0 if scale is None else float(scale))
         y_std = (y - self.y_mean_) / self.y_scale_
         # Fixed noise: sigma_eps^2 I of eq. (gpr_mio1), in standardised units; else a small jitter.
         alpha = 1e-8 if self.noise_std is None else max((self.noise_std / self.y_scale_) ** 2, 1e-8)

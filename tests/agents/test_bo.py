@@ -432,6 +432,28 @@ def test_a_metric_prior_is_followed_where_the_discrepancy_is_flat():
     assert error_plain > 30 * error_guided  # eight points alone cannot know the sine and cosine
 
 
+def test_a_prior_exact_at_the_points_leaves_the_metrics_own_spread_not_one_normaliser():
+    # a twin that reproduces its records (a quantized sensor read the same by twin and plant): every discrepancy
+    # is zero at the points. Standardised by 1, its GP put a std of one normaliser (one cost weight) everywhere
+    # else, and EI sent guided BO to the corners of LinearMotor-v0 (seed 1: 6 experiments to 1.01 J*, 3 without)
+    from agents.metric_surrogate import MetricSurrogate
+
+    def truth(X):
+        X = np.atleast_2d(X)
+        return np.column_stack([10 * X[:, 0] ** 2, 2 + X[:, 1], 0.5 + X[:, 0], 80 + 40 * X[:, 0]])
+
+    X = np.array([[0.2, 0.3], [0.7, 0.6], [0.4, 0.9]])
+    surrogate = MetricSurrogate(_MetricEnv.weights, _MetricEnv.normalizers)
+    fitted = surrogate.fit(X, truth(X), seed=0, prior=truth)
+    spread = np.std(truth(X) / _MetricEnv.normalizers, axis=0)
+    far = np.array([[0.95, 0.05]])
+    stds = np.array([model.predict(far)[1][0] for model in fitted.models])
+    assert np.all(stds <= 1.01 * spread) and np.all(stds > 0.1 * spread)
+    assert np.allclose(fitted.predict(far)[0], truth(far) @ (_MetricEnv.weights / _MetricEnv.normalizers))
+    constant = GPSurrogate().fit(X, np.zeros(3), seed=0, scale=0.25)
+    assert constant.y_scale_ == 0.25 and GPSurrogate().fit(X, np.zeros(3), seed=0).y_scale_ == 1.0
+
+
 def test_twin_metrics_of_a_noisy_twin_simulate_the_noise_only_near_its_expected_optimum():
     from agents.twin.prior import NOISY_COST_FACTOR, TwinMetrics
 
