@@ -22,7 +22,7 @@ chromium:
 	  fi; }
 
 # torch first, pinned to the CPU build, so that stable-baselines3 never pulls a CUDA build; then the project with
-# the versions of constraints.txt (those the shipped references ran with); then the project's
+# the versions of constraints.txt (the environment the suite's references are checked and rebuilt in); then the project's
 # bytecode, as pip writes it for a regular install: where PYTHONDONTWRITEBYTECODE is set (Docker images, CI) every
 # command would otherwise compile the project's modules again (0.17 s of each gbo twin diagnose); then the compiled
 # simulation, into numba's cache beside the package (gbo_envs/physics/kernels.py): compiled once here (it prints the seconds), not

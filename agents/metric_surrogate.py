@@ -208,9 +208,9 @@ class MetricSurrogate:
         if metrics.shape != (np.shape(X)[0], self.weights.size) or not np.all(np.isfinite(metrics)):
             raise ValueError(f"metrics: need finite values of shape ({np.shape(X)[0]}, {self.weights.size})")
         target = self._transformed(metrics)
-        spreads = np.full(self.weights.size, np.nan)
+        # a discrepancy the points do not show (a twin exact there) has at most the metric's own spread
+        scales = np.std(target, axis=0) if prior is not None else np.full(self.weights.size, None)
         if prior is not None:
-            spreads = np.std(target, axis=0) if target.shape[0] > 1 else spreads
             target = target - self._transformed(prior(X))  # the discrepancy d_i from the prior
         from_envelopes = self.settling is not None and envelopes is not None and prior is None \
             and np.shape(X)[0] >= self.settling.gp.min_fit_points
@@ -221,9 +221,8 @@ class MetricSurrogate:
                 models.append(self.settling.fit(X, envelopes, seed=seed_i, optimize=optimize))
                 derived.append(i)
                 continue
-            # a discrepancy the points do not show (a twin exact there) has at most the metric's own spread
             model.fit(X, target[:, i], seed=None if seed is None else int(seed) + i, optimize=optimize,
-                      scale=spreads[i] if spreads[i] > 1e-12 else None)
+                      scale=scales[i])
             shifted = model if prior is None else _PriorMean(model, prior, i, self._transformed)
             models.append(_LogNormal(shifted) if i in self.log_metrics else shifted)
         noise = 0.0

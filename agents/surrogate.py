@@ -141,7 +141,7 @@ class GPSurrogate:
             iterations on the twin use it.
         scale : float, optional
             The output scale (units of ``y``) by which a ``y`` that does not vary (std <= 1e-12) is standardised,
-            ``> 0``: the prior std of what the points do not show. Default 1.
+            the prior std of what the points do not show. Default (and where it is not above 1e-12) 1.
 
         Returns
         -------
@@ -161,7 +161,8 @@ class GPSurrogate:
         # Constant mean by standardisation: mu = mean(y) (paper, subsec. BO, constant prior mean).
         self.y_mean_ = float(np.mean(y))
         spread = float(np.std(y)) if y.size > 1 else 0.0
-        self.y_scale_ = spread if spread > 1e-12 else (1.0 if scale is None else float(scale))
+        fallback = 1.0 if scale is None or not scale > 1e-12 else float(scale)
+        self.y_scale_ = spread if spread > 1e-12 else fallback
         y_std = (y - self.y_mean_) / self.y_scale_
         # Fixed noise: sigma_eps^2 I of eq. (gpr_mio1), in standardised units; else a small jitter.
         alpha = 1e-8 if self.noise_std is None else max((self.noise_std / self.y_scale_) ** 2, 1e-8)

@@ -289,9 +289,8 @@ def load_references(study: Study, optima: dict[str, np.ndarray], folder: Path | 
 # -- rebuilding ---------------------------------------------------------------------------------------
 def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Path("out") / "references",
             folder: Path | str = REFERENCES_DIR, force: bool = False, plants: list[str] | None = None,
-            backend: str = "local",
-            address: str | None = None, workers: int | None = None, progress: bool | None = False,
-            log=None) -> dict:
+            backend: str = "local", address: str | None = None, workers: int | None = None,
+            progress: bool | None = False, log=None) -> dict:
     """Restamp the current references of ``study`` (:func:`restamp`), then rerun the stale and missing ones and
     write them into ``folder``.
 
