@@ -18,8 +18,9 @@ look: the reference is stale when what the code *does* changed.
 Numbers enter the hash as decimal strings of :data:`SIGNIFICANT` significant digits, so that a
 change of the last bits (a sum in another order) is not a change of behaviour. What the probes
 do not reach is not seen: a change that moves a tuner only after its fifth experiment, or a
-plant only away from the probed gains, leaves the fingerprint as it was. After such a change,
-rebuild the references with ``gbo bench suite --rebuild-references --force``.
+plant only away from the probed gains, leaves the fingerprint as it was, and so does a new numerical
+stack (no source changed). ``python benchmarks/reference_reproduction.py`` reruns the references'
+seeds on every plant to find those; rebuild them with ``gbo bench suite --rebuild-references --force``.
 """
 
 from __future__ import annotations

@@ -1,0 +1,47 @@
+"""benchmarks/reference_reproduction.py: the shipped references rerun seed by seed on this machine."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+
+import pytest
+
+from tests.support import REPO_ROOT
+
+
+def _script():
+    path = REPO_ROOT / "benchmarks" / "reference_reproduction.py"
+    spec = importlib.util.spec_from_file_location("reference_reproduction", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _main(monkeypatch, *argv) -> None:
+    monkeypatch.setattr(sys, "argv", ["reference_reproduction.py", *argv])
+    _script().main()
+
+
+def test_two_curves_part_at_the_first_experiment_beyond_the_tolerance():
+    first_parting = _script().first_parting
+    assert first_parting([1.2, 1.1, 1.0], [1.2, 1.1, 1.0], 1e-6) is None
+    assert first_parting([1.2, 1.1, 1.0], [1.2, 1.1000001, 1.0], 1e-9) == 2
+    assert first_parting([1.2, 1.1, 1.0], [1.2, 1.1000001, 1.0], 1e-6) is None
+    assert first_parting([1.2, 1.1], [1.2, 1.1, 1.0], 1e-6) == 3  # the shorter curve lacks the third
+
+
+@pytest.mark.parametrize("plant", ["DCMotor-v0", "LinearMotorCascade-v0"])
+def test_the_bo_reference_reproduces_on_this_stack(monkeypatch, capsys, tmp_path, plant):
+    """bo's seed 0, on the grid path (2 gains) and on the multistart L-BFGS-B path (4 gains), as shipped:
+    a change of the numerical stack that moves the references fails here, not silently in the leaderboard."""
+    _main(monkeypatch, "--tuner", "bo", "--plant", plant, "--out", str(tmp_path))
+    assert f"| bo | {plant} | 1 of 1 | - |" in capsys.readouterr().out
+    assert (tmp_path / "comparisons.jsonl").read_text().count("\n") == 1
+
+
+def test_an_unknown_plant_is_refused_naming_the_suite(monkeypatch, capsys, tmp_path):
+    with pytest.raises(SystemExit) as stop:
+        _main(monkeypatch, "--plant", "DCMotor-v9", "--out", str(tmp_path))
+    assert stop.value.code == 2
+    assert "--plant: ['DCMotor-v9'] not in the standard suite" in capsys.readouterr().err
