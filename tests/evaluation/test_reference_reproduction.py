@@ -2,29 +2,20 @@
 
 from __future__ import annotations
 
-import importlib.util
 import sys
 
 import pytest
 
-from tests.support import REPO_ROOT
-
-
-def _script():
-    path = REPO_ROOT / "benchmarks" / "reference_reproduction.py"
-    spec = importlib.util.spec_from_file_location("reference_reproduction", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.support import benchmark_module
 
 
 def _main(monkeypatch, *argv) -> None:
     monkeypatch.setattr(sys, "argv", ["reference_reproduction.py", *argv])
-    _script().main()
+    benchmark_module(monkeypatch, "reference_reproduction").main()
 
 
-def test_two_curves_part_at_the_first_experiment_beyond_the_tolerance():
-    first_parting = _script().first_parting
+def test_two_curves_part_at_the_first_experiment_beyond_the_tolerance(monkeypatch):
+    first_parting = benchmark_module(monkeypatch, "reference_reproduction").first_parting
     assert first_parting([1.2, 1.1, 1.0], [1.2, 1.1, 1.0], 1e-6) is None
     assert first_parting([1.2, 1.1, 1.0], [1.2, 1.1000001, 1.0], 1e-9) == 2
     assert first_parting([1.2, 1.1, 1.0], [1.2, 1.1000001, 1.0], 1e-6) is None
