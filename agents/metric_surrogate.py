@@ -208,8 +208,9 @@ class MetricSurrogate:
         if metrics.shape != (np.shape(X)[0], self.weights.size) or not np.all(np.isfinite(metrics)):
             raise ValueError(f"metrics: need finite values of shape ({np.shape(X)[0]}, {self.weights.size})")
         target = self._transformed(metrics)
-        # a discrepancy the points do not show (a twin exact there) has at most the metric's own spread
-        scales = np.std(target, axis=0) if prior is not None else np.full(self.weights.size, None)
+        # a discrepancy the points do not show (a twin exact there) has at most the metric's own spread;
+        # without a prior the spread is the fitted target's own, which GPSurrogate.fit standardises by anyway
+        scales = np.std(target, axis=0)
         if prior is not None:
             target = target - self._transformed(prior(X))  # the discrepancy d_i from the prior
         from_envelopes = self.settling is not None and envelopes is not None and prior is None \

@@ -13,23 +13,25 @@ compares each experiment's optimality ratio with the stored one (relative tolera
 
 It prints one Markdown row per tuner and plant: the seeds whose curves agree, the first experiment
 (1-based) where the others part, and the tuner's CPU per run. A reference that parts is rebuilt with
-``gbo bench suite --rebuild-references --force --tuner TUNER --plant PLANT``. Runs are written to
-``--out`` as they finish, so an interrupted check resumes.
+``gbo bench suite --rebuild-references --force --tuner TUNER --plant PLANT``. Each rerun is written to
+``--out/results`` as the study engine writes a batch, so an interrupted check resumes.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 from tqdm import tqdm
 
-from evaluation.curves import curves_from_results, read_curves
+from evaluation.curves import load_curves, read_curves
 from evaluation.references import reference_file, suite_optima
-from evaluation.study_runner import plan_batches, run_batch
+from evaluation.study_runner import finished_files, plan_batches, run_batch, write_batch
 from evaluation.suite import load_suite
+
+RUN = ["tuner", "plant", "seed"]
 
 
 def first_parting(new, old, rtol: float) -> int | None:
@@ -52,7 +54,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds to rerun (default: 0)")
     parser.add_argument("--rtol", type=float, default=1e-6, help="relative tolerance of a ratio (default 1e-6)")
     parser.add_argument("--out", type=Path, default=Path("out") / "reference_reproduction",
-                        help="folder of the finished comparisons (resumed)")
+                        help="folder of the reruns (resumed)")
     args = parser.parse_args()
     suite = load_suite("standard")
     labels = [entry.label for entry in suite.tuners]
@@ -65,48 +67,30 @@ def main() -> None:
         parser.error(f"--rtol: must be in (0, 1), got {args.rtol}")
     study = suite.subset(plants=args.plant, tuners=tuple(e for e in suite.tuners if e.label in (args.tuner or labels)))
     tasks = [task for task in plan_batches(study) if task.seed in args.seeds]
+    stored = pd.concat([read_curves(reference_file(entry.label)).assign(tuner=entry.label) for entry in study.tuners])
+    stored = stored.set_index(RUN)
+    done = finished_files(args.out)
+    pending = [task for task in tasks if (task.label, task.plant, task.seed) in stored.index
+               and task.filename not in done]
+    for task in tqdm(pending, desc="reruns", unit="run"):
+        write_batch(run_batch(task), args.out, task.filename)
     optima = suite_optima(study, {task.plant: task.budget for task in tasks})
-    args.out.mkdir(parents=True, exist_ok=True)
-    done_file = args.out / "comparisons.jsonl"
-    done = {}
-    if done_file.exists():
-        for line in done_file.read_text().splitlines():
-            row = json.loads(line)
-            done[(row["tuner"], row["plant"], row["seed"], row["rtol"])] = row
-    references = {}
-    for task in tqdm(tasks, desc="reruns", unit="run"):
-        key = (task.label, task.plant, task.seed, args.rtol)
-        if key in done:
-            continue
-        if task.label not in references:
-            references[task.label] = read_curves(reference_file(task.label))
-        stored = references[task.label]
-        stored = stored[(stored["plant"] == task.plant) & (stored["seed"] == task.seed)]
-        row = {"tuner": task.label, "plant": task.plant, "seed": task.seed, "rtol": args.rtol}
-        if not len(stored):
-            row.update(parts=None, missing=True, cpu=None)
-        else:
-            frame = run_batch(task)
-            frame["plant"] = task.plant
-            new = curves_from_results(frame, optima).iloc[0]
-            row.update(parts=first_parting(new["instant"], stored.iloc[0]["instant"], args.rtol), missing=False,
-                       cpu=float(new["cpu_seconds"] - new["plant_cpu_seconds"]))
-        with done_file.open("a") as handle:
-            handle.write(json.dumps(row) + "\n")
-        done[key] = row
+    reruns = load_curves(args.out, study, optima).set_index(RUN)
     print("| tuner | plant | seeds that agree | first experiment apart | tuner CPU s/run |")
     print("|---|---|---|---|---|")
-    for label in dict.fromkeys(task.label for task in tasks):
-        for plant in dict.fromkeys(task.plant for task in tasks if task.label == label):
-            rows = [done[(label, plant, seed, args.rtol)] for seed in args.seeds
-                    if (label, plant, seed, args.rtol) in done]
-            if not rows or all(row["missing"] for row in rows):
-                print(f"| {label} | {plant} | no reference | - | - |")
-                continue
-            agree = [row["seed"] for row in rows if row["parts"] is None and not row["missing"]]
-            apart = [f"seed {row['seed']}: {row['parts']}" for row in rows if row["parts"] is not None]
-            cpu = np.mean([row["cpu"] for row in rows if row["cpu"] is not None])
-            print(f"| {label} | {plant} | {len(agree)} of {len(rows)} | {', '.join(apart) or '-'} | {cpu:.1f} |")
+    pairs = dict.fromkeys((task.label, task.plant) for task in tasks)
+    for label, plant in sorted(pairs, key=lambda pair: labels.index(pair[0])):  # tuner by tuner
+        runs = [(label, plant, task.seed) for task in tasks
+                if (task.label, task.plant) == (label, plant) and (label, plant, task.seed) in reruns.index]
+        if not runs:
+            print(f"| {label} | {plant} | no reference | - | - |")
+            continue
+        parts = {run[2]: first_parting(reruns.loc[run, "instant"], stored.loc[run, "instant"], args.rtol)
+                 for run in runs}
+        apart = [f"seed {seed}: {at}" for seed, at in parts.items() if at is not None]
+        cpu = np.mean([reruns.loc[run, "cpu_seconds"] - reruns.loc[run, "plant_cpu_seconds"] for run in runs])
+        agree = sum(at is None for at in parts.values())
+        print(f"| {label} | {plant} | {agree} of {len(runs)} | {', '.join(apart) or '-'} | {cpu:.1f} |")
 
 
 if __name__ == "__main__":

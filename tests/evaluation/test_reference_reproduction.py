@@ -28,7 +28,7 @@ def test_the_bo_reference_reproduces_on_this_stack(monkeypatch, capsys, tmp_path
     a change of the numerical stack that moves the references fails here, not silently in the leaderboard."""
     _main(monkeypatch, "--tuner", "bo", "--plant", plant, "--out", str(tmp_path))
     assert f"| bo | {plant} | 1 of 1 | - |" in capsys.readouterr().out
-    assert (tmp_path / "comparisons.jsonl").read_text().count("\n") == 1
+    assert len(list((tmp_path / "results").glob("*.parquet"))) == 1
 
 
 def test_an_unknown_plant_is_refused_naming_the_suite(monkeypatch, capsys, tmp_path):
