@@ -49,11 +49,14 @@ from scipy.sparse.linalg import lsmr
 
 __all__ = ["trf"]
 
+#: ``least_squares``' ``xtol`` and ``gtol``: the relative step and the scaled gradient below which the iteration stops
+XTOL = GTOL = 1e-12
+
 
 def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tuple], x0: np.ndarray, cost0: float,
-        lower: np.ndarray, upper: np.ndarray, x_scale: np.ndarray, *, ftol: float, xtol: float = 1e-12,
-        gtol: float = 1e-12, max_nfev: int, tr_solver: str = "lsmr",
-        n_rows: int | None = None, resume: dict | None = None) -> tuple[np.ndarray, float, int, dict]:
+        lower: np.ndarray, upper: np.ndarray, x_scale: np.ndarray, *, ftol: float, max_nfev: int,
+        tr_solver: str = "lsmr", n_rows: int | None = None,
+        resume: dict | None = None) -> tuple[np.ndarray, float, int, dict]:
     """Minimise ``cost(x)`` within bounds by trust-region reflective steps on a compressed Jacobian.
 
     Parameters
@@ -70,8 +73,9 @@ def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tupl
         Bounds.
     x_scale : ndarray of shape (n,)
         Characteristic scale of each variable (``least_squares``' ``x_scale``).
-    ftol, xtol, gtol : float
-        ``least_squares``' tolerances: relative cost decrease, relative step, scaled gradient.
+    ftol : float
+        ``least_squares``' relative cost decrease below which the iteration stops (also at :data:`XTOL`
+        and :data:`GTOL`).
     max_nfev : int
         Cost evaluations at most, the start included.
     tr_solver : {"lsmr", "exact"}, default "lsmr"
@@ -118,8 +122,8 @@ def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tupl
     while True:
         v, dv = CL_scaling_vector(x, g, lower, upper)
         g_norm = norm(g * v, ord=np.inf)
-        if g_norm < gtol or nfev >= max_nfev:
-            stopped = g_norm < gtol
+        if g_norm < GTOL or nfev >= max_nfev:
+            stopped = g_norm < GTOL
             break
         v[dv != 0] *= scale_inv[dv != 0]
         d = v**0.5 * scale  # Coleman-Li scaling after x_scale
@@ -158,7 +162,7 @@ def trf(cost: Callable[[np.ndarray], float], system: Callable[[np.ndarray], tupl
                 continue
             reduction = cost_x - cost_new
             delta_new, ratio = update_tr_radius(delta, reduction, predicted, step_h_norm, step_h_norm > 0.95 * delta)
-            if check_termination(reduction, cost_x, norm(step), norm(x), ratio, ftol, xtol) is not None:
+            if check_termination(reduction, cost_x, norm(step), norm(x), ratio, ftol, XTOL) is not None:
                 done = True
                 break
             alpha *= delta / delta_new
