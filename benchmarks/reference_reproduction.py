@@ -78,10 +78,11 @@ def main() -> None:
     reruns = load_curves(args.out, study, optima).set_index(RUN)
     print("| tuner | plant | seeds that agree | first experiment apart | tuner CPU s/run |")
     print("|---|---|---|---|---|")
-    pairs = dict.fromkeys((task.label, task.plant) for task in tasks)
-    for label, plant in sorted(pairs, key=lambda pair: labels.index(pair[0])):  # tuner by tuner
-        runs = [(label, plant, task.seed) for task in tasks
-                if (task.label, task.plant) == (label, plant) and (label, plant, task.seed) in reruns.index]
+    seeds_of = {}  # (tuner, plant) -> seeds, tuner by tuner
+    for task in sorted(tasks, key=lambda task: labels.index(task.label)):
+        seeds_of.setdefault((task.label, task.plant), []).append(task.seed)
+    for (label, plant), seeds in seeds_of.items():
+        runs = [run for run in ((label, plant, seed) for seed in seeds) if run in reruns.index and run in stored.index]
         if not runs:
             print(f"| {label} | {plant} | no reference | - | - |")
             continue
