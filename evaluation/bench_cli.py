@@ -27,7 +27,7 @@ from evaluation.cli_args import EXIT_BAD_INPUT
 from evaluation.leaderboard import RANKING_RULE
 from evaluation.references import describe, rebuild
 from evaluation.report import write_report
-from evaluation.study import load_study, shipped_studies
+from evaluation.study import TunerEntry, load_study, shipped_studies
 from evaluation.study_runner import default_out_dir, forget, run_study
 from evaluation.suite import load_suite, run_suite
 
@@ -138,7 +138,8 @@ def suite(args: argparse.Namespace) -> int:
             " (your own: --import MODULE that registers it)"
         raise ValueError(f"--tuner {name!r}: not a registered tuner; registered: "
                          f"{', '.join(agents.registered_names())}{hint}")
-    result = run_suite(name, params=args.tuner_kwargs, label=args.label, suite=args.suite, seeds=args.seeds,
+    entry = TunerEntry(name=name, label=args.label or name, params=dict(args.tuner_kwargs or {}))
+    result = run_suite(entry, suite=args.suite, seeds=args.seeds,
                        imports=args.imports, out=Path(args.out or "out/suite"), backend=args.backend,
                        address=args.address, workers=args.workers, progress=progress, report_only=args.report_only)
     run = result.run

@@ -49,10 +49,11 @@ def load_suite(suite: str = "standard") -> Study:
     return study
 
 
-def tuner_study(suite: Study, tuner: str, params: dict | None = None, label: str | None = None,
-                seeds: int | None = None, imports=()) -> Study:
-    """The suite with one tuner entry (``label``, default the tuner's name) on all its plants, ``seeds`` seeds."""
-    entry = TunerEntry(name=tuner, label=label or tuner, params=dict(params or {}), group=label or tuner)
+def tuner_study(suite: Study, tuner: str | TunerEntry, seeds: int | None = None, imports=()) -> Study:
+    """The suite with one tuner entry (a registry name, or an entry with its label and kwargs) on all its plants,
+    ``seeds`` seeds."""
+    entry = tuner if isinstance(tuner, TunerEntry) else TunerEntry(name=tuner, label=tuner)
+    entry = replace(entry, params=dict(entry.params), group=entry.label)
     study = suite.subset(tuners=(entry,), batches=seeds)
     return replace(study, imports=tuple(imports), name=f"{suite.name}-{slugify(entry.label)}")
 
@@ -94,20 +95,18 @@ class SuiteResult:
     label: str = ""
 
 
-def run_suite(tuner: str, *, params: dict | None = None, label: str | None = None, suite: str | Study = "standard",
-              seeds: int | None = None, imports=(), out: Path | str = Path("out") / "suite", backend: str = "local",
-              address: str | None = None, workers: int | None = None, progress: bool | None = False,
-              references: Path | str = REFERENCES_DIR, report_only: bool = False, log=None) -> SuiteResult:
+def run_suite(tuner: str | TunerEntry, *, suite: str | Study = "standard", seeds: int | None = None, imports=(),
+              out: Path | str = Path("out") / "suite", backend: str = "local", address: str | None = None,
+              workers: int | None = None, progress: bool | None = False, references: Path | str = REFERENCES_DIR,
+              report_only: bool = False, log=None) -> SuiteResult:
     """Run ``tuner`` on the suite (resuming its finished runs) and write the leaderboard with the references.
 
     Parameters
     ----------
-    tuner : str
-        Registry name (:func:`agents.make`); a tuner of your own module once ``imports`` registered it.
-    params : dict, optional
-        Constructor keyword arguments.
-    label : str, optional
-        Its name in the leaderboard (default: ``tuner``).
+    tuner : str or TunerEntry
+        Registry name (:func:`agents.make`; a tuner of your own module once ``imports`` registered it), its
+        leaderboard label too; or a :class:`~evaluation.study.TunerEntry` with the name, the label and the
+        constructor keyword arguments (``TunerEntry(name="bo", label="bo n0=3", params={"n_initial": 3})``).
     suite : {"standard", "quick"} or Study
         The suite, or a study of several plants with its reference tuners in the suite's format.
     seeds : int, optional
@@ -131,12 +130,12 @@ def run_suite(tuner: str, *, params: dict | None = None, label: str | None = Non
     out = Path(out)
     base = suite if isinstance(suite, Study) else load_suite(suite)
     suite = base.name if isinstance(suite, Study) else suite
-    study = tuner_study(base, tuner, params, label, seeds, imports)
+    study = tuner_study(base, tuner, seeds, imports)
     entry = study.tuners[0]
     try:
         tasks = plan_batches(study)
     except ValueError as exc:
-        raise ValueError(f"--tuner {tuner} / --tuner-kwargs: {exc}") from None
+        raise ValueError(f"--tuner {entry.name} / --tuner-kwargs: {exc}") from None
     folder = out / slugify(entry.label)
     run = None
     if not report_only:

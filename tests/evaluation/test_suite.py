@@ -18,7 +18,7 @@ from evaluation.cli import main
 from evaluation.curves import CURVES_FILE, load_curves, read_curves
 from evaluation.leaderboard import Leaderboard, PlantTarget, write_leaderboard
 from evaluation.references import REFERENCES_DIR, load_references, rebuild, reference_file, suite_optima
-from evaluation.study import parse_study
+from evaluation.study import TunerEntry, parse_study
 from evaluation.suite import load_suite, run_suite
 
 
@@ -121,10 +121,18 @@ def test_an_interrupted_suite_resumes_without_losing_or_repeating_a_run(tmp_path
     assert second.leaderboard.counts_.equals(fresh.leaderboard.counts_)
 
 
-def fresh_study(suite):
+def test_a_tuner_entry_brings_its_label_and_kwargs(tmp_path):
+    entry = TunerEntry(name="grid", label="grid of 9", params={"budget": 9})
+    result = run_suite(entry, suite=tiny_suite(), out=tmp_path, workers=1, references=tmp_path / "refs")
+    assert result.label == "grid of 9" and "grid of 9" in set(result.leaderboard.counts_["tuner"])
+    runs = load_curves(tmp_path / "grid-of-9", fresh_study(tiny_suite(), entry))
+    assert len(runs) == 6 and set(runs["params"]) == {'{"budget": 9}'}  # the kwargs reached every run
+
+
+def fresh_study(suite, tuner="random"):
     from evaluation.suite import tuner_study
 
-    return tuner_study(suite, "random")
+    return tuner_study(suite, tuner)
 
 
 # -- stale references ---------------------------------------------------------------------------------
