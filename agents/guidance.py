@@ -61,7 +61,9 @@ class TwinPrior:
 
     While the twin may guide (eq. (DT_rmse1) and trust), the prior mean of metric ``i``'s GP is
     the twin's metric ``f~_i(theta)`` (:meth:`~agents.twin_keeper.TwinKeeper.twin_metrics`), so the
-    GP models the discrepancy ``T_i(f_i) - T_i(f~_i)`` (``T_i``: ``f / n_i``, or its log): the
+    GP models the discrepancy ``T_i(f_i) - T_i(f~_i)`` (``T_i``: ``f / n_i``, or its log), unless the
+    measured ``T_i(f_i)`` are likelier under a constant mean
+    (:class:`~agents.metric_surrogate.MetricSurrogate`): the
     posterior of ``J_hat = sum_i w_i f_i / n_i`` (eq. (J_used)) follows the twin, corrected where
     the plant was measured. Every ``ask`` queries the maximiser of EI (eq. (EI)) on that
     posterior; where it proposes gains already measured, the experiment is the default BO's

@@ -37,6 +37,16 @@ Modelling assumptions
   metric (``T_i``: ``f / n_i``, or its log) from the prior's, and predicts
   ``T_i(p_i(theta)) + mu_d(theta)`` with the discrepancy's std (Kennedy and O'Hagan's
   model discrepancy; a constant discrepancy is still learned by the standardisation).
+  Metric by metric, the prior mean is kept only if the discrepancy GP's log marginal
+  likelihood of the measured ``T_i(f_i)`` is at least the constant-mean GP's (each with its
+  hyperparameters at their maximum: type-II maximum likelihood between the two mean functions,
+  Rasmussen and Williams, sec. 5.4; from ``min_fit_points`` points on, below which the GPs keep
+  their prior kernel and the likelihood is no evidence); otherwise that metric's GP has the constant mean
+  (:attr:`CompositeSurrogate.with_prior` lists the metrics that kept the prior). A twin that
+  replays the response but not, say, its overshoot (stick-slip hunting on
+  ``LinearMotorCascadeRig-v0``: the twin's overshoot is uncorrelated with the measured one) then
+  guides through the metrics it predicts; as the prior of every metric it held EI in the basin
+  it predicts, which the discrepancy GP corrects only where the plant was measured.
 """
 
 from __future__ import annotations
@@ -72,15 +82,18 @@ class CompositeSurrogate:
         (the settling time from the error envelope, :mod:`agents.settling`); at a training
         point such a model predicts its own estimate, not the measurement (see
         :meth:`MetricSurrogate.observed_cost`).
+    with_prior : iterable of int, default ()
+        Metrics whose model has a prior mean (the twin's) rather than a constant one.
     """
 
-    def __init__(self, models, weights, cost_noise_std: float = 0.0, derived=()) -> None:
+    def __init__(self, models, weights, cost_noise_std: float = 0.0, derived=(), with_prior=()) -> None:
         self.models = list(models)
         self.weights = np.asarray(weights, dtype=float).ravel()
         if self.weights.size != len(self.models):
             raise ValueError(f"weights: need one per model ({len(self.models)}), got {self.weights.size}")
         self.cost_noise_std_ = float(cost_noise_std)
         self.derived = tuple(sorted(int(i) for i in derived))
+        self.with_prior = tuple(sorted(int(i) for i in with_prior))
 
     def predict_metrics(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Posterior means and stds of every normalised metric, each of shape (m, n_metrics)."""
@@ -134,6 +147,8 @@ class MetricSurrogate:
     ----------
     models : list of GPSurrogate
         One per metric; warm-started from their own previous fits.
+    plain_models : list of GPSurrogate
+        With a prior: the constant-mean GP of each metric, the alternative to its discrepancy GP.
     """
 
     def __init__(self, weights, normalizers, log_metrics=(), settling=None, settling_index: int = 1,
@@ -144,6 +159,7 @@ class MetricSurrogate:
             raise ValueError("weights, normalizers: need the same length, normalizers > 0")
         self.log_metrics = tuple(int(i) for i in log_metrics)
         self.models = [GPSurrogate(**gp_kwargs) for _ in self.weights]
+        self.plain_models = [GPSurrogate(**gp_kwargs) for _ in self.weights]
         self.settling = settling
         self.settling_index = int(settling_index)
 
@@ -201,8 +217,9 @@ class MetricSurrogate:
             envelope time) spreads the settling time at the measured gains over several envelope
             intervals, and EI measured the same gains up to four times in a row (LinearMotor-v0).
         prior : MetricPrior, optional
-            Prior mean of the raw metrics; every GP then models the discrepancy from it (see
-            the module doc). The settling time is then always modelled by a GP.
+            Prior mean of the raw metrics; the GP of a metric then models the discrepancy from it
+            where that model has the higher marginal likelihood (see the module doc). The settling
+            time is then always modelled by a GP.
         """
         metrics = np.atleast_2d(np.asarray(metrics, dtype=float))
         if metrics.shape != (np.shape(X)[0], self.weights.size) or not np.all(np.isfinite(metrics)):
@@ -211,26 +228,46 @@ class MetricSurrogate:
         # a discrepancy the points do not show (a twin exact there) has at most the metric's own spread;
         # without a prior the spread is the fitted target's own, which GPSurrogate.fit standardises by anyway
         scales = np.std(target, axis=0)
+        plain_target = target
         if prior is not None:
             target = target - self._transformed(prior(X))  # the discrepancy d_i from the prior
         from_envelopes = self.settling is not None and envelopes is not None and prior is None \
             and np.shape(X)[0] >= self.settling.gp.min_fit_points
-        models, derived = [], []
+        models, derived, with_prior = [], [], []
         for i, model in enumerate(self.models):
+            seed_i = None if seed is None else int(seed) + i
             if from_envelopes and i == self.settling_index:
-                seed_i = None if seed is None else int(seed) + i
                 models.append(self.settling.fit(X, envelopes, seed=seed_i, optimize=optimize))
                 derived.append(i)
                 continue
-            model.fit(X, target[:, i], seed=None if seed is None else int(seed) + i, optimize=optimize,
-                      scale=scales[i])
-            shifted = model if prior is None else _PriorMean(model, prior, i, self._transformed)
-            models.append(_LogNormal(shifted) if i in self.log_metrics else shifted)
+            model.fit(X, target[:, i], seed=seed_i, optimize=optimize, scale=scales[i])
+            if prior is not None and not self._plain_is_likelier(i, model, X, plain_target[:, i], seed_i, optimize,
+                                                                 scales[i]):
+                model = _PriorMean(model, prior, i, self._transformed)
+                with_prior.append(i)
+            elif prior is not None:
+                model = self.plain_models[i]
+            models.append(_LogNormal(model) if i in self.log_metrics else model)
         noise = 0.0
         if costs is not None and np.size(costs) > 1:
             residual = np.asarray(costs, dtype=float) - self.reconstruct(metrics)
             noise = float(np.sqrt(np.mean(residual**2)))
-        return CompositeSurrogate(models, self.weights, cost_noise_std=noise, derived=derived)
+        return CompositeSurrogate(models, self.weights, cost_noise_std=noise, derived=derived, with_prior=with_prior)
+
+    def _plain_is_likelier(self, i: int, model: GPSurrogate, X: np.ndarray, target: np.ndarray, seed: int | None,
+                           optimize: bool, scale: float) -> bool:
+        """Whether metric ``i``'s constant-mean GP, fitted here on its transformed values ``target``, has a higher
+        log marginal likelihood than its discrepancy GP ``model`` (type-II maximum likelihood between the two mean
+        functions, Rasmussen and Williams, sec. 5.4). Below ``min_fit_points`` points the GPs keep their prior kernel
+        and the likelihood is no evidence: ``False``.
+
+        A twin wrong on this metric would otherwise hold EI in the basin it predicts, and the discrepancy GP corrects
+        it only where the plant was measured.
+        """
+        if len(X) < model.min_fit_points:
+            return False
+        plain = self.plain_models[i].fit(X, target, seed=seed, optimize=optimize, scale=scale)
+        return plain.log_marginal_likelihood_ > model.log_marginal_likelihood_
 
     def _transformed(self, metrics: np.ndarray) -> np.ndarray:
         """``T_i(f_i)`` of raw metrics (n, n_metrics): ``f_i / n_i``, in logs for :attr:`log_metrics`."""

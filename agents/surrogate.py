@@ -318,6 +318,21 @@ class GPSurrogate:
         """Fitted ARD length scales, shape (d,), unit-box units."""
         return np.atleast_1d(_matern(self.kernel_).length_scale).astype(float)
 
+    @property
+    def log_marginal_likelihood_(self) -> float:
+        r"""``log p(y | X)`` of the training data under the fitted GP, in nats, for ``y`` in its own units.
+
+        ``-1/2 y_s^T (K + alpha I)^-1 y_s - sum_i log L_ii - n/2 log(2 pi) - n log s_y`` (Rasmussen &
+        Williams, eq. 2.30, with the Jacobian ``1 / s_y`` of the standardisation ``y_s = (y - m) / s_y``),
+        summed over the outputs of a 2-D ``y``: comparable between GPs fitted to different targets of the
+        same quantity, e.g. a metric and its discrepancy from a prior mean.
+        """
+        standardised = (self.y_train_ - self.y_mean_) / self.y_scale_
+        n, outputs = standardised.shape[0], 1 if standardised.ndim == 1 else standardised.shape[1]
+        log_det = np.log(np.diag(self.gp_.L_)).sum()
+        return float(-0.5 * np.sum(standardised * self.gp_.alpha_) - outputs * (log_det + 0.5 * n * np.log(2 * np.pi))
+                     - n * np.sum(np.log(np.atleast_1d(self.y_scale_))))
+
 
 def _white_noise_level(kernel) -> float:
     for part in (getattr(kernel, "k1", None), getattr(kernel, "k2", None)):

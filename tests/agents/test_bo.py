@@ -454,6 +454,48 @@ def test_a_prior_exact_at_the_points_leaves_the_metrics_own_spread_not_one_norma
     assert constant.y_scale_ == 0.25 and GPSurrogate().fit(X, np.zeros(3), seed=0).y_scale_ == 1.0
 
 
+def test_a_prior_wrong_on_one_metric_guides_only_through_the_others():
+    # a twin that replays the response but not its overshoot (stick-slip hunting on LinearMotorCascadeRig-v0):
+    # as the prior of every metric it held EI in the basin it predicts
+    from agents.metric_surrogate import MetricSurrogate
+
+    def truth(X):
+        X = np.atleast_2d(X)
+        return np.column_stack([10 * X[:, 0] ** 2, 2 + np.sin(6 * X[:, 1]), 0.5 + X[:, 0] * X[:, 1],
+                                80 + 40 * np.cos(5 * X[:, 0])])
+
+    def prior(X):  # exact but for the first metric, which it gets wrong in shape and ten times in size
+        wrong = truth(X)
+        wrong[:, 0] = 100 * (1 - X[:, 0]) ** 2 + 50 * np.cos(9 * X[:, 1])
+        return wrong
+
+    X = np.random.default_rng(0).uniform(size=(12, 2))
+    surrogate = MetricSurrogate(_MetricEnv.weights, _MetricEnv.normalizers, log_metrics=[1, 2, 3])
+    guided = surrogate.fit(X, truth(X), seed=0, prior=prior)
+    assert guided.with_prior == (1, 2, 3)
+    assert guided.models[0] is surrogate.plain_models[0]  # the constant-mean GP of that metric
+    for i in (1, 2, 3):
+        assert surrogate.models[i].log_marginal_likelihood_ > surrogate.plain_models[i].log_marginal_likelihood_
+    exact = MetricSurrogate(_MetricEnv.weights, _MetricEnv.normalizers, log_metrics=[1, 2, 3]).fit(
+        X, truth(X), seed=0, prior=truth)
+    assert exact.with_prior == (0, 1, 2, 3)
+    assert MetricSurrogate(_MetricEnv.weights, _MetricEnv.normalizers).fit(X, truth(X), seed=0).with_prior == ()
+
+
+def test_the_log_marginal_likelihood_is_scikit_learns_in_the_units_of_y():
+    from sklearn.gaussian_process import GaussianProcessRegressor
+
+    rng = np.random.default_rng(1)
+    X = rng.uniform(size=(9, 3))
+    y = 40 + 7 * np.sin(4 * X[:, 0]) + 0.1 * rng.standard_normal(9)
+    gp = GPSurrogate().fit(X, y, seed=0)
+    reference = GaussianProcessRegressor(kernel=gp.kernel_, optimizer=None, alpha=1e-8).fit(
+        X, (y - gp.y_mean_) / gp.y_scale_)
+    # the density of y is that of the standardised y times the Jacobian 1 / s_y of each of the 9 points
+    assert gp.log_marginal_likelihood_ == pytest.approx(reference.log_marginal_likelihood_value_
+                                                        - 9 * np.log(gp.y_scale_), rel=1e-9)
+
+
 def test_twin_metrics_of_a_noisy_twin_simulate_the_noise_only_near_its_expected_optimum():
     from agents.twin.prior import NOISY_COST_FACTOR, TwinMetrics
 
