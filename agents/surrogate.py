@@ -328,10 +328,8 @@ class GPSurrogate:
         same quantity, e.g. a metric and its discrepancy from a prior mean.
         """
         standardised = (self.y_train_ - self.y_mean_) / self.y_scale_
-        n, outputs = standardised.shape[0], 1 if standardised.ndim == 1 else standardised.shape[1]
-        log_det = np.log(np.diag(self.gp_.L_)).sum()
-        return float(-0.5 * np.sum(standardised * self.gp_.alpha_) - outputs * (log_det + 0.5 * n * np.log(2 * np.pi))
-                     - n * np.sum(np.log(np.atleast_1d(self.y_scale_))))
+        return float(_log_likelihood(standardised, self.gp_.alpha_, self.gp_.L_)
+                     - standardised.shape[0] * np.sum(np.log(np.atleast_1d(self.y_scale_))))
 
 
 def _white_noise_level(kernel) -> float:
@@ -371,6 +369,15 @@ def squared_differences(X: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(((X[:, None, :] - X[None, :, :]) ** 2).transpose(2, 0, 1))
 
 
+def _log_likelihood(y: np.ndarray, a: np.ndarray, lower: np.ndarray) -> float:
+    """``log N(y; 0, K) = -1/2 y^T a - sum_i log L_ii - n/2 log(2 pi)`` with ``K = L L^T`` and ``a = K^-1 y``
+    (Rasmussen & Williams, eq. 2.30); for ``y`` of shape (n, k), the sum over its k columns."""
+    n = y.shape[0]
+    if y.ndim == 1:
+        return -0.5 * y @ a - np.log(np.diag(lower)).sum() - 0.5 * n * np.log(2.0 * np.pi)
+    return -0.5 * np.sum(y * a) - y.shape[1] * (np.log(np.diag(lower)).sum() + 0.5 * n * np.log(2.0 * np.pi))
+
+
 def _neg_log_marginal_likelihood(theta: np.ndarray, pairwise: np.ndarray, y: np.ndarray, alpha: float,
                                  white: bool) -> tuple[float, np.ndarray]:
     """``-log p(y | X, theta)`` and its gradient for ``s^2 Matern52 (+ sigma_n^2 I) + alpha I``.
@@ -401,13 +408,8 @@ def _neg_log_marginal_likelihood(theta: np.ndarray, pairwise: np.ndarray, y: np.
         return 1e25, np.zeros_like(theta)
     K_inv = _POTRS(lower, np.eye(n), lower=1, overwrite_b=1)[0]
     a = K_inv @ y
-    if y.ndim == 1:
-        lml = -0.5 * y @ a - np.log(np.diag(lower)).sum() - 0.5 * n * np.log(2.0 * np.pi)
-        inner = np.outer(a, a) - K_inv
-    else:  # k outputs sharing the kernel: the sum of their log likelihoods
-        outputs = y.shape[1]
-        lml = -0.5 * np.sum(y * a) - outputs * (np.log(np.diag(lower)).sum() + 0.5 * n * np.log(2.0 * np.pi))
-        inner = a @ a.T - outputs * K_inv
+    lml = _log_likelihood(y, a, lower)
+    inner = np.outer(a, a) - K_inv if y.ndim == 1 else a @ a.T - y.shape[1] * K_inv
     grad = np.empty_like(theta)
     grad[0] = 0.5 * np.sum(inner * (amplitude * matern))  # dK/d log s^2 = s^2 M
     # dM/d log l_j = 5/3 (1 + sqrt5 r) exp(-sqrt5 r) d_j^2 / l_j^2
