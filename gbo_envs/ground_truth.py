@@ -189,6 +189,23 @@ class GroundTruth:
                            gain_units=units)
 
 
+def _make(env_or_id, make_kwargs: dict):
+    """The env: ``env_or_id`` itself, or ``gym.make(env_or_id, **make_kwargs)`` of a registered id.
+
+    An unregistered id raises ``ValueError`` naming it, with the namespaced id where only the
+    ``gbo_envs/`` namespace was left out (``"DCMotor-v0"`` for ``"gbo_envs/DCMotor-v0"``); a
+    ``"module:id"`` is gymnasium's to import and resolve.
+    """
+    if not isinstance(env_or_id, str):
+        return env_or_id
+    if ":" not in env_or_id and env_or_id not in gym.registry:
+        namespaced = f"gbo_envs/{env_or_id}"
+        hint = f"did you mean {namespaced!r}?" if namespaced in gym.registry else \
+            "the registered ids are gbo_envs.ENV_IDS (or an env instance)"
+        raise ValueError(f"env_or_id: {env_or_id!r} is not a registered env id; {hint}")
+    return gym.make(env_or_id, **make_kwargs)
+
+
 def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: int = -1, progress: bool = False,
                  use_table: bool = True, method: str = "auto", n_points: int | None = None, n_starts: int = 16,
                  tolerance: float = 1e-3, seeds: tuple[int, int] = (0, 1), constraints=None,
@@ -268,13 +285,13 @@ def ground_truth(env_or_id, resolution: int = 100, chunk: int = 1000, n_jobs: in
     Raises
     ------
     ValueError
-        With constraints: no grid cell is feasible, or the method is the search.
+        An id that is not registered; with constraints: no grid cell is feasible, or the method is the search.
     """
     if int(resolution) < 2:
         raise ValueError(f"resolution: must be an integer >= 2, got {resolution}")
     if method not in METHODS:
         raise ValueError(f"method: must be one of {METHODS}, got {method!r}")
-    env = gym.make(env_or_id, **make_kwargs) if isinstance(env_or_id, str) else env_or_id
+    env = _make(env_or_id, make_kwargs)
     plant_env = env.unwrapped
     dim = plant_env.action_space.shape[0]
     limits = getattr(plant_env, "constraints", Constraints()) if constraints is None else Constraints(constraints)
@@ -372,11 +389,11 @@ def feasible_set(env_or_id, constraints=None, resolution: int = 100, chunk: int 
     Raises
     ------
     ValueError
-        Without constraints (none given and the env has none).
+        An id that is not registered; without constraints (none given and the env has none).
     """
     if int(resolution) < 2:
         raise ValueError(f"resolution: must be an integer >= 2, got {resolution}")
-    env = gym.make(env_or_id, **make_kwargs) if isinstance(env_or_id, str) else env_or_id
+    env = _make(env_or_id, make_kwargs)
     plant = env.unwrapped
     limits = getattr(plant, "constraints", Constraints()) if constraints is None else Constraints(constraints)
     if not limits:

@@ -139,3 +139,15 @@ def test_a_search_table_round_trips_and_is_used_only_for_its_settings(tmp_path, 
     truth = gbo_envs.ground_truth(env, method="search", n_points=256, n_starts=2)
     assert truth.cost == 0.0 and truth.evaluations == 7  # the (fake) table is what a fitting request reads
     assert gbo_envs.ground_truth(env, method="search", n_points=256, n_starts=2, use_table=False).cost > 0
+
+
+@pytest.mark.parametrize(("env_id", "message"), [
+    ("LinearMotorCascade-v0", r"'LinearMotorCascade-v0' is not a registered env id; did you mean "
+                              r"'gbo_envs/LinearMotorCascade-v0'\?"),
+    ("gbo_envs/NoSuchMotor-v0", r"'gbo_envs/NoSuchMotor-v0' is not a registered env id; the registered ids"),
+])
+def test_an_unregistered_id_is_named_with_the_id_it_may_mean(env_id, message):
+    with pytest.raises(ValueError, match=f"env_or_id: {message}"):
+        gbo_envs.ground_truth(env_id)
+    with pytest.raises(ValueError, match=f"env_or_id: {message}"):
+        gbo_envs.feasible_set(env_id, constraints={"overshoot_pct": 2.0})
