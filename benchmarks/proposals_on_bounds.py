@@ -22,11 +22,10 @@ from tqdm import tqdm
 
 import agents
 import gbo_envs
+from evaluation.suite import load_suite
 
 __all__ = ["main", "on_bounds"]
 
-#: The peers' keyword arguments in the standard suite (``evaluation/studies/suite.toml``).
-SUITE_KWARGS = {"optuna-gp": {"n_initial": 1}, "botorch": {"n_initial": 1}}
 #: A gain value this close to a bound (a fraction of the gain's range) is on it.
 ATOL = 1e-6
 
@@ -41,11 +40,13 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="gbo_envs/LinearMotorCascadeRig-v0", help="registered env id")
     parser.add_argument("--tuners", nargs="+", default=["bo", "optuna-gp", "guided-bo"], help="registry names")
-    parser.add_argument("--tuner-kwargs", type=json.loads, default=SUITE_KWARGS,
-                        help="JSON {name: kwargs} (default: the suite's, N0 = 1 for the peers)")
+    parser.add_argument("--tuner-kwargs", type=json.loads, default=None,
+                        help="JSON {name: kwargs} (default: each tuner's in the standard suite)")
     parser.add_argument("--seeds", type=int, default=6, help="seeds 0 .. N-1 (default 6)")
     parser.add_argument("--budget", type=int, default=12, help="experiments per run (default 12)")
     args = parser.parse_args(argv)
+    if args.tuner_kwargs is None:
+        args.tuner_kwargs = {entry.name: entry.params for entry in load_suite("standard").tuners}
     if args.seeds < 1 or args.budget < 2:
         parser.error(f"--seeds >= 1 and --budget >= 2, got {args.seeds} and {args.budget}")
     env = gym.make(args.env)
