@@ -254,6 +254,8 @@ def _diagnose(args) -> int:
               f"{c['evidence']}")
     print(f"best: {step['text']}" if step else "best: none (no effect improves the held-out error beyond its "
                                                "complexity cost)")
+    if result.not_tried:
+        print(result.not_tried)
     _print_unobservable(result)
     for a, b in payload["indistinguishable"]:
         print(f"indistinguishable on this data: {a} and {b}")

@@ -11,27 +11,28 @@ records (:class:`~agents.twin.records.Batch`, with how each one starts) -> linea
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from agents.jsonable import jsonable
 from agents.run_display import progress_bar
 from agents.thread_limits import single_thread
-from agents.twin.candidates import candidate_plan, read_modes
+from agents.twin.candidates import CandidatePlan, OrderCandidate, candidate_plan, read_modes
 from agents.twin.compare import compare
 from agents.twin.diagnosis_options import CandidateSearch, DiagnosisRules
-from agents.twin.fits import fit_candidates, fit_structure
+from agents.twin.fits import CandidateRound, first_round, fit_candidates, fit_structure
 from agents.twin.ladder_text import rung_text
 from agents.twin.map_candidates import with_map_candidates
 from agents.twin.model import GreyFit, ModelSpec
 from agents.twin.modes import plant_modes
 from agents.twin.noise_floor import NoiseFloor, noise_floor_estimate
-from agents.twin.ranking import Ranking, rank, validated_folds
+from agents.twin.ranking import SHARE_POINTS, Ranking, rank, validated_folds
 from agents.twin.records import Batch
+from agents.twin.static_map import MAP_NAMES
 from agents.twin.workers import check_n_jobs, worker_processes
 
-__all__ = ["Diagnosis", "as_step", "diagnose"]
+__all__ = ["Diagnosis", "as_step", "diagnose", "general_needed"]
 
 _RULES, _SEARCH = DiagnosisRules(), CandidateSearch()  # the defaults of diagnose (frozen)
 
@@ -58,6 +59,9 @@ class Diagnosis:
     modes : tuple of Mode or None
         The plant's modes in the residual of ``current`` (:func:`agents.twin.modes.plant_modes`), scanned once
         where a candidate's evidence names them, else ``None``.
+    not_tried : str or None
+        Which general structures (static maps, grown orders) were not fitted because none of them could be
+        named ahead of the selected effect (:func:`general_needed`), and why; ``None`` when all were.
     """
 
     current: GreyFit
@@ -68,6 +72,7 @@ class Diagnosis:
     unobservable: list = field(default_factory=list)
     data_: Batch | None = field(default=None, repr=False)
     modes: tuple | None = field(default=None, repr=False)
+    not_tried: str | None = None
 
     @property
     def candidates(self) -> list[dict]:
@@ -136,7 +141,7 @@ class Diagnosis:
                 "best": self.best, "candidates": self.candidates, "heldout_rmse": float(self.heldout_rmse),
                 "validation": self.validation, "indistinguishable": self.indistinguishable,
                 "suggested_experiment": self.suggested_experiment, "unobservable": self.unobservable,
-                "current_params": jsonable(self.current.effect_params, finite=True)}
+                "current_params": jsonable(self.current.effect_params, finite=True), "not_tried": self.not_tried}
 
 
 @single_thread()
@@ -211,23 +216,85 @@ def diagnose(data: Batch, effects=None, *, candidates: Sequence[str] | None = No
         bar = progress_bar(len(plan.candidates) + 2, f"diagnose {current.spec.label}", progress, unit="step",
                            leave=not _nested)
         try:
-            # -> fits
             noise = noise_floor_estimate(data)
-            fitted = fit_candidates(data, current, plan, search.max_iter, search.screen_iter, progress=bar,
-                                    noise=noise.rmse)
-            bar.update(1)
-            # -> ranking, with the plant's modes of the model diagnosed (scanned once; the plan's, if it is unchanged)
-            modes = plan.modes if fitted.current is current else None
-            if modes is None and read_modes(fitted.fits):
-                modes = tuple(plant_modes(data, fitted.current))
-            ranking = rank(data, fitted.current, fitted.fits, plan, noise, n_folds, rules.bic_margin, rules.min_gain,
-                           rules.noise_gain, progress=bar, modes=modes)
-            bar.update(1)
+            general = [c for c in plan.candidates if _is_general(c)] if search.general_as_fallback else []
+            # -> fits -> ranking: the catalogue's effects first, the general structures where they can be named
+            tried = [c for c in plan.candidates if c not in general]
+            first = first_round(data, current, tried, plan.modes, search.max_iter, search.screen_iter, bar,
+                                noise.rmse)
+            heldout: dict = {}
+            fitted, ranking, modes = _fitted_and_ranked(data, current, replace(plan, candidates=tried), first, noise,
+                                                        n_folds, rules, search, bar, heldout)
+            needed = general_needed(ranking, general)
+            if needed:
+                if bar.total is not None:  # two more steps: the second round's fits and ranking
+                    bar.total += 2
+                    bar.refresh()
+                more = first_round(data, current, needed, plan.modes, search.max_iter, search.screen_iter, bar,
+                                   noise.rmse, polished=first)
+                tried = [c for c in plan.candidates if c not in general or c in needed]
+                first = first.joined(more, [c.name for c in tried])
+                fitted, ranking, modes = _fitted_and_ranked(data, current, replace(plan, candidates=tried), first,
+                                                            noise, n_folds, rules, search, bar, heldout)
+            else:
+                bar.update(len(general))
         finally:
             bar.close()
+    not_tried = _not_tried_note(ranking, [c.name for c in general if c not in needed])
     # -> report
     return Diagnosis(fitted.current, fitted.fits, ranking, noise, compare(data, fitted.current).fit_percent_all,
-                     plan.unobservable, data, modes)
+                     plan.unobservable, data, modes, not_tried)
+
+
+def _is_general(candidate) -> bool:
+    """Whether ``candidate`` is a general structure (a grown order or a static map), not a catalogue effect."""
+    return isinstance(candidate, OrderCandidate) or candidate.name in MAP_NAMES
+
+
+def _fitted_and_ranked(data: Batch, current: GreyFit, plan: CandidatePlan, first: CandidateRound, noise: NoiseFloor,
+                       n_folds: int, rules: DiagnosisRules, search: CandidateSearch, bar, heldout: dict):
+    """``(fits, ranking, modes)`` of ``plan``'s candidates, whose first round of fits from ``current`` is ``first``
+    (the restart of :func:`agents.twin.fits.fit_candidates` where one is due); ``heldout``: the models
+    cross-validated already (:func:`agents.twin.ranking.heldout_rss`), filled in place."""
+    fitted = fit_candidates(data, current, plan, search.max_iter, search.screen_iter, progress=bar, noise=noise.rmse,
+                            first=first)
+    bar.update(1)
+    # the plant's modes of the model diagnosed (scanned once; the plan's, if it is unchanged)
+    modes = plan.modes if fitted.current is current else None
+    if modes is None and read_modes(fitted.fits):
+        modes = tuple(plant_modes(data, fitted.current))
+    ranking = rank(data, fitted.current, fitted.fits, plan, noise, n_folds, rules.bic_margin, rules.min_gain,
+                   rules.noise_gain, progress=bar, modes=modes, heldout=heldout)
+    bar.update(1)
+    return fitted, ranking, modes
+
+
+def general_needed(ranking: Ranking, general: Sequence) -> list:
+    """The general structures of ``general`` that could be named ahead of ``ranking``'s best effect.
+
+    Under :func:`agents.twin.ranking.rank`'s order a grown order comes after every effect that passes the
+    rules, and a static map goes ahead of an effect only where it explains
+    :data:`~agents.twin.ranking.SHARE_POINTS` percentage points more of the current model's residual power
+    (:func:`agents.twin.ranking._map_ahead`). So with an effect selected no order is needed, and no map once
+    that effect explains more than ``100 - SHARE_POINTS`` %: none of them could be named.
+    """
+    if ranking.best is None:
+        return list(general)
+    share = next(c["share"] for c in ranking.candidates if c["effect"] == ranking.best)
+    return [c for c in general if c.name in MAP_NAMES and share <= 100.0 - SHARE_POINTS]
+
+
+def _not_tried_note(ranking: Ranking, names: Sequence[str]) -> str | None:
+    """The sentence that says which general structures were not fitted, and why (``None``: all were)."""
+    if not names:
+        return None
+    best = next(c for c in ranking.candidates if c["effect"] == ranking.best)
+    maps = [n for n in names if n in MAP_NAMES]
+    why = f"{ranking.best} is selected and explains {best['share']:.1f} % of the residual power; a grown order " \
+          "is never named ahead of a catalogue effect"
+    if maps:
+        why += f", a static map only where it explains {SHARE_POINTS:g} percentage points more"
+    return f"not fitted: {', '.join(names)} ({why}; CandidateSearch(general_as_fallback=False) fits them)"
 
 
 def as_step(rung: dict, before: dict, added: str, intervals: dict, units, output: str) -> dict:

@@ -80,25 +80,34 @@ class CandidateSearch:
         current model's errors (the effect is absorbed by the estimated rest levels, so
         its fit is the current model's) and a ``delta_bic`` of its extra parameters' penalty alone.
     orders : bool, default True
-        Also try the linear part's structure grown by a pole pair, a pole or a zero
-        (:data:`agents.twin.candidates.ORDER_CANDIDATES`), ranked as the effects are.
+        Also try the general structures: the linear part grown by a pole pair, a pole or a zero
+        (:data:`agents.twin.candidates.ORDER_CANDIDATES`) and the static input and output maps
+        (:mod:`agents.twin.static_map`), ranked as the effects are.
+    general_as_fallback : bool, default True
+        Try the general structures only where the catalogue's effects leave them a chance of being
+        named (:func:`agents.twin.diagnose.general_needed`): a grown order comes after every effect that
+        passes the rules, and a map goes ahead of one only where it explains
+        :data:`agents.twin.ranking.SHARE_POINTS` percentage points more of the residual power. With
+        ``False`` they are always fitted, and the ranking lists them too.
 
     Examples
     --------
     >>> CandidateSearch(orders=False)
-    CandidateSearch(max_iter=20, screen_iter=8, skip_unexcited=True, orders=False)
+    CandidateSearch(max_iter=20, screen_iter=8, skip_unexcited=True, orders=False, general_as_fallback=True)
     """
 
     max_iter: int = 20
     screen_iter: int = 8
     skip_unexcited: bool = True
     orders: bool = True
+    general_as_fallback: bool = True
 
     _parameter_constraints: ClassVar[dict[str, list]] = {
         "max_iter": [Interval(int, 0, None)],
         "screen_iter": [Interval(int, 1, None)],
         "skip_unexcited": [Boolean()],
         "orders": [Boolean()],
+        "general_as_fallback": [Boolean()],
     }
 
     def __post_init__(self) -> None:

@@ -34,8 +34,8 @@ from agents.twin.simulation import simulate_sets
 from agents.twin.static_map import MAP_NAMES, map_options
 from agents.twin.workers import map_independent
 
-__all__ = ["GIVEN_VALUES_MAX_ITER", "CandidateFits", "fit_candidates", "fit_model", "fit_structure",
-           "refine_grid_parameters"]
+__all__ = ["GIVEN_VALUES_MAX_ITER", "CandidateFits", "CandidateRound", "fit_candidates", "fit_model", "fit_structure",
+           "first_round", "refine_grid_parameters"]
 
 #: Trial points at most of the least-squares refit from complete given effect values (:func:`fit_structure`).
 GIVEN_VALUES_MAX_ITER = 20
@@ -162,8 +162,77 @@ class CandidateFits:
     restarted: bool = False
 
 
+@dataclass(frozen=True, eq=False)
+class CandidateRound:
+    """The first round of candidate fits from one model (:func:`first_round`), before any restart.
+
+    Attributes
+    ----------
+    current : GreyFit
+        The model the round started from, refitted with the candidates' iteration budget.
+    cost : float
+        That refit's cost (sum of squared residuals, units of ``y`` squared): a candidate whose
+        screening fit is not below it stops screening (:func:`_screened_fit`).
+    fits : dict
+        ``{candidate name: GreyFit}`` of the candidates whose fit is finite, in the order fitted.
+    """
+
+    current: GreyFit
+    cost: float
+    fits: dict
+
+    def joined(self, other: CandidateRound, order: Sequence[str]) -> CandidateRound:
+        """This round's fits with ``other``'s (a round of other candidates from the same model, refitted
+        as this one's: :func:`first_round` with ``polished=self``), in the order of the names ``order``."""
+        fits = {**self.fits, **other.fits}
+        return CandidateRound(self.current, self.cost, {name: fits[name] for name in order if name in fits})
+
+
+def first_round(data: Batch, current: GreyFit, candidates: Sequence, modes: tuple | None, max_iter: int = 20,
+                screen_iter: int = 8, progress=None, noise: float | None = None,
+                polished: CandidateRound | None = None) -> CandidateRound:
+    """Fit ``candidates`` to all data from ``current``, and ``current`` itself with the same budget.
+
+    Each candidate starts from its own problems (:meth:`Candidate.problems`; ``modes``: the plant's modes in the
+    residual of ``current``) and is screened (:func:`_screened_fit`); among its variants the one of lowest
+    training BIC is kept (:func:`_best_variant`). ``polished``: a round from the same ``current`` with the same
+    budget, whose refit of ``current`` this round takes instead of fitting it again (the same values: each
+    problem is solved alone).
+    """
+    problems = [] if polished is not None else [refit_problem(data, current, tag="__current__")]
+    made = _starting_problems(data, current, list(candidates), progress, modes)
+    for candidate in candidates:
+        problems += made[candidate.name]
+    return _fitted_round(data, current, candidates, problems, max_iter, screen_iter, noise, polished, progress)
+
+
+def _fitted_round(data: Batch, current: GreyFit, candidates: Sequence, problems: list[Problem], max_iter: int,
+                  screen_iter: int, noise: float | None, polished: CandidateRound | None = None,
+                  progress=None) -> CandidateRound:
+    """The round of ``candidates`` whose starting ``problems`` are made (the refit of ``current`` first, unless
+    ``polished`` gives it): screened, fitted and each candidate's best variant kept."""
+    if progress is not None:
+        progress.set_postfix_str(f"fitting {len(candidates)} candidates")
+    if polished is None:
+        _screened_fit(data, problems, max_iter, screen_iter)
+        cost, refit = problems[0].cost, problems[0].fit(data)
+        if refit.rmse < current.rmse:
+            current = refine_grid_parameters(data, refit)
+        problems = problems[1:]
+    else:
+        cost, current = polished.cost, polished.current
+        _screened_fit(data, problems, max_iter, screen_iter, reference=cost)
+    fits = {}
+    for candidate in candidates:
+        mine = [p for p in problems if p.tag == candidate.name and np.isfinite(p.cost)]
+        if mine:
+            fits[candidate.name] = refine_grid_parameters(data, _best_variant(data, mine, noise))
+    return CandidateRound(current, float(cost), fits)
+
+
 def fit_candidates(data: Batch, current: GreyFit, plan: CandidatePlan, max_iter: int = 20,
-                   screen_iter: int = 8, progress=None, noise: float | None = None) -> CandidateFits:
+                   screen_iter: int = 8, progress=None, noise: float | None = None,
+                   first: CandidateRound | None = None) -> CandidateFits:
     """Fit the current model and every candidate of ``plan`` to all data.
 
     The current model gets the same iteration budget as the candidates that can win, so
@@ -188,35 +257,27 @@ def fit_candidates(data: Batch, current: GreyFit, plan: CandidatePlan, max_iter:
         The measurement's noise floor (units of ``y``): a variant's gain must be resolvable.
     progress : tqdm bar, optional
         Advanced once per candidate's starts and once per round of fits.
+    first : CandidateRound, optional
+        The first round of ``plan``'s candidates from ``current`` (:func:`first_round`), fitted already.
     """
-    starts, modes = None, plan.modes
-    for restarted in (False, True):
-        problems = [refit_problem(data, current, tag="__current__")]
-        fresh = [c for c in plan.candidates if starts is None or c.name not in starts]
-        if restarted:  # the modes of the new current model, for the candidates that start from them
-            modes = tuple(plant_modes(data, current)) if read_modes(c.name for c in fresh) else None
-        made = _starting_problems(data, current, fresh, progress if not restarted else None, modes)
-        for candidate in plan.candidates:
-            if starts is not None and candidate.name in starts:  # the second round: from the first round's fit
-                problems.append(refit_problem(data, starts[candidate.name], tag=candidate.name))
-            else:
-                problems += made[candidate.name]
-        if progress is not None:
-            progress.set_postfix_str(f"fitting {len(plan.candidates)} candidates")
-        _screened_fit(data, problems, max_iter, screen_iter)
-        polished = problems[0].fit(data)
-        if polished.rmse < current.rmse:
-            current = refine_grid_parameters(data, polished)
-        fits = {}
-        for candidate in plan.candidates:
-            mine = [p for p in problems if p.tag == candidate.name and np.isfinite(p.cost)]
-            if mine:
-                fits[candidate.name] = refine_grid_parameters(data, _best_variant(data, mine, noise))
-        better = _without_new_effect(data, current, fits)
-        if better is None or restarted:
-            return CandidateFits(current, fits, restarted)
-        current, starts = better, fits
-    raise AssertionError("unreachable")
+    if first is None:
+        first = first_round(data, current, plan.candidates, plan.modes, max_iter, screen_iter, progress, noise)
+    better = _without_new_effect(data, first.current, first.fits)
+    if better is None:
+        return CandidateFits(first.current, first.fits, False)
+    # the second round from the better minimum: each candidate from its first fit, one without from its starts
+    fresh = [c for c in plan.candidates if c.name not in first.fits]
+    modes = tuple(plant_modes(data, better)) if read_modes(c.name for c in fresh) else None
+    made = _starting_problems(data, better, fresh, None, modes)
+    problems = [refit_problem(data, better, tag="__current__")]
+    for candidate in plan.candidates:
+        if candidate.name in first.fits:
+            problems.append(refit_problem(data, first.fits[candidate.name], tag=candidate.name))
+        else:
+            problems += made[candidate.name]
+    second = _fitted_round(data, better, plan.candidates, problems, max_iter, screen_iter, noise,
+                           progress=progress)
+    return CandidateFits(second.current, second.fits, True)
 
 
 def _starting_problems(data: Batch, current: GreyFit, candidates: list, progress=None,
@@ -262,20 +323,24 @@ def _best_variant(data: Batch, problems: list[Problem], floor: float | None = No
     return (best if bic(best) < bic(simplest) - margin and resolved else simplest).fit(data)
 
 
-def _screened_fit(data: Batch, problems: list[Problem], max_iter: int, screen_iter: int) -> None:
+def _screened_fit(data: Batch, problems: list[Problem], max_iter: int, screen_iter: int,
+                  reference: float | None = None) -> None:
     """Fit the current model (``problems[0]``, ``max_iter`` trial points) and the candidates (``screen_iter``).
 
     The candidates whose cost is then below the current model's go on to all ``max_iter``
     trial points (the same fit as without the screen: the iteration resumes where the screen
     stopped, :func:`agents.twin.trust_region.trf`; one that cannot resume is fitted again from
-    its start), in place in ``problems``.
+    its start), in place in ``problems``. ``reference``: the current model's cost, fitted already;
+    then every problem is a candidate's.
     """
+    first = 0 if reference is not None else 1  # the first candidate's problem
     if max_iter <= screen_iter:
         fit_problems(data, problems, max_iter=max_iter)
         return
     starts = [replace(p) for p in problems]
-    fit_problems(data, problems, budgets=[max_iter] + [screen_iter] * (len(problems) - 1))
-    ahead = [i for i in range(1, len(problems)) if problems[i].cost < problems[0].cost]
+    fit_problems(data, problems, budgets=[max_iter] * first + [screen_iter] * (len(problems) - first))
+    reference = problems[0].cost if reference is None else reference
+    ahead = [i for i in range(first, len(problems)) if problems[i].cost < reference]
     for i in ahead:
         if problems[i].solver_state is None:
             problems[i] = starts[i]

@@ -75,7 +75,7 @@ REFIT_RATIO = 2.0
 
 
 def heldout_rss(data: Batch, fits: Sequence[GreyFit], n_folds: int = 4, max_iter: int = 6,
-                refits: dict | None = None) -> np.ndarray:
+                refits: dict | None = None, known: dict | None = None) -> np.ndarray:
     """Held-out residual sum of squares of each model, cross-validated over experiments.
 
     Each fold's experiments are left out, every model is refitted on the others
@@ -92,11 +92,35 @@ def heldout_rss(data: Batch, fits: Sequence[GreyFit], n_folds: int = 4, max_iter
     left-out experiments' rest levels and biases fitted), kept where it predicts better;
     ``refits[m]`` lists ``(fold, failed RMSE, RMSE from the all-data parameters, reference RMSE)``.
 
+    ``known`` (a dict, filled in place) holds the models cross-validated already with the same
+    ``n_folds``, ``max_iter`` and reference: ``{id(fit): (fit, fold costs, refits entry)}``. They are not
+    refitted (each model's folds are refitted alone, so the values are the same).
+
     Returns
     -------
     ndarray of shape (n_models,)
     """
     folds = _folds(data, n_folds)
+    known = {} if known is None else known
+    todo = [m for m, fit in enumerate(fits) if known.get(id(fit), (None,))[0] is not fit]
+    costs = np.zeros((len(fits), len(folds)))
+    costs[todo] = _fold_costs(data, [fits[m] for m in todo], folds, max_iter)
+    for m, fit in enumerate(fits):
+        if m not in todo:
+            costs[m] = known[id(fit)][1]
+    if refits is not None:
+        _refit_failed_folds(data, fits, folds, costs, refits, todo)
+        refits.update({m: known[id(fits[m])][2] for m in range(len(fits)) if m not in todo and known[id(fits[m])][2]})
+    for m in todo:
+        known[id(fits[m])] = (fits[m], costs[m].copy(), (refits or {}).get(m))
+    return costs.sum(axis=1)
+
+
+def _fold_costs(data: Batch, fits: Sequence[GreyFit], folds: list[np.ndarray], max_iter: int) -> np.ndarray:
+    """Held-out residual sums of squares of ``fits`` on each of ``folds``, shape (n_models, n_folds)."""
+    costs = np.zeros((len(fits), len(folds)))
+    if not fits:
+        return costs
     train = []
     for m, fit in enumerate(fits):
         for f, test in enumerate(folds):
@@ -111,22 +135,20 @@ def heldout_rss(data: Batch, fits: Sequence[GreyFit], n_folds: int = 4, max_iter
         fit = fits[m]
         tests.append(refit_problem(data, fit, test, False, theta=p.theta[: p.n_global], tag=(m, f)))
     fit_problems(data, tests, max_iter=4)
-    costs = np.zeros((len(fits), len(folds)))
     for p in tests:
         costs[p.tag] = p.cost
-    if refits is not None:
-        _refit_failed_folds(data, fits, folds, costs, refits)
-    return costs.sum(axis=1)
+    return costs
 
 
 def _refit_failed_folds(data: Batch, fits: Sequence[GreyFit], folds: list[np.ndarray], costs: np.ndarray,
-                        refits: dict) -> None:
-    """The guard of :func:`heldout_rss` (``refits``): refit the failed folds from the all-data parameters.
+                        refits: dict, models: Sequence[int]) -> None:
+    """The guard of :func:`heldout_rss` (``refits``): refit the failed folds of ``models`` (indices of ``fits``)
+    from the all-data parameters.
 
     Changes ``costs`` (models by folds, held-out residual sums of squares) in place and fills ``refits``.
     """
     reference = fits[0].rmse ** 2
-    failed = [(m, f) for m in range(1, len(fits)) for f in range(len(folds))
+    failed = [(m, f) for m in models if m > 0 for f in range(len(folds))
               if 100.0 * (1.0 - fits[m].rmse**2 / max(reference, 1e-300)) > REFIT_SHARE
               and costs[m, f] > REFIT_RATIO**2 * costs[0, f]]
     if not failed:
@@ -277,11 +299,12 @@ class Ranking:
 
 def rank(data: Batch, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_folds: int,
          bic_margin: float = 10.0, min_gain: float = 0.02, noise_gain: float = 0.05, progress=None,
-         modes: tuple | None = None) -> Ranking:
+         modes: tuple | None = None, heldout: dict | None = None) -> Ranking:
     """Rank the candidate ``fits`` against ``current`` and select the best; see :func:`agents.twin.diagnose.diagnose`.
 
     ``modes`` are the plant's modes in the residual of ``current`` (:func:`agents.twin.modes.plant_modes`), which
-    the evidence of a compliance or a pole pair names (``None``: scanned for each where needed).
+    the evidence of a compliance or a pole pair names (``None``: scanned for each where needed). ``heldout``: the
+    models cross-validated already, filled in place (``known`` of :func:`heldout_rss`).
 
     Rules, in order: a candidate is *good* when its ``delta_bic < -bic_margin``, its held-out
     RMSE is below ``(1 - min_gain)`` times the current model's and at least ``noise_gain``
@@ -307,7 +330,7 @@ def rank(data: Batch, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_f
         progress.set_postfix_str("cross-validation over experiments")
     refits: dict = {}
     if data.n_records >= 2:
-        rss = heldout_rss(data, models, n_folds=n_folds, refits=refits)
+        rss = heldout_rss(data, models, n_folds=n_folds, refits=refits, known=heldout)
         validation = f"held-out: {min(n_folds, data.n_records)}-fold cross-validation over experiments"
     else:
         rss = np.array([m.rmse**2 * n for m in models])

@@ -347,6 +347,8 @@ def write_report(out_dir: str | Path, data: Batch, rungs: Sequence[dict], diagno
                 ("params", "fitted parameters"), ("evidence", "evidence"), ("note", "note")], table_id="ranking",
                formats={"delta_bic": lambda v: f"{v:.1f}", "note": lambda v: v or ""}, wrap=True),
     ]
+    if first.not_tried:
+        parts.append(f"<p>{html.escape(first.not_tried[:1].upper() + first.not_tried[1:])}.</p>")
     if last.unobservable:
         parts += ["<h3>Not observable in this data</h3>",
                   "<ul>" + "".join(f"<li>{html.escape(line)}</li>" for line in unobservable_lines(last)) + "</ul>"]

@@ -71,7 +71,8 @@ def _diagnosis(fit, sat):
                            best="saturation", candidates=candidates, validation="held-out: 2-fold", unobservable=[],
                            indistinguishable=[["zero", "pole_pair"], ["coulomb_friction", "stiction"]],
                            suggested_experiment="a wider range of inputs separates zero from pole_pair",
-                           fits={"saturation": sat})
+                           fits={"saturation": sat},
+                           not_tried="not fitted: input_map, output_map (saturation is selected and explains 99.5 %)")
 
 
 def test_the_report_speaks_in_words_units_and_fixed_point(saturated, tmp_path):
@@ -86,6 +87,7 @@ def test_the_report_speaks_in_words_units_and_fixed_point(saturated, tmp_path):
                         source="rig.csv", y_unit="rad/s", u_unit="V")
     page = path.read_text()
     assert "Indistinguishable on this data: zero and pole pair; coulomb friction and stiction. A wider" in page
+    assert "<p>Not fitted: input_map, output_map (saturation is selected and explains 99.5 %).</p>" in page
     assert "[[" not in page and "['" not in page
     parser = Tables()
     parser.feed(page)
