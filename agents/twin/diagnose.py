@@ -222,9 +222,9 @@ def diagnose(data: Batch, effects=None, *, candidates: Sequence[str] | None = No
             tried = [c for c in plan.candidates if c not in general]
             first = first_round(data, current, tried, plan.modes, search.max_iter, search.screen_iter, bar,
                                 noise.rmse)
-            heldout: dict = {}
+            known: dict = {}
             fitted, ranking, modes = _fitted_and_ranked(data, current, replace(plan, candidates=tried), first, noise,
-                                                        n_folds, rules, search, bar, heldout)
+                                                        n_folds, rules, search, bar, known)
             needed = general_needed(ranking, general)
             if needed:
                 if bar.total is not None:  # two more steps: the second round's fits and ranking
@@ -235,7 +235,7 @@ def diagnose(data: Batch, effects=None, *, candidates: Sequence[str] | None = No
                 tried = [c for c in plan.candidates if c not in general or c in needed]
                 first = first.joined(more, [c.name for c in tried])
                 fitted, ranking, modes = _fitted_and_ranked(data, current, replace(plan, candidates=tried), first,
-                                                            noise, n_folds, rules, search, bar, heldout)
+                                                            noise, n_folds, rules, search, bar, known)
             else:
                 bar.update(len(general))
         finally:
@@ -252,19 +252,22 @@ def _is_general(candidate) -> bool:
 
 
 def _fitted_and_ranked(data: Batch, current: GreyFit, plan: CandidatePlan, first: CandidateRound, noise: NoiseFloor,
-                       n_folds: int, rules: DiagnosisRules, search: CandidateSearch, bar, heldout: dict):
+                       n_folds: int, rules: DiagnosisRules, search: CandidateSearch, bar, known: dict):
     """``(fits, ranking, modes)`` of ``plan``'s candidates, whose first round of fits from ``current`` is ``first``
-    (the restart of :func:`agents.twin.fits.fit_candidates` where one is due); ``heldout``: the models
-    cross-validated already (:func:`agents.twin.ranking.heldout_rss`), filled in place."""
+    (the restart of :func:`agents.twin.fits.fit_candidates` where one is due); ``known``: what an earlier call
+    found for the same models (the plant's modes of the model diagnosed, and :func:`agents.twin.ranking.rank`'s
+    ``known``), filled in place."""
     fitted = fit_candidates(data, current, plan, search.max_iter, search.screen_iter, progress=bar, noise=noise.rmse,
                             first=first)
     bar.update(1)
     # the plant's modes of the model diagnosed (scanned once; the plan's, if it is unchanged)
     modes = plan.modes if fitted.current is current else None
+    scanned, their_modes = known.get("modes", (None, None))
     if modes is None and read_modes(fitted.fits):
-        modes = tuple(plant_modes(data, fitted.current))
+        modes = their_modes if scanned is fitted.current else tuple(plant_modes(data, fitted.current))
+    known["modes"] = (fitted.current, modes)
     ranking = rank(data, fitted.current, fitted.fits, plan, noise, n_folds, rules.bic_margin, rules.min_gain,
-                   rules.noise_gain, progress=bar, modes=modes, heldout=heldout)
+                   rules.noise_gain, progress=bar, modes=modes, known=known.setdefault("ranking", {}))
     bar.update(1)
     return fitted, ranking, modes
 

@@ -299,12 +299,14 @@ class Ranking:
 
 def rank(data: Batch, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_folds: int,
          bic_margin: float = 10.0, min_gain: float = 0.02, noise_gain: float = 0.05, progress=None,
-         modes: tuple | None = None, heldout: dict | None = None) -> Ranking:
+         modes: tuple | None = None, known: dict | None = None) -> Ranking:
     """Rank the candidate ``fits`` against ``current`` and select the best; see :func:`agents.twin.diagnose.diagnose`.
 
     ``modes`` are the plant's modes in the residual of ``current`` (:func:`agents.twin.modes.plant_modes`), which
-    the evidence of a compliance or a pole pair names (``None``: scanned for each where needed). ``heldout``: the
-    models cross-validated already, filled in place (``known`` of :func:`heldout_rss`).
+    the evidence of a compliance or a pole pair names (``None``: scanned for each where needed). ``known``: what an
+    earlier ranking against the same ``current`` (and ``modes``) found for the models it shares with this one,
+    filled in place: their held-out costs (``known["heldout"]``, :func:`heldout_rss`) and descriptions
+    (``known["described"]``).
 
     Rules, in order: a candidate is *good* when its ``delta_bic < -bic_margin``, its held-out
     RMSE is below ``(1 - min_gain)`` times the current model's and at least ``noise_gain``
@@ -330,14 +332,15 @@ def rank(data: Batch, current: GreyFit, fits: dict, plan, noise: NoiseFloor, n_f
         progress.set_postfix_str("cross-validation over experiments")
     refits: dict = {}
     if data.n_records >= 2:
-        rss = heldout_rss(data, models, n_folds=n_folds, refits=refits, known=heldout)
+        rss = heldout_rss(data, models, n_folds=n_folds, refits=refits,
+                          known=None if known is None else known.setdefault("heldout", {}))
         validation = f"held-out: {min(n_folds, data.n_records)}-fold cross-validation over experiments"
     else:
         rss = np.array([m.rmse**2 * n for m in models])
         validation = "training error (one experiment: nothing to hold out)"
     bic = n * np.log(np.maximum(rss, 1e-300) / n) + np.array([m.n_params for m in models]) * np.log(n)
     cands = []
-    described = map_independent(_described, [(data, current, fits[name], name, modes) for name in order])
+    described = _descriptions(data, current, fits, modes, {} if known is None else known.setdefault("described", {}))
     for i, (name, (grown, params, intervals, size, evidence)) in enumerate(zip(order, described), start=1):
         fit = fits[name]
         kind = "order" if grown else "map" if name in MAP_NAMES else "effect"
@@ -423,6 +426,16 @@ def _refit_note(refitted: list, n_folds: int) -> str:
     return (f"held-out fold{'s' if len(refitted) > 1 else ''} {folds} of {n_folds} refitted from the all-data "
             f"parameters: the fold refit failed (held-out RMSE {worst[1]:.3g} against {worst[3]:.3g} for the current "
             f"model; {worst[2]:.3g} from the all-data parameters)")
+
+
+def _descriptions(data: Batch, current: GreyFit, fits: dict, modes: tuple | None, known: dict) -> list[tuple]:
+    """:func:`_described` of each of ``fits`` (in their order), those of ``known`` (``{id(fit): (fit, description)}``,
+    filled in place) taken from there."""
+    todo = [name for name, fit in fits.items() if known.get(id(fit), (None,))[0] is not fit]
+    pieces = [(data, current, fits[name], name, modes) for name in todo]
+    for name, text in zip(todo, map_independent(_described, pieces)):
+        known[id(fits[name])] = (fits[name], text)
+    return [known[id(fit)][1] for fit in fits.values()]
 
 
 def _described(data: Batch, current: GreyFit, fit: GreyFit, name: str, modes: tuple | None = None) -> tuple:
