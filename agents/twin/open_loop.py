@@ -577,10 +577,11 @@ def _delayed(u: np.ndarray, source: np.ndarray, lags: np.ndarray, u_rest: np.nda
 def _sorted_rows(chains) -> np.ndarray:
     """Row order that makes rows with the same block classes, then the same blocks, contiguous."""
     keys: dict[int, tuple] = {}  # per distinct chain: the rows of one parameter set share theirs
+    blocks: dict[tuple, int] = {}  # each distinct set of blocks, numbered as it first comes (not by address)
     for chain in chains:
         if id(chain) not in keys:
-            keys[id(chain)] = (repr(tuple((type(b).__name__, b.side) for b in chain if b.side != "plant")),
-                               tuple(id(b) for b in chain))
+            same = blocks.setdefault(tuple(id(b) for b in chain), len(blocks))
+            keys[id(chain)] = (repr(tuple((type(b).__name__, b.side) for b in chain if b.side != "plant")), same)
     return np.array(sorted(range(len(chains)), key=lambda r: keys[id(chains[r])]), dtype=int)
 
 

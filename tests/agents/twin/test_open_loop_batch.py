@@ -117,3 +117,14 @@ def test_a_plant_block_the_same_in_every_experiment_modifies_the_plant_once_for_
             alone = simulate_open_loop(SPEED, u[row], 0.002, build_effects(effects), experiment_index=int(index[row]))
             np.testing.assert_array_equal(batch.y[row], alone.y[0])
     assert calls == {Compliance: 1, Drift: 6}
+
+
+def test_the_row_order_does_not_depend_on_where_the_blocks_live_in_memory():
+    """Rows of one block class are grouped by their blocks in the order the blocks first come, not by the blocks'
+    addresses, which can change from run to run."""
+    from agents.twin.open_loop import _sorted_rows
+    from gbo_envs.physics.effects import build_effect
+
+    a, b = (build_effect("saturation", {"limit": limit}) for limit in (10.0, 20.0))
+    for first, second in ((a, b), (b, a)):  # one of the two puts the higher address first
+        assert _sorted_rows([(first,), (second,), (first,)]).tolist() == [0, 2, 1]
