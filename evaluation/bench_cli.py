@@ -10,6 +10,7 @@ Examples::
     gbo bench performance --report-only                    # redo the report from the saved batches
     gbo bench suite --tuner random --suite quick           # one tuner on the suite, leaderboard with the references
     gbo bench suite --import my_tuner --tuner my-tuner --tuner-kwargs '{"step": 0.05}'
+    gbo bench suite --tuner my-tuner --plant LinearMotorCascadeRig-v0   # one suite plant only
     gbo bench suite --rebuild-references --tuner guided-bo # rerun the stale references of guided-bo
 
 The commands' arguments are declared in :mod:`evaluation.bench_parser`; this module runs them.
@@ -124,10 +125,9 @@ def suite(args: argparse.Namespace) -> int:
             print(f"gbo bench suite: runs failed ({done['failed']}); rerun to retry them", file=sys.stderr)
             return 1
         return 0
-    for flag, value in (("--force", args.force), ("--plant", args.plant)):
-        if value:
-            print(f"gbo bench suite: {flag} only with --rebuild-references", file=sys.stderr)
-            return EXIT_BAD_INPUT
+    if args.force:
+        print("gbo bench suite: --force only with --rebuild-references", file=sys.stderr)
+        return EXIT_BAD_INPUT
     if len(args.tuner) != 1:
         print("gbo bench suite: give one --tuner NAME (a registered tuner; yours with --import MODULE), "
               f"got {len(args.tuner)}", file=sys.stderr)
@@ -141,7 +141,8 @@ def suite(args: argparse.Namespace) -> int:
     entry = TunerEntry(name=name, label=args.label or name, params=dict(args.tuner_kwargs or {}))
     result = run_suite(entry, suite=args.suite, seeds=args.seeds,
                        imports=args.imports, out=Path(args.out or "out/suite"), backend=args.backend,
-                       address=args.address, workers=args.workers, progress=progress, report_only=args.report_only)
+                       address=args.address, workers=args.workers, progress=progress, report_only=args.report_only,
+                       plants=args.plant or None)
     run = result.run
     if run is not None:
         status = _finished(run, f"suite {args.suite}: ", f"runs of {result.label}",

@@ -62,7 +62,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                             "package's references folder")
     suite.add_argument("--force", action="store_true", help="with --rebuild-references: rebuild current ones too")
     suite.add_argument("--plant", action="append", default=[], metavar="LABEL",
-                       help="with --rebuild-references: rebuild on this suite plant only (repeatable; default: every "
-                            "plant)")
+                       help="run and rank on this suite plant only, or with --rebuild-references rebuild on it only "
+                            "(repeatable; default: every plant)")
     parser.set_defaults(handler=Handler("evaluation.bench_cli:bench"))
     return parser

@@ -98,7 +98,7 @@ class SuiteResult:
 def run_suite(tuner: str | TunerEntry, *, suite: str | Study = "standard", seeds: int | None = None, imports=(),
               out: Path | str = Path("out") / "suite", backend: str = "local", address: str | None = None,
               workers: int | None = None, progress: bool | None = False, references: Path | str = REFERENCES_DIR,
-              report_only: bool = False, log=None) -> SuiteResult:
+              report_only: bool = False, plants=None, log=None) -> SuiteResult:
     """Run ``tuner`` on the suite (resuming its finished runs) and write the leaderboard with the references.
 
     Parameters
@@ -121,6 +121,8 @@ def run_suite(tuner: str | TunerEntry, *, suite: str | Study = "standard", seeds
         Folder of the reference results.
     report_only : bool
         Only write the leaderboard from the runs already saved.
+    plants : sequence of str, optional
+        Suite plant labels to run on and rank on, in this order (default: every plant).
 
     Returns
     -------
@@ -130,6 +132,12 @@ def run_suite(tuner: str | TunerEntry, *, suite: str | Study = "standard", seeds
     out = Path(out)
     base = suite if isinstance(suite, Study) else load_suite(suite)
     suite = base.name if isinstance(suite, Study) else suite
+    if plants:
+        unknown = [p for p in plants if p not in base.plant_labels]
+        if unknown:
+            raise ValueError(f"--plant: {unknown} are not plants of suite {suite!r}; plants: "
+                             f"{', '.join(base.plant_labels)}")
+        base = base.subset(plants=list(plants))
     study = tuner_study(base, tuner, seeds, imports)
     entry = study.tuners[0]
     try:
