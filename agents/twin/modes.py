@@ -135,13 +135,18 @@ def plant_modes(data: Batch, fit: GreyFit, n_modes: int = 2, min_share: float = 
 def _mode_response(u: np.ndarray, w: float, zeta: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """``H u`` and ``(s / w) H u`` of :math:`H = w^2 / (s^2 + 2 zeta w s + w^2)`, Tustin-discretised with the
     frequency prewarped to ``w`` (rows of ``u`` are records, sampled every ``dt`` s)."""
-    from scipy.signal import lfilter  # scipy.signal takes 0.3 s to import: off the start-up path of the CLI
+    # scipy.signal.lfilter's numbers, compiled, without scipy.signal's 0.5 s import
+    # heavy dependency: numba (kept off the diagnose start-up path)
+    from gbo_envs.physics.kernels import lfilter_rows
 
     c = w / np.tan(min(w * dt / 2.0, 0.49 * np.pi))  # prewarped: the discrete filter peaks at w
     den = np.array([c * c + 2.0 * zeta * w * c + w * w, 2.0 * (w * w - c * c), c * c - 2.0 * zeta * w * c + w * w])
     low = w * w * np.array([1.0, 2.0, 1.0])
     band = w * c * np.array([1.0, 0.0, -1.0])
-    return lfilter(low / den[0], den / den[0], u, axis=1), lfilter(band / den[0], den / den[0], u, axis=1)
+    rows = u.shape[0]
+    out = lfilter_rows(np.stack([low / den[0], band / den[0]]).repeat(rows, axis=0), den / den[0], u,
+                       source=np.tile(np.arange(rows), 2))
+    return out[:rows], out[rows:]
 
 
 def _centred(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
