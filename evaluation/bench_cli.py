@@ -139,10 +139,9 @@ def suite(args: argparse.Namespace) -> int:
         raise ValueError(f"--tuner {name!r}: not a registered tuner; registered: "
                          f"{', '.join(agents.registered_names())}{hint}")
     entry = TunerEntry(name=name, label=args.label or name, params=dict(args.tuner_kwargs or {}))
-    result = run_suite(entry, suite=args.suite, seeds=args.seeds,
+    result = run_suite(entry, suite=_suite_plants(args.suite, args.plant), seeds=args.seeds,
                        imports=args.imports, out=Path(args.out or "out/suite"), backend=args.backend,
-                       address=args.address, workers=args.workers, progress=progress, report_only=args.report_only,
-                       plants=args.plant or None)
+                       address=args.address, workers=args.workers, progress=progress, report_only=args.report_only)
     run = result.run
     if run is not None:
         status = _finished(run, f"suite {args.suite}: ", f"runs of {result.label}",
@@ -160,6 +159,18 @@ def suite(args: argparse.Namespace) -> int:
                                                                      else ""))
     print(f"leaderboard: {result.paths['md']} (.csv, .html)")
     return 0
+
+
+def _suite_plants(name: str, plants: list[str]):
+    """The suite ``name``, or with ``plants`` (``--plant``) its study on those plants only."""
+    if not plants:
+        return name
+    study = load_suite(name)
+    unknown = [p for p in plants if p not in study.plant_labels]
+    if unknown:
+        raise ValueError(f"--plant: {unknown} are not plants of suite {name!r}; plants: "
+                         f"{', '.join(study.plant_labels)}")
+    return study.subset(plants=list(plants))
 
 
 def _finished(run, head: str, what: str, where: str, command: str) -> int:

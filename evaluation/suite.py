@@ -98,7 +98,7 @@ class SuiteResult:
 def run_suite(tuner: str | TunerEntry, *, suite: str | Study = "standard", seeds: int | None = None, imports=(),
               out: Path | str = Path("out") / "suite", backend: str = "local", address: str | None = None,
               workers: int | None = None, progress: bool | None = False, references: Path | str = REFERENCES_DIR,
-              report_only: bool = False, plants=None, log=None) -> SuiteResult:
+              report_only: bool = False, log=None) -> SuiteResult:
     """Run ``tuner`` on the suite (resuming its finished runs) and write the leaderboard with the references.
 
     Parameters
@@ -108,7 +108,8 @@ def run_suite(tuner: str | TunerEntry, *, suite: str | Study = "standard", seeds
         leaderboard label too; or a :class:`~evaluation.study.TunerEntry` with the name, the label and the
         constructor keyword arguments (``TunerEntry(name="bo", label="bo n0=3", params={"n_initial": 3})``).
     suite : {"standard", "quick"} or Study
-        The suite, or a study of several plants with its reference tuners in the suite's format.
+        The suite, or a study of several plants with its reference tuners in the suite's format (some of the
+        suite's plants: ``load_suite("standard").subset(plants=["DCMotorPID-v0"])``).
     seeds : int, optional
         Seeds per plant (default: the suite's, 30 or 3).
     imports : sequence of str
@@ -121,8 +122,6 @@ def run_suite(tuner: str | TunerEntry, *, suite: str | Study = "standard", seeds
         Folder of the reference results.
     report_only : bool
         Only write the leaderboard from the runs already saved.
-    plants : sequence of str, optional
-        Suite plant labels to run on and rank on, in this order (default: every plant).
 
     Returns
     -------
@@ -132,12 +131,6 @@ def run_suite(tuner: str | TunerEntry, *, suite: str | Study = "standard", seeds
     out = Path(out)
     base = suite if isinstance(suite, Study) else load_suite(suite)
     suite = base.name if isinstance(suite, Study) else suite
-    if plants:
-        unknown = [p for p in plants if p not in base.plant_labels]
-        if unknown:
-            raise ValueError(f"--plant: {unknown} are not plants of suite {suite!r}; plants: "
-                             f"{', '.join(base.plant_labels)}")
-        base = base.subset(plants=list(plants))
     study = tuner_study(base, tuner, seeds, imports)
     entry = study.tuners[0]
     try:
