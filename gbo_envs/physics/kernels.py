@@ -20,8 +20,9 @@ Both advance the plant by its exact zero-order-hold model with the delay folded 
 each sum accumulated from left to right in the order written (state columns first).
 
 Blocks the kernels know are those of :data:`KERNEL_CODES` (every actuator and sensor block
-of the catalogue and the rigs' encoders), matched by exact class: a subclass, or any other
-:class:`~gbo_envs.physics.block.EffectBlock`, makes the caller keep its numpy loop.
+of the catalogue, the rigs' encoders and the static input and output maps), matched by exact
+class: a subclass, or any other :class:`~gbo_envs.physics.block.EffectBlock`, makes the caller
+keep its numpy loop.
 :func:`pack_blocks` turns the blocks of a batch into arrays: an integer code per row and
 block position, the block's numeric parameters (one value per row: merged candidate
 blocks carry per-row parameter arrays) and its state (backlash, cogging, encoder). Random
@@ -50,6 +51,7 @@ from gbo_envs.physics.block import EffectBlock, RowNoise
 from gbo_envs.physics.encoder import PositionEncoder, SpeedEncoder
 from gbo_envs.physics.friction import CoulombFriction, Stiction, ViscousFriction
 from gbo_envs.physics.sensor import Quantization
+from gbo_envs.physics.static_map import N_KNOTS, InputMap, OutputMap
 
 __all__ = ["KERNEL_CODES", "LANES", "N_PARAMS", "PackedBlocks", "closed_loop_kernel", "draw_sensor_noise", "known",
            "actuators_kernel", "lfilter_kernel", "lfilter_rows", "open_loop_direct_kernel", "open_loop_kernel",
@@ -65,19 +67,22 @@ _STICTION = 5
 _BACKLASH = 6
 _OFFSET_ACTUATOR = 7
 _COGGING = 8
+_INPUT_MAP = 9
 _OFFSET_SENSOR = 20
 _QUANTIZATION = 21
 _POSITION_ENCODER = 22
 _SPEED_ENCODER = 23
+_OUTPUT_MAP = 24
 
 #: Block class -> kernel code (``Offset`` by its side: the actuator code, the sensor one is its own).
 KERNEL_CODES: dict[type, int] = {
     Saturation: _SATURATION, DeadZone: _DEAD_ZONE, CoulombFriction: _COULOMB, ViscousFriction: _VISCOUS,
     Stiction: _STICTION, Backlash: _BACKLASH, Offset: _OFFSET_ACTUATOR, Cogging: _COGGING,
     Quantization: _QUANTIZATION, PositionEncoder: _POSITION_ENCODER, SpeedEncoder: _SPEED_ENCODER,
+    InputMap: _INPUT_MAP, OutputMap: _OUTPUT_MAP,
 }
-#: Numeric parameters per block position (the most any block needs).
-N_PARAMS = 4
+#: Numeric parameters per block position (the most any block needs: a static map's breakpoints, values and weight).
+N_PARAMS = 2 * N_KNOTS + 1
 #: State entries of the speed encoder before its ring of counts: angle, last speed, ring slot.
 _ENCODER_HEAD = 3
 _EPS = float(np.finfo(float).eps)  # numpy's sinc replaces a zero argument by it
@@ -137,6 +142,9 @@ def _block_params(block: EffectBlock, rows: int, dt: float) -> tuple[int, list, 
         return code, [block.value], 1
     if code == _COGGING:
         return code, [block.amplitude, block.period, block.phase, dt], 1
+    if code in (_INPUT_MAP, _OUTPUT_MAP):
+        return code, [*(getattr(block, f"k{i}") for i in range(N_KNOTS)),
+                      *(getattr(block, f"v{i}") for i in range(N_KNOTS)), block.weight], 1
     if code == _QUANTIZATION:
         return code, [block.step, 1.0 if block.mode == "floor" else 0.0], 1
     if code == _POSITION_ENCODER:
@@ -311,14 +319,58 @@ def _dead_zoned(u, width):
 
 
 @_inline
+def _segment(x, k_lo, k_hi, v_lo, v_hi):
+    """``numpy.interp`` at ``x`` on the segment ``[k_lo, k_hi)`` of its breakpoints: its operations, its order."""
+    if x == k_lo:
+        return v_lo
+    slope = (v_hi - v_lo) / (k_hi - k_lo)
+    out = slope * (x - k_lo) + v_lo
+    if math.isnan(out):  # numpy's fallback: from the other end, then the flat segment's value
+        out = slope * (x - k_hi) + v_hi
+        if math.isnan(out) and v_lo == v_hi:
+            out = v_lo
+    return out
+
+
+@_inline
+def _mapped(par, r, j, x):
+    """``_PiecewiseLinearMap.map`` (:mod:`gbo_envs.physics.static_map`): ``(1 - w) x + w m(x)``, ``m`` through the
+    breakpoints ``par[r, j, 0:5]`` and values ``par[r, j, 5:10]``, continued with the outer slopes; ``w`` is
+    ``par[r, j, 10]``."""
+    weight = par[r, j, 2 * N_KNOTS]
+    if weight == 0.0:
+        return x
+    last = N_KNOTS - 1
+    k_first, k_last = par[r, j, 0], par[r, j, last]
+    v_first, v_last = par[r, j, N_KNOTS], par[r, j, N_KNOTS + last]
+    if x < k_first:
+        m = v_first + (par[r, j, N_KNOTS + 1] - v_first) / (par[r, j, 1] - k_first) * (x - k_first)
+    elif x > k_last:
+        m = v_last + (v_last - par[r, j, N_KNOTS + last - 1]) / (k_last - par[r, j, last - 1]) * (x - k_last)
+    elif math.isnan(x):
+        m = x
+    elif x == k_last:
+        m = v_last
+    else:
+        i = 0
+        while x >= par[r, j, i + 1]:
+            i += 1
+        m = _segment(x, par[r, j, i], par[r, j, i + 1], par[r, j, N_KNOTS + i], par[r, j, N_KNOTS + i + 1])
+    return (1.0 - weight) * x + weight * m
+
+
+@_inline
 def _static_actuate(code, par, r, j, u):
-    """Plant input of a static actuator map (saturation, dead zone, offset: no speed, no state), else ``u``."""
+    """Plant input of a static actuator map (saturation, dead zone, offset, input map: no speed, no state), else
+    ``u``."""
     if code == _SATURATION:
         return _saturated(u, par[r, j, 0])
     if code == _DEAD_ZONE:
         return _dead_zoned(u, par[r, j, 0])
     if code == _OFFSET_ACTUATOR:
         return u + par[r, j, 0]
+    if code == _INPUT_MAP:
+        return _mapped(par, r, j, u)
     return u
 
 
@@ -357,6 +409,8 @@ def _actuate(code, par, state, r, j, u, speed):
         return held
     if code == _OFFSET_ACTUATOR:
         return u + par[r, j, 0]
+    if code == _INPUT_MAP:
+        return _mapped(par, r, j, u)
     if code == _COGGING:
         # ripple averaged over the sample: amplitude sin(a + b/2) sinc(b / 2 pi), a = 2 pi theta / period + phase,
         # b = 2 pi speed dt / period; then theta[k+1] = theta[k] + speed dt
@@ -382,11 +436,13 @@ def _quantized(y, step, floor):
 
 @_inline
 def _static_measure(code, par, r, j, y):
-    """Measurement of a static sensor map (offset, quantization: no noise, no state), else ``y``."""
+    """Measurement of a static sensor map (offset, quantization, output map: no noise, no state), else ``y``."""
     if code == _OFFSET_SENSOR:
         return y + par[r, j, 0]
     if code == _QUANTIZATION:
         return _quantized(y, par[r, j, 0], par[r, j, 1])
+    if code == _OUTPUT_MAP:
+        return _mapped(par, r, j, y)
     return y
 
 
@@ -402,6 +458,8 @@ def _measure(code, par, state, r, j, y, noise, k, column):
         return y + par[r, j, 0]
     if code == _QUANTIZATION:
         return _quantized(y, par[r, j, 0], par[r, j, 1])
+    if code == _OUTPUT_MAP:
+        return _mapped(par, r, j, y)
     if code == _POSITION_ENCODER:  # q round((y + nu) / q), nu ~ N(0, jitter^2)
         resolution = par[r, j, 0]
         scaled = y / resolution
@@ -830,9 +888,11 @@ def open_loop_kernel(orders, transition, c, speed, u, commands, source, lags, u_
 
 @_inline
 def _static_sensors(code, r):
-    """Whether row ``r``'s sensor blocks are all static maps (offset, quantization: :func:`_static_measure`)."""
+    """Whether row ``r``'s sensor blocks are all static maps (offset, quantization, output map:
+    :func:`_static_measure`)."""
     for j in range(code.shape[1]):
-        if code[r, j] != _NONE and code[r, j] != _OFFSET_SENSOR and code[r, j] != _QUANTIZATION:
+        if code[r, j] != _NONE and code[r, j] != _OFFSET_SENSOR and code[r, j] != _QUANTIZATION and \
+                code[r, j] != _OUTPUT_MAP:
             return False
     return True
 

@@ -68,18 +68,30 @@ class _PiecewiseLinearMap(EffectBlock):
         values = [knots[i] if v is None else v for i, v in enumerate(values)]  # a value not given: the identity
         self._set_params(**{f"k{i}": knots[i] for i in range(N_KNOTS)}, **{f"v{i}": values[i] for i in range(N_KNOTS)},
                          weight=weight)
-        self.knots = np.array([getattr(self, f"k{i}") for i in range(N_KNOTS)])
-        self.values = np.array([getattr(self, f"v{i}") for i in range(N_KNOTS)])
         if np.any(np.diff(self.knots) <= 0.0):
             raise ValueError(f"{self.name}: parameters 'k0'..'k4' (breakpoints) must increase strictly, got "
                              f"{self.knots.tolist()}")
 
+    @property
+    def knots(self) -> np.ndarray:
+        """The breakpoints ``k0 .. k4``, read from the parameters (a copy whose parameters became per-row arrays,
+        as a simulation merges blocks, reads its own; the numpy map then refuses them)."""
+        return np.array([getattr(self, f"k{i}") for i in range(N_KNOTS)])
+
+    @property
+    def values(self) -> np.ndarray:
+        """The map's values ``v0 .. v4`` at the breakpoints, read from the parameters."""
+        return np.array([getattr(self, f"v{i}") for i in range(N_KNOTS)])
+
     def map(self, x) -> np.ndarray:
         """The map at ``x`` (shape of ``x``)."""
         x = np.asarray(x, dtype=float)
+        knots, values = self.knots, self.values
+        if knots.ndim != 1:  # per-row breakpoints (a merged copy): np.interp takes one map
+            raise ValueError(f"{self.name}: one map per block; per-row breakpoints are not supported")
         if self.weight == 0.0:
             return x
-        return (1.0 - self.weight) * x + self.weight * piecewise_linear(x, self.knots, self.values)
+        return (1.0 - self.weight) * x + self.weight * piecewise_linear(x, knots, values)
 
     def inverse(self, target) -> np.ndarray:
         """An ``x`` whose map is ``target``, on the map made non-decreasing: on a flat segment (a one-way drive's

@@ -42,6 +42,20 @@ PARAMS = {
 }
 
 
+def _static_map(low: float, high: float):
+    """A piecewise-linear map's parameters: five increasing breakpoints in ``[low, high]`` (exactly one at 0 now
+    and then, a knot the command crosses), values anywhere (flat and falling segments too), a weight in [0, 1]."""
+    knots = st.lists(st.floats(low, high), min_size=5, max_size=5, unique=True).map(sorted)
+    values = st.lists(st.one_of(st.floats(low, high), st.just(0.0)), min_size=5, max_size=5)
+    weight = st.one_of(st.just(1.0), st.just(0.0), st.floats(0.0, 1.0))
+    return st.tuples(knots, values, weight).filter(lambda t: min(np.diff(t[0])) > 1e-6).map(
+        lambda t: {**{f"k{i}": t[0][i] for i in range(5)}, **{f"v{i}": t[1][i] for i in range(5)}, "weight": t[2]})
+
+
+#: the static maps (not catalogue effects, but built like them): the drive's command and the sensor's output
+PARAMS.update(input_map=_static_map(-150.0, 200.0), output_map=_static_map(-350.0, 400.0))
+
+
 def _both_paths(loop: ClosedLoop, gains, seed: int, draws=None, monkeypatch=None):
     """``(kernel response, numpy response, kernel calls)``, and the next number of each path's generator."""
     calls = []
@@ -134,7 +148,7 @@ def test_a_block_the_kernel_does_not_know_keeps_the_numpy_loop(monkeypatch):
 
 #: every actuator block of the catalogue (offset on the actuator side)
 ACTUATORS = ["saturation", "dead_zone", "coulomb_friction", "viscous_friction", "stiction", "backlash", "cogging",
-             "offset"]
+             "offset", "input_map"]
 
 
 @FAST

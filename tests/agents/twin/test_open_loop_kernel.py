@@ -27,6 +27,11 @@ POSITION = ContinuousPlant(num=(3.0,), den=(1.0, 2.5, 0.0), delay=0.0031, output
 FOUR_POLES = ContinuousPlant(num=(9.544 * 144.0,), den=tuple(np.polymul([1.0, 4.145, 4.199], [1.0, 2.4, 144.0])),
                              delay=0.002)
 COMPILED = kernels.open_loop_kernel
+#: static maps: a one-way drive whose gain falls with the command, a sensor that clips below 0 and above 30
+BELT_DRIVE = {"k0": -1.0, "k1": 0.0, "k2": 1.0, "k3": 3.0, "k4": 5.0, "v0": 0.0, "v1": 0.0, "v2": 2.06, "v3": 3.865,
+              "v4": 5.25}
+CLIPPING_SENSOR = {"k0": -1.0, "k1": 0.0, "k2": 15.0, "k3": 30.0, "k4": 31.0, "v0": 0.0, "v1": 0.0, "v2": 15.0,
+                   "v3": 30.0, "v4": 30.0}
 
 #: one spec per row: every block the twin fits, alone, merged with others of its class and in chains
 SPECS = ([{"coulomb_friction": {"torque": t}} for t in (1.0, 2.5, 4.0)]
@@ -38,7 +43,10 @@ SPECS = ([{"coulomb_friction": {"torque": t}} for t in (1.0, 2.5, 4.0)]
             for c, m in ((0.1, "round"), (0.2, "floor"))]
          + [{"offset": {"value": 2.0}, "dead_zone": {"width": 3.0}, "backlash": {"width": 1.0}},
             {"viscous_friction": {"coefficient": 0.1}, "offset": {"value": 0.5, "on": "sensor"}},
-            {"saturation": {"limit": 20.0}}, {"dead_zone": {"width": 2.0}}, {}])
+            {"saturation": {"limit": 20.0}}, {"dead_zone": {"width": 2.0}}, {}]
+         # a one-way drive whose gain falls, before a friction (the belt's), and a clipping sensor's map
+         + [{"input_map": BELT_DRIVE, "coulomb_friction": {"torque": 1.0, "smoothing": 0.2}},
+            {"viscous_friction": {"coefficient": 0.1}, "output_map": CLIPPING_SENSOR}])
 
 
 def _rows(plants, specs, seed=3, n=600):
@@ -140,7 +148,8 @@ MEMORYLESS_SPECS = ([{"saturation": {"limit": lim}} for lim in (5.0, 12.0, 30.0)
                     + [{"quantization": {"step": q, "mode": m}} for q, m in ((0.37, "round"), (0.5, "floor"))]
                     + [{"offset": {"value": 0.4, "on": "sensor"}, "quantization": {"step": 0.25}},
                        {"dead_zone": {"width": 2.0}, "saturation": {"limit": 20.0}, "offset": {"value": 1.0}},
-                       {}, {}])
+                       {"input_map": BELT_DRIVE}, {"output_map": CLIPPING_SENSOR, "offset": {"value": 0.5}},
+                       {"input_map": {**BELT_DRIVE, "weight": 0.4}, "saturation": {"limit": 12.0}}, {}, {}])
 
 
 def _direct_both_paths(monkeypatch, plants, chains, u, y0, bias, initial=None):
@@ -218,3 +227,21 @@ def test_compiled_lfilter_refuses_a_denominator_it_cannot_run():
         kernels.lfilter_rows([1.0], [1.0], np.ones((1, 5)))
     with pytest.raises(ValueError, match="first nonzero"):
         kernels.lfilter_rows([1.0], [0.0, 1.0], np.ones((1, 5)))
+
+
+@pytest.mark.parametrize("with_friction", [False, True])
+def test_rows_of_different_maps_replay_each_its_own(with_friction):
+    """Maps that agree below zero and differ above it, in one call: each row is its own map's, as alone (a copy
+    of one map with the others' values as per-row arrays once kept the first map's breakpoints and values)."""
+    fitted = {**CLIPPING_SENSOR, "v2": 22.0, "v3": 18.0}
+    drive = {**BELT_DRIVE, "v3": 2.5}
+    specs = [{"output_map": CLIPPING_SENSOR}, {"output_map": fitted}, {"input_map": BELT_DRIVE},
+             {"input_map": drive}]
+    if with_friction:
+        specs = [{**s, "coulomb_friction": {"torque": 0.5}} for s in specs]
+    _, chains, u, y0, bias = _rows([SPEED] * len(specs), specs, seed=5)
+    u = np.abs(u) + 1.0  # commands and outputs above zero, where the maps differ
+    both = simulate_open_loop(SPEED, u, 0.002, chains, y0=np.abs(y0), bias=bias)
+    for row, spec in enumerate(specs):
+        alone = simulate_open_loop(SPEED, u[row], 0.002, build_effects(spec), y0=abs(y0[row]), bias=bias[row])
+        np.testing.assert_array_equal(both.y[row], alone.y[0], err_msg=str(spec))
