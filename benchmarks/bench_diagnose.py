@@ -43,6 +43,12 @@ compiled kernels (before issue 37) prints ``compile_s: null``::
 
     python benchmarks/bench_diagnose.py --command --repeat 3 --data out/bench_diagnose
     PYTHONPATH=/path/to/other/tree python benchmarks/bench_diagnose.py --command --repeat 3 --data out/bench_diagnose
+
+``--csv FILE`` times the command on records of your own (a real machine's, or ``benchmarks/real_like_sets.py``'s),
+and ``--effects NAMES`` a later step of the ladder, the model already holding those effects::
+
+    python benchmarks/real_like_sets.py --out out/real_like
+    python benchmarks/bench_diagnose.py --command --repeat 3 --csv out/real_like/belt_tacho.csv --effects input_map
 """
 
 from __future__ import annotations
@@ -217,22 +223,26 @@ def compile_child(env: dict) -> dict:
 
 
 def command(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int = 0, repeat: int = 1,
-            env: dict | None = None, data: Path | None = None, pss: bool = False) -> dict:
+            env: dict | None = None, data: Path | None = None, pss: bool = False, csv: Path | None = None,
+            effects: str | None = None) -> dict:
     """``gbo twin diagnose`` on the records of ``case`` as a user runs it, timed as a whole process.
 
     ``data``: a folder holding the case's CSV (written there first if missing), so that other trees
     run on the same data; by default a temporary one. ``pss``: also sample the processes' total PSS
     (the sampling slows the command by about 1 s on the project machine: time it in another run).
+    ``csv``: a CSV of your own to diagnose instead of the case's records; ``effects``: the effects already
+    in the model (``--effects``, a step further down the ladder).
     """
     runs = []
     with tempfile.TemporaryDirectory() as folder:
-        path = Path(data or folder) / f"{case}.csv"
+        path = Path(csv) if csv is not None else Path(data or folder) / f"{case}.csv"
         if not path.exists():
             from agents.twin.csvio import write_csv
 
             records, gain_names = case_records(case, n_experiments, seed)
             write_csv(records, path, gain_names=gain_names)
-        args = [sys.executable, "-m", "evaluation.cli", "twin", "diagnose", str(path), "--quiet"]
+        args = [sys.executable, "-m", "evaluation.cli", "twin", "diagnose", str(path), "--quiet",
+                *(["--effects", effects] if effects else [])]
         for _ in range(repeat):
             load = os.getloadavg()[0]
             wall, usage, stdout, peak_pss = _run_child(args, env or dict(os.environ), pss)
@@ -241,7 +251,8 @@ def command(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int
                          "peak_rss_mb": round(usage.ru_maxrss / 1024), "peak_pss_mb": peak_pss,
                          "load": round(load, 2)})
     best = next((line for line in stdout.splitlines() if line.startswith("best:")), None)
-    return {"benchmark": "diagnose_command", "case": case, "n_experiments": n_experiments,
+    return {"benchmark": "diagnose_command", "case": case if csv is None else str(csv), "effects": effects,
+            "n_experiments": n_experiments,
             "time_s": float(np.median([r["wall_s"] for r in runs])),
             "cpu_s": float(np.median([r["cpu_s"] for r in runs])),
             "peak_rss_mb": max(r["peak_rss_mb"] for r in runs),
@@ -260,15 +271,21 @@ if __name__ == "__main__":
                                                            "and its worker processes (slows it by about 1 s)")
     parser.add_argument("--data", type=Path, help="with --command: folder of the cases' CSV files (written if "
                                                   "missing), to run other trees on the same data")
+    parser.add_argument("--csv", type=Path, action="append", default=[],
+                        help="with --command: time the diagnosis of this CSV instead of the cases (repeatable)")
+    parser.add_argument("--effects", help="with --command: the effects already in the model, as gbo twin "
+                                          "diagnose --effects takes them (a later step of the ladder)")
     args = parser.parse_args()
+    if (args.csv or args.effects) and not args.command:
+        parser.error("--csv and --effects time the command: add --command")
     names = list(CASES) if args.case == "all" else [args.case]
     if args.command:
         with tempfile.TemporaryDirectory() as cache:  # a fresh numba cache: the compile is measured, then loaded
             child_env = dict(os.environ, NUMBA_CACHE_DIR=cache)
             print(json.dumps(compile_child(child_env)), flush=True)
-            for name in names:
+            for name, csv in ([(path.stem, path) for path in args.csv] or [(name, None) for name in names]):
                 print(json.dumps(command(name, args.experiments, repeat=args.repeat, env=child_env, data=args.data,
-                                         pss=args.pss)), flush=True)
+                                         pss=args.pss, csv=csv, effects=args.effects)), flush=True)
     else:
         for name in names:
             print(json.dumps(main(name, args.experiments, repeat=args.repeat)), flush=True)
