@@ -236,7 +236,7 @@ def command(case: str = "dcmotor_saturation", n_experiments: int = 12, seed: int
     runs = []
     with tempfile.TemporaryDirectory() as folder:
         path = Path(csv) if csv is not None else Path(data or folder) / f"{case}.csv"
-        if not path.exists():
+        if csv is None and not path.exists():
             from agents.twin.csvio import write_csv
 
             records, gain_names = case_records(case, n_experiments, seed)
@@ -278,6 +278,9 @@ if __name__ == "__main__":
     args = parser.parse_args()
     if (args.csv or args.effects) and not args.command:
         parser.error("--csv and --effects time the command: add --command")
+    missing = [str(path) for path in args.csv if not path.is_file()]
+    if missing:
+        parser.error(f"--csv: no such file: {', '.join(missing)}")
     names = list(CASES) if args.case == "all" else [args.case]
     if args.command:
         with tempfile.TemporaryDirectory() as cache:  # a fresh numba cache: the compile is measured, then loaded

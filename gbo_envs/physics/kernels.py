@@ -143,8 +143,7 @@ def _block_params(block: EffectBlock, rows: int, dt: float) -> tuple[int, list, 
     if code == _COGGING:
         return code, [block.amplitude, block.period, block.phase, dt], 1
     if code in (_INPUT_MAP, _OUTPUT_MAP):
-        return code, [*(getattr(block, f"k{i}") for i in range(N_KNOTS)),
-                      *(getattr(block, f"v{i}") for i in range(N_KNOTS)), block.weight], 1
+        return code, [*block.knots, *block.values, block.weight], 1
     if code == _QUANTIZATION:
         return code, [block.step, 1.0 if block.mode == "floor" else 0.0], 1
     if code == _POSITION_ENCODER:

@@ -97,8 +97,9 @@ class _PiecewiseLinearMap(EffectBlock):
         """An ``x`` whose map is ``target``, on the map made non-decreasing: on a flat segment (a one-way drive's
         or sensor's zero) the point of that segment nearest to zero."""
         target = np.asarray(target, dtype=float)
-        span = self.knots[-1] - self.knots[0]
-        grid = np.concatenate([[self.knots[0] - 1e3 * span], self.knots, [self.knots[-1] + 1e3 * span]])
+        knots = self.knots
+        span = knots[-1] - knots[0]
+        grid = np.concatenate([[knots[0] - 1e3 * span], knots, [knots[-1] + 1e3 * span]])
         mapped = np.maximum.accumulate(self.map(grid))
         rises = np.diff(mapped) > 0.0
         first = np.concatenate([[True], rises])  # the lower end of each run of equal values
