@@ -13,7 +13,7 @@ from contextlib import contextmanager
 
 from threadpoolctl import ThreadpoolController
 
-__all__ = ["single_thread"]
+__all__ = ["blas_kernels", "single_thread"]
 
 #: Values of ``user_api``: the BLAS pools, the OpenMP pools, or (None) both.
 USER_APIS = ("blas", "openmp", None)
@@ -76,3 +76,13 @@ def _one_thread(user_api: str | None):
     finally:
         _open_blocks[user_api] -= 1
         limiter.restore_original_limits()
+
+
+def blas_kernels() -> set[str]:
+    """The kernel families (``OPENBLAS_CORETYPE`` names, e.g. ``"Haswell"``) of the OpenBLAS libraries loaded.
+
+    numpy and scipy each load their own OpenBLAS, which picks its kernels by the CPU unless
+    ``OPENBLAS_CORETYPE`` names them; the same matrices then give results that differ in the last bits.
+    """
+    return {info["architecture"] for info in _thread_pools().info()
+            if info.get("internal_api") == "openblas" and info.get("architecture")}

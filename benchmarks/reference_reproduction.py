@@ -20,6 +20,7 @@ It prints one Markdown row per tuner and plant: the seeds whose curves agree, th
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from evaluation.curves import load_curves, read_curves
-from evaluation.references import reference_file, suite_optima
+from evaluation.references import kernel_warning, reference_file, suite_optima
 from evaluation.study_runner import finished_files, plan_batches, run_batch, write_batch
 from evaluation.suite import load_suite
 
@@ -65,6 +66,8 @@ def main() -> None:
             parser.error(f"{name}: {unknown} not in the standard suite; choose from {known}")
     if not 0 < args.rtol < 1:
         parser.error(f"--rtol: must be in (0, 1), got {args.rtol}")
+    if kernel_warning():
+        print(f"warning: {kernel_warning()}", file=sys.stderr)
     study = suite.subset(plants=args.plant, tuners=tuple(e for e in suite.tuners if e.label in (args.tuner or labels)))
     tasks = [task for task in plan_batches(study) if task.seed in args.seeds]
     stored = pd.concat([read_curves(reference_file(entry.label)).assign(tuner=entry.label) for entry in study.tuners])

@@ -26,7 +26,7 @@ from pathlib import Path
 import agents
 from evaluation.cli_args import EXIT_BAD_INPUT
 from evaluation.leaderboard import RANKING_RULE
-from evaluation.references import describe, rebuild
+from evaluation.references import describe, kernel_warning, rebuild
 from evaluation.report import write_report
 from evaluation.study import TunerEntry, load_study, shipped_studies
 from evaluation.study_runner import default_out_dir, forget, run_study
@@ -111,6 +111,9 @@ def suite(args: argparse.Namespace) -> int:
             print(f"gbo bench suite: {', '.join(extra)} not with --rebuild-references (the references run the "
                   "standard suite with the kwargs of evaluation/studies/suite.toml)", file=sys.stderr)
             return EXIT_BAD_INPUT
+        warning = kernel_warning()
+        if warning:
+            print(f"gbo bench suite: warning: {warning}", file=sys.stderr)
         done = rebuild(load_suite("standard"), tuners=args.tuner or None, out=Path(args.out or "out/references"),
                        force=args.force, plants=args.plant or None, backend=args.backend, address=args.address,
                        workers=args.workers, progress=progress)

@@ -38,6 +38,7 @@ import pandas as pd
 
 from agents.jsonable import jsonable
 from agents.run_display import progress_bar
+from agents.thread_limits import blas_kernels
 from evaluation import behaviour, fingerprint
 from evaluation.curves import CURVE_COLUMNS, load_curves, plant_optima, read_curves
 from evaluation.study import Study, slugify
@@ -45,14 +46,19 @@ from evaluation.study_runner import plan_batches, run_study
 from gbo_envs.atomic_write import atomic_write
 
 __all__ = ["OPTIMUM_RTOL", "REFERENCES_DIR", "FINGERPRINT_COLUMNS", "Fingerprint", "ReferenceSet",
-           "current_fingerprints", "describe", "load_references", "plant_hash", "plant_table", "rebuild", "restamp",
-           "reference_file", "stale_reasons", "suite_optima", "write_references"]
+           "REFERENCE_BLAS_KERNELS", "current_fingerprints", "describe", "kernel_warning", "load_references",
+           "plant_hash", "plant_table", "rebuild", "restamp", "reference_file", "stale_reasons", "suite_optima",
+           "write_references"]
 
 #: The shipped references (package data).
 REFERENCES_DIR = Path(__file__).resolve().parent / "references"
 PLANTS_FILE = "plants.json"
 #: Relative tolerance on ``J*`` below which two optima are the same (floating-point noise of the grid search).
 OPTIMUM_RTOL = 1e-9
+#: The OpenBLAS kernels the references are built and checked with. ``make`` pins them on x86-64
+#: (``OPENBLAS_CORETYPE``, and numpy's AVX-512 loops off through ``NPY_DISABLE_CPU_FEATURES``): with other
+#: kernels a GP's last bits differ, and a run can part from its reference after a few experiments.
+REFERENCE_BLAS_KERNELS = "Haswell"
 #: Curves columns of a reference run beyond :data:`evaluation.curves.CURVE_COLUMNS`.
 FINGERPRINT_COLUMNS = ["tuner_hash", "plant_hash", "tuner_behaviour", "plant_behaviour"]
 
@@ -241,6 +247,16 @@ class ReferenceSet:
         if (tuner, plant) in self.missing:
             return "missing"
         return "current"
+
+
+def kernel_warning() -> str | None:
+    """A warning when the loaded OpenBLAS kernels are not :data:`REFERENCE_BLAS_KERNELS`, else ``None``."""
+    other = sorted(blas_kernels() - {REFERENCE_BLAS_KERNELS})
+    if not other:
+        return None
+    return (f"OpenBLAS runs its {', '.join(other)} kernels here, the references {REFERENCE_BLAS_KERNELS}'s: runs can "
+            "part from them after a few experiments; run through make, or set OPENBLAS_CORETYPE=Haswell and "
+            'NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" as the Makefile does')
 
 
 def reference_file(label: str, folder: Path | str = REFERENCES_DIR) -> Path:

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import platform
 import sys
 
 import pytest
 
+from evaluation import references
 from tests.support import benchmark_module
 
 
@@ -20,6 +22,19 @@ def test_two_curves_part_at_the_first_experiment_beyond_the_tolerance(monkeypatc
     assert first_parting([1.2, 1.1, 1.0], [1.2, 1.1000001, 1.0], 1e-9) == 2
     assert first_parting([1.2, 1.1, 1.0], [1.2, 1.1000001, 1.0], 1e-6) is None
     assert first_parting([1.2, 1.1], [1.2, 1.1, 1.0], 1e-6) == 3  # the shorter curve lacks the third
+
+
+@pytest.mark.skipif(platform.machine() != "x86_64", reason="the Makefile pins OpenBLAS's kernels on x86-64 only")
+def test_the_tests_run_with_the_kernels_of_the_references():
+    """make test pins OpenBLAS's kernels (OPENBLAS_CORETYPE); without the pin an AVX-512 CPU runs others."""
+    assert references.kernel_warning() is None
+
+
+def test_other_kernels_are_named_in_the_warning(monkeypatch):
+    monkeypatch.setattr(references, "blas_kernels", lambda: {"SkylakeX", "Haswell"})
+    assert "its SkylakeX kernels here, the references Haswell's" in references.kernel_warning()
+    monkeypatch.setattr(references, "blas_kernels", lambda: {"Haswell"})
+    assert references.kernel_warning() is None
 
 
 @pytest.mark.parametrize("plant", ["DCMotor-v0", "LinearMotorCascade-v0"])
