@@ -58,17 +58,17 @@ def main() -> None:
                         help="folder of the reruns (resumed)")
     args = parser.parse_args()
     suite = load_suite("standard")
-    labels = [entry.label for entry in suite.tuners]
-    plants = [plant.label for plant in suite.plants]
-    for name, given, known in (("--tuner", args.tuner, labels), ("--plant", args.plant, plants)):
-        unknown = sorted(set(given or ()) - set(known))
-        if unknown:
-            parser.error(f"{name}: {unknown} not in the standard suite; choose from {known}")
+    try:
+        suite.check_tuner_labels(args.tuner)
+        suite.check_plant_labels(args.plant)
+    except ValueError as error:
+        parser.error(str(error))
     if not 0 < args.rtol < 1:
         parser.error(f"--rtol: must be in (0, 1), got {args.rtol}")
     if kernel_warning():
         print(f"warning: {kernel_warning()}", file=sys.stderr)
-    study = suite.subset(plants=args.plant, tuners=tuple(e for e in suite.tuners if e.label in (args.tuner or labels)))
+    labels = args.tuner or suite.labels
+    study = suite.subset(plants=args.plant, tuners=tuple(e for e in suite.tuners if e.label in labels))
     tasks = [task for task in plan_batches(study) if task.seed in args.seeds]
     stored = pd.concat([read_curves(reference_file(entry.label)).assign(tuner=entry.label) for entry in study.tuners])
     stored = stored.set_index(RUN)
@@ -82,7 +82,7 @@ def main() -> None:
     print("| tuner | plant | seeds that agree | first experiment apart | tuner CPU s/run |")
     print("|---|---|---|---|---|")
     seeds_of = {}  # (tuner, plant) -> seeds, tuner by tuner
-    for task in sorted(tasks, key=lambda task: labels.index(task.label)):
+    for task in sorted(tasks, key=lambda task: suite.labels.index(task.label)):
         seeds_of.setdefault((task.label, task.plant), []).append(task.seed)
     for (label, plant), seeds in seeds_of.items():
         runs = [run for run in ((label, plant, seed) for seed in seeds) if run in reruns.index and run in stored.index]

@@ -339,13 +339,8 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
         ``tuner label -> list of the plant labels rebuilt`` (empty lists for tuners that were current),
         and ``"interrupted"`` / ``"failed"`` (batch files of failed runs) when that happened.
     """
-    labels = study.labels
-    unknown = [t for t in (tuners or []) if t not in labels]
-    if unknown:
-        raise ValueError(f"--tuner: {unknown} are not reference tuners; references: {', '.join(labels)}")
-    unknown = [p for p in (plants or []) if p not in study.plant_labels]
-    if unknown:
-        raise ValueError(f"--plant: {unknown} are not suite plants; plants: {', '.join(study.plant_labels)}")
+    study.check_tuner_labels(tuners)
+    study.check_plant_labels(plants)
     folder, out = Path(folder), Path(out)
     tasks = plan_batches(study)
     budgets = {task.plant: task.budget for task in tasks}

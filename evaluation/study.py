@@ -338,6 +338,27 @@ class Study:
                 return plant
         raise KeyError(f"no plant labelled {label!r}; labels: {self.plant_labels}")
 
+    def check_plant_labels(self, labels) -> None:
+        """Refuse plant labels (``--plant``) that this study does not have, with a message naming its plants.
+
+        Raises
+        ------
+        ValueError
+            ``--plant: ['DCMotor'] are not plants of 'suite'; its plants: DCMotor-v0, ...``.
+        """
+        unknown = [label for label in labels or () if label not in self.plant_labels]
+        if unknown:
+            raise ValueError(f"--plant: {unknown} are not plants of {self.name!r}; its plants: "
+                             f"{', '.join(self.plant_labels)}")
+
+    def check_tuner_labels(self, labels, option: str = "--tuner") -> None:
+        """Refuse tuner labels (given to ``option``) that this study does not have, with a message naming its
+        tuners."""
+        unknown = [label for label in labels or () if label not in self.labels]
+        if unknown:
+            raise ValueError(f"{option}: {unknown} are not tuners of {self.name!r}; its tuners: "
+                             f"{', '.join(self.labels)}")
+
     def plant_batches(self, plant: Plant, entry: TunerEntry | None = None) -> int:
         """Batches of ``entry`` (default: any tuner) on ``plant``: the plant's or the study's, capped by the entry's."""
         batches = plant.batches if plant.batches is not None else self.batches
@@ -360,7 +381,7 @@ class Study:
         Parameters
         ----------
         plants : list of str, optional
-            Plant labels to keep, in this order.
+            Plant labels to keep, in this order (an unknown one raises :meth:`check_plant_labels`'s error).
         batches : int, optional
             Batches per plant (replaces every plant's and entry's own count).
         tuners : tuple of TunerEntry, optional
@@ -368,6 +389,7 @@ class Study:
         name : str, optional
             The new study's name.
         """
+        self.check_plant_labels(plants)
         kept = self.plants if plants is None else tuple(self.plant(label) for label in plants)
         entries = self.tuners if tuners is None else tuple(tuners)
         if batches is not None:

@@ -289,9 +289,7 @@ def forget(study: Study, out: Path | str, labels) -> int:
     ValueError
         A label that is no tuner entry of the study.
     """
-    unknown = [label for label in labels if label not in study.labels]
-    if unknown:
-        raise ValueError(f"--rerun: {unknown} are not tuner labels of {study.name}; labels: {study.labels}")
+    study.check_tuner_labels(labels, "--rerun")
     out = Path(out)
     names = {task.filename for task in plan_batches(study) if task.label in set(labels)}
     deleted = 0

@@ -221,10 +221,10 @@ def test_debug_shows_the_traceback(tmp_path):
     (["--tuner", "random", "--tuner-kwargs", '{"speed": 2}'], ("--tuner random / --tuner-kwargs", "speed")),
     (["--tuner", "random", "--batches", "2"], ("--batches", "only with a study")),
     (["--tuner", "random", "--force"], ("--force", "only with --rebuild-references")),
-    (["--tuner", "random", "--plant", "DCMotor"], ("--plant", "['DCMotor']", "not plants of suite 'standard'",
+    (["--tuner", "random", "--plant", "DCMotor"], ("--plant", "['DCMotor']", "not plants of 'suite'",
                                                     "DCMotor-v0")),
-    (["--rebuild-references", "--plant", "DCMotor"], ("--plant", "['DCMotor']", "not suite plants", "DCMotor-v0")),
-    (["--rebuild-references", "--tuner", "nope"], ("--tuner", "['nope']", "not reference tuners", "guided-bo")),
+    (["--rebuild-references", "--plant", "DCMotor"], ("--plant", "['DCMotor']", "not plants of 'suite'", "DCMotor-v0")),
+    (["--rebuild-references", "--tuner", "nope"], ("--tuner", "['nope']", "not tuners of 'suite'", "guided-bo")),
     (["--rebuild-references", "--seeds", "3"], ("--seeds", "not with --rebuild-references")),
     (["--import", "no_such_module_xyz", "--tuner", "random"], ("--import no_such_module_xyz",)),
 ])

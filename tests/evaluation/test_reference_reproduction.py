@@ -50,4 +50,4 @@ def test_an_unknown_plant_is_refused_naming_the_suite(monkeypatch, capsys, tmp_p
     with pytest.raises(SystemExit) as stop:
         _main(monkeypatch, "--plant", "DCMotor-v9", "--out", str(tmp_path))
     assert stop.value.code == 2
-    assert "--plant: ['DCMotor-v9'] not in the standard suite" in capsys.readouterr().err
+    assert "--plant: ['DCMotor-v9'] are not plants of 'suite'; its plants: DCMotor-v0," in capsys.readouterr().err

@@ -11,7 +11,7 @@ from agents.base import Tuner
 from evaluation import analysis
 from evaluation.cli import main
 from evaluation.study import load_study, parse_study
-from evaluation.study_runner import RESULTS_DIR, finished_files, plan_batches, run_study
+from evaluation.study_runner import RESULTS_DIR, finished_files, forget, plan_batches, run_study
 from tests.support import TIMING_COLUMNS as TIMING
 
 
@@ -218,6 +218,8 @@ def test_a_study_of_several_plants_runs_each_tuner_on_its_plants_and_rerun_forge
                  "--workers", "1", "--no-report"]) == 0
     out = capsys.readouterr().out
     assert "deleted 1 saved runs of grid" in out and "4 of 4 batches finished (1 now" in out
+    with pytest.raises(ValueError, match=r"--rerun: \['gird'\] are not tuners of 'plants'; its tuners: random, grid"):
+        forget(study, tmp_path, ["gird"])
 
 
 def _spec(tmp_path, study):

@@ -225,7 +225,7 @@ def test_a_rebuild_on_chosen_plants_reruns_only_those_and_names_an_unknown_plant
     assert loaded.missing == [("bo", "DC")] and set(loaded.curves["plant"]) == {"DCStep"}
     assert rebuild(suite, out=tmp_path / "work", folder=refs, workers=1, plants=["DC"]) == {"bo": ["DC"]}
     assert set(read_curves(reference_file("bo", refs))["plant"]) == {"DC", "DCStep"}  # the first plant's rows kept
-    with pytest.raises(ValueError, match=r"--plant: \['Nope'\] are not suite plants; plants: DC, DCStep"):
+    with pytest.raises(ValueError, match=r"--plant: \['Nope'\] are not plants of 'tiny-suite'; its plants: DC, DCStep"):
         rebuild(suite, out=tmp_path / "work", folder=refs, workers=1, plants=["Nope"])
 
 
