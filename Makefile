@@ -6,12 +6,15 @@ PIP := $(VENV)/bin/pip
 STAMP := $(VENV)/.installed-stamp
 
 # The numerical kernels of every command, on any x86-64 CPU with AVX2: OpenBLAS's Haswell kernels (numpy and scipy
-# each load an OpenBLAS that otherwise picks its kernels by the CPU) and numpy's loops without AVX-512. The suite's
-# references are built with these (evaluation.references.REFERENCE_BLAS_KERNELS); other kernels change a GP's last
-# bits, and a run can part from its reference after a few experiments (tests/evaluation/test_reference_reproduction.py)
+# each load an OpenBLAS that otherwise picks its kernels by the CPU), and numpy's loops, torch's and its MKL's
+# without AVX-512. The suite's references are built with these (evaluation.references.REFERENCE_BLAS_KERNELS); other
+# kernels change a GP's last bits, and a run can part from its reference after a few experiments
+# (tests/evaluation/test_reference_reproduction.py)
 ifeq ($(shell uname -m),x86_64)
 export OPENBLAS_CORETYPE ?= Haswell
 export NPY_DISABLE_CPU_FEATURES ?= X86_V4 AVX512_ICL AVX512_SPR
+export ATEN_CPU_CAPABILITY ?= avx2
+export MKL_ENABLE_INSTRUCTIONS ?= AVX2
 endif
 
 .PHONY: setup chromium demo test test-fast bench lint clean

@@ -56,7 +56,7 @@ PLANTS_FILE = "plants.json"
 #: Relative tolerance on ``J*`` below which two optima are the same (floating-point noise of the grid search).
 OPTIMUM_RTOL = 1e-9
 #: The OpenBLAS kernels the references are built and checked with. ``make`` pins them on x86-64
-#: (``OPENBLAS_CORETYPE``, and numpy's AVX-512 loops off through ``NPY_DISABLE_CPU_FEATURES``): with other
+#: (``OPENBLAS_CORETYPE``, and the AVX-512 loops of numpy, torch and MKL off): with other
 #: kernels a GP's last bits differ, and a run can part from its reference after a few experiments.
 REFERENCE_BLAS_KERNELS = "Haswell"
 #: Curves columns of a reference run beyond :data:`evaluation.curves.CURVE_COLUMNS`.
@@ -256,7 +256,7 @@ def kernel_warning() -> str | None:
         return None
     return (f"OpenBLAS runs its {', '.join(other)} kernels here, the references {REFERENCE_BLAS_KERNELS}'s: runs can "
             "part from them after a few experiments; run through make, or set OPENBLAS_CORETYPE=Haswell and "
-            'NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" as the Makefile does')
+            'the other variables as the Makefile does')
 
 
 def reference_file(label: str, folder: Path | str = REFERENCES_DIR) -> Path:

@@ -24,6 +24,13 @@ def test_two_curves_part_at_the_first_experiment_beyond_the_tolerance(monkeypatc
     assert first_parting([1.2, 1.1], [1.2, 1.1, 1.0], 1e-6) == 3  # the shorter curve lacks the third
 
 
+def test_a_reference_without_each_experiments_ratio_is_compared_by_its_best_ratio_curve(monkeypatch):
+    curves = benchmark_module(monkeypatch, "reference_reproduction")._curves
+    rerun = {"curve": [1.3, 1.1], "instant": [1.3, 1.2]}
+    assert curves(rerun, {"curve": [1.3, 1.1], "instant": None}) == ([1.3, 1.1], [1.3, 1.1])
+    assert curves(rerun, {"curve": [1.3, 1.1], "instant": [1.3, 1.2]}) == ([1.3, 1.2], [1.3, 1.2])
+
+
 @pytest.mark.skipif(platform.machine() != "x86_64", reason="the Makefile pins OpenBLAS's kernels on x86-64 only")
 def test_the_tests_run_with_the_kernels_of_the_references():
     """make test pins OpenBLAS's kernels (OPENBLAS_CORETYPE); without the pin an AVX-512 CPU runs others."""
