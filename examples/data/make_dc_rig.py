@@ -3,7 +3,7 @@
 Four closed-loop step experiments (245 -> 306 rad/s) of ``gbo_envs/DCMotorRig-v0``
 at gains drawn uniformly from its feasible set (seed 1), kept at every 5th
 sample (dt 10 ms), in the workbench CSV format (``experiment,t,r,u,y`` plus the
-gains ``Kp,Ki``, ``source`` and ``cost``). ``y`` is the encoder's speed in
+gains ``gain0,gain1``, ``source`` and ``cost``). ``y`` is the encoder's speed in
 rad/s, ``u`` the commanded input. The rig has a command limit, Coulomb friction
 and a quantizing encoder that a linear model lacks: ``gbo twin diagnose`` finds
 the limit.
