@@ -34,7 +34,7 @@ from agents.twin.csvio import read_csv
 from agents.twin.fits import fit_structure
 from agents.twin.identify import check_orders
 from agents.twin.ladder_text import advice, number, unobservable_lines
-from agents.twin.model import ModelSpec
+from agents.twin.model import ModelSpec, effect_items
 from agents.twin.ranking import ORDER_RULE
 from agents.twin.record_checks import NonCausalRecordWarning, check_poles
 from agents.twin.records import Batch
@@ -105,7 +105,7 @@ def _run(handler):
 
 
 def _check_effects(effects: str) -> None:
-    names = [e.strip() for e in effects.split(",") if e.strip()]
+    names = [e.partition(":")[0].strip() for e in effects.split(",") if e.strip()]
     unknown = [e for e in names if e not in EFFECT_NAMES and e not in MAP_NAMES]
     if unknown:
         raise ValueError(f"--effects: unknown effect {unknown[0]!r}; the catalogue is {', '.join(EFFECT_NAMES)}; "
@@ -113,6 +113,10 @@ def _check_effects(effects: str) -> None:
     twice = [e for i, e in enumerate(names) if e in names[:i]]
     if twice:
         raise ValueError(f"--effects: {twice[0]!r} is named twice; each catalogue effect may be in the model once")
+    try:
+        effect_items(effects)  # the variants (coulomb_friction:smooth)
+    except ValueError as error:
+        raise ValueError(f"--effects: {str(error).removeprefix('effects: ')}") from None
 
 
 @contextlib.contextmanager
@@ -231,7 +235,7 @@ def _diagnose(args) -> int:
                       n_jobs=args.jobs)
     units = _units(args)
     step = result.step(result.best, units) if result.best is not None else None
-    following = advice(result, result.current.spec.effect_names, args.data, units=units)
+    following = advice(result, result.current.spec.effect_labels, args.data, units=units)
     payload = result.to_dict()
     payload["best_step"] = step
     payload["next"] = following
@@ -281,7 +285,7 @@ def _report(args) -> int:
         print(f"  {r['text']}; held-out RMSE {r['heldout_rmse']:.4g} {y}")
     print(f"{last.noise_label}: {number(last.noise_rmse)} {y}")
     _print_unobservable(last)
-    print(advice(last, last.current.spec.effect_names, args.data,
+    print(advice(last, last.current.spec.effect_labels, args.data,
                  stopped_at_max=last.best is not None, units=_units(args)))
     print(f"report: {path}")
     return 0

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from agents.twin.coast_down import coast_down_mask, speed_tolerance
 from agents.twin.evidence import both_directions, excitation_notes, unobservable_effects
 from agents.twin.guesses import effect_starts, residual_frequencies, rest_command
 from agents.twin.least_squares import Problem, make_problem
@@ -239,7 +240,9 @@ def _variants(name: str, data: Batch, current: GreyFit, modes: Sequence[Mode] | 
     ``drift`` of the gain and of each denominator coefficient; ``coulomb_friction`` also with a
     level per direction (``asymmetry``) when the speed takes both signs in records whose
     loads the data pin (a reversal within a record, or records that show their rest), since
-    only then do both levels act; ``compliance`` measured on the load's side and, where the residual shows a
+    only then do both levels act, and with a ramp below a fitted speed (``smoothing``) where the data
+    coast down at zero drive (:mod:`agents.twin.coast_down`), whose tail shows how friction fades out
+    towards standstill; ``compliance`` measured on the load's side and, where the residual shows a
     mode of the plant (:func:`agents.twin.modes.plant_modes`), on the motor's (where the coupling's
     anti-resonance shows: an encoder on the motor of a flexible beam); ``modes`` are those of the residual of
     ``current``.
@@ -248,8 +251,14 @@ def _variants(name: str, data: Batch, current: GreyFit, modes: Sequence[Mode] | 
     if name == "drift":
         dens = [f"den{i}" for i in range(1, spec.n_poles - spec.n_integrators + 1)]
         return tuple({"parameter": p} for p in ["gain", *dens])
-    if name == "coulomb_friction" and both_directions(data, spec.output):
-        return ({}, {"variant": "asymmetric"})
+    if name == "coulomb_friction":
+        variants = [{}]
+        if both_directions(data, spec.output):
+            variants.append({"variant": "asymmetric"})
+        if spec.output != "position" and coast_down_mask(data, spec.output,
+                                                         speed_tolerance(data.y, data.mask)).any():
+            variants.append({"variant": "smooth"})
+        return tuple(variants)
     if name == "compliance" and modes:
         return ({}, {"measured": "motor"})
     return ({},)

@@ -24,7 +24,7 @@ from agents.twin.diagnosis_options import CandidateSearch, DiagnosisRules
 from agents.twin.fits import CandidateRound, first_round, fit_candidates, fit_structure
 from agents.twin.ladder_text import rung_text
 from agents.twin.map_candidates import with_map_candidates
-from agents.twin.model import GreyFit, ModelSpec
+from agents.twin.model import GreyFit, ModelSpec, effect_label
 from agents.twin.modes import plant_modes
 from agents.twin.noise_floor import NoiseFloor, noise_floor_estimate
 from agents.twin.ranking import SHARE_POINTS, Ranking, rank, validated_folds
@@ -83,6 +83,14 @@ class Diagnosis:
     def best(self) -> str | None:
         """The candidate the decision rules select, ``None`` when none helps."""
         return self.ranking.best
+
+    @property
+    def best_label(self) -> str | None:
+        """The best candidate as ``--effects`` names it, with its variant (``"coulomb_friction:smooth"``)."""
+        fit = self.fits.get(self.best) if self.best is not None else None
+        if fit is None or not fit.spec.effects or fit.spec.effects[-1][0] != self.best:
+            return self.best
+        return effect_label(*fit.spec.effects[-1])
 
     @property
     def heldout_rmse(self) -> float:

@@ -37,6 +37,11 @@ def data_scales(data: Batch, output: str = "speed") -> dict[str, float]:
 SATURATION_GRID_RATIO = 1.02
 
 
+#: Starts of a smooth friction's ramp (``smoothing``), as fractions of the largest speed: a coast-down's tail
+#: that bends from the friction's straight ramp into an exponential shows a ramp of a few per cent.
+SMOOTHING_FRACTIONS = (0.01, 0.05)
+
+
 def effect_starts(name: str, data: Batch, base: GreyFit, with_starts: bool = True, options=None,
                   modes: Sequence[Mode] | None = None) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
     """Starting values, bounds and scales of the fitted parameters of effect ``name``, from the data.
@@ -87,6 +92,9 @@ def effect_starts(name: str, data: Batch, base: GreyFit, with_starts: bool = Tru
         if dict(options or {}).get("variant") == "asymmetric":  # the level, and its asymmetry in [-1, 1]
             return [np.array([level, 0.0]) for level in levels], np.array([0.0, -0.95]), \
                 np.array([us, 0.95]), np.array([us, 0.3])
+        if dict(options or {}).get("variant") == "smooth":  # the level, and the speed below which it ramps
+            starts = [np.array([level, f * speed]) for level in levels for f in SMOOTHING_FRACTIONS]
+            return starts, np.array([0.0, 0.0]), np.array([us, 0.5 * speed]), np.array([us, 0.05 * speed])
         return [np.array([level]) for level in levels], np.array([0.0]), np.array([us]), np.array([us])
     if name == "viscous_friction":
         c = us / speed

@@ -161,7 +161,7 @@ def advice(diagnosis, effects: Sequence[str], data: str = "DATA.csv", stopped_at
                     f"`gbo twin diagnose {data} {flags}{more}` to look for a further effect")
         return f"next: grow the linear part by a {what}, then look further: `gbo twin diagnose {data} {flags}{more}`"
     if diagnosis.best is not None:
-        more = ",".join([*effects, diagnosis.best])
+        more = ",".join([*effects, diagnosis.best_label])
         if stopped_at_max:
             return (f"next: {diagnosis.best} still improves the model; raise --max-steps, or run "
                     f"`gbo twin diagnose {data} --effects {more}` to look for a further effect")

@@ -51,9 +51,11 @@ FITTED_PARAMETERS: dict[str, tuple[tuple[str, bool], ...]] = {
 
 #: Fitted parameters of an effect's variants, where they differ from :data:`FITTED_PARAMETERS`, keyed by
 #: ``(effect, option, value)``: direction-dependent Coulomb friction (the pseudo-option ``variant``, which is
-#: not the block's) fits its level and its asymmetry; a coupling seen from the motor also its inertia ratio.
+#: not the block's) fits its level and its asymmetry, friction that fades out at low speed its level and the
+#: speed below which it ramps; a coupling seen from the motor also its inertia ratio.
 VARIANT_PARAMETERS: dict[tuple[str, str, str], tuple[tuple[str, bool], ...]] = {
     ("coulomb_friction", "variant", "asymmetric"): (("torque", True), ("asymmetry", True)),
+    ("coulomb_friction", "variant", "smooth"): (("torque", True), ("smoothing", True)),
     ("compliance", "measured", "motor"): (("frequency", True), ("damping", True), ("inertia_ratio", True)),
     # a map whose signal takes both signs, its breakpoint k1 at zero: held there at zero and at k4 on the
     # identity, v0 free (a one-way drive or sensor is v0 = 0)
@@ -95,6 +97,11 @@ class ModelSpec:
     def effect_names(self) -> tuple[str, ...]:
         """Names of the effects."""
         return tuple(name for name, _ in self.effects)
+
+    @property
+    def effect_labels(self) -> tuple[str, ...]:
+        """The effects as ``--effects`` names them, with their variants (``coulomb_friction:smooth``)."""
+        return tuple(effect_label(name, options) for name, options in self.effects)
 
     @property
     def label(self) -> str:
@@ -276,27 +283,43 @@ def effect_offset(spec: ModelSpec, name: str) -> int:
     raise KeyError(name)
 
 
+def effect_label(name: str, options=()) -> str:
+    """An effect as ``--effects`` names it: ``"coulomb_friction:smooth"`` for a variant, else its name."""
+    variant = dict(options).get("variant")
+    return f"{name}:{variant}" if variant else name
+
+
+def _named_variant(text: str) -> tuple[str, dict]:
+    name, _, variant = text.strip().partition(":")
+    return name, ({"variant": variant.strip()} if variant else {})
+
+
 def effect_items(effects) -> list[tuple[str, dict]]:
-    """``[(name, {parameter: value})]`` of effects given as names, a comma-separated string or ``{name: values}``.
+    """``[(name, {parameter: value})]`` of effects given as names (``name:variant`` for a variant of
+    :data:`VARIANT_PARAMETERS`), a comma-separated string or ``{name: values}``.
 
     Raises
     ------
     ValueError
         An effect outside the catalogue :data:`gbo_envs.physics.EFFECT_NAMES` and the static maps
-        (``"input_map"``, ``"output_map"``), or one named twice.
+        (``"input_map"``, ``"output_map"``), an unknown variant, or an effect named twice.
     """
     if effects is None:
         return []
     if isinstance(effects, str):
         effects = [e for e in effects.split(",") if e.strip()]
     items = effects.items() if isinstance(effects, Mapping) else [
-        (e, {}) if isinstance(e, str) else (e[0], dict(e[1] or {})) for e in effects]
+        _named_variant(e) if isinstance(e, str) else (e[0], dict(e[1] or {})) for e in effects]
     out = []
     for name, given in items:
         name = name.strip()
         if name not in EFFECTS and name not in STATIC_MAPS:
             raise ValueError(f"unknown effect {name!r}; the catalogue is {EFFECT_NAMES}, the static maps "
                              f"{tuple(STATIC_MAPS)}")
+        variant = dict(given or {}).get("variant")
+        if variant is not None and (name, "variant", variant) not in VARIANT_PARAMETERS:
+            known = [v for n, option, v in VARIANT_PARAMETERS if n == name and option == "variant"]
+            raise ValueError(f"effects: {name!r} has no variant {variant!r}; its variants: {known or 'none'}")
         if any(name == seen for seen, _ in out):
             raise ValueError(f"effects: {name!r} is named twice; each catalogue effect may be in the model once")
         out.append((name, dict(given or {})))

@@ -213,7 +213,8 @@ def _keep_undetermined(data: Batch, train: list[Problem], fits: Sequence[GreyFit
 
 
 def effect_intervals(data: Batch, fit: GreyFit, name: str, level: float = 0.95) -> dict[str, dict]:
-    """Value, standard error, ``level`` confidence interval and unit of each fitted parameter of effect ``name``.
+    """Value, standard error, ``level`` confidence interval and unit of each fitted parameter of effect ``name``
+    (not of the options it holds, such as a static map's breakpoints).
 
     From :func:`agents.twin.uncertainty.parameter_intervals`; the unit is the catalogue's
     (:func:`gbo_envs.physics.describe_effect`, e.g. ``"input units"``). A parameter chosen on
@@ -226,9 +227,10 @@ def effect_intervals(data: Batch, fit: GreyFit, name: str, level: float = 0.95) 
     """
     intervals = parameter_intervals(data, fit, level)
     units = {p.name: p.unit for p in describe_effect(name)}
+    fitted = {param for param, _ in fitted_parameters(name, dict(fit.spec.effects)[name])}
     out = {}
     for param, value in fit.effect_params.get(name, {}).items():
-        if isinstance(value, str):
+        if isinstance(value, str) or param not in fitted:  # a variant's name, or an option held (a breakpoint)
             continue
         ci = intervals.get(f"{name}.{param}", {"value": value, "std": None, "low": None, "high": None})
         out[param] = {**jsonable(ci, finite=True), "unit": units.get(param, "")}

@@ -293,8 +293,8 @@ def write_report(out_dir: str | Path, data: Batch, rungs: Sequence[dict], diagno
     units = {key: unit for key, unit in (("y", y_unit), ("u", u_unit)) if unit}
     output = first.current.spec.output
     y = y_unit or "units of y"
-    next_step = advice(last, last.current.spec.effect_names, source or "DATA.csv", stopped_at_max=last.best is not None,
-                       units=units)
+    next_step = advice(last, last.current.spec.effect_labels, source or "DATA.csv",
+                       stopped_at_max=last.best is not None, units=units)
 
     def rung_params(params) -> str:
         return "; ".join(f"{name}: {params_text(name, values, units, output)}" for name, values in params.items()) \

@@ -145,5 +145,5 @@ def map_evidence(name: str, data: Batch, current: GreyFit, fit: GreyFit) -> str:
     if dict(fit.spec.effects[fit.spec.effect_names.index(name)][1]).get("variant") == "zero" and \
             abs(slopes[0]) < 0.1 * max(np.max(np.abs(slopes[1:])), 1e-300):
         text += f"; nothing below zero: the {'drive' if name == 'input_map' else 'sensor'} works one way only"
-    change = 100.0 * (1.0 - fit.rmse / current.rmse) if current.rmse > 0 else 0.0
-    return text + f" (RMSE {current.rmse:.3g} -> {fit.rmse:.3g}, {change:+.0f} %)".replace("+-", "-")
+    change = 100.0 * (fit.rmse / current.rmse - 1.0) if current.rmse > 0 else 0.0  # < 0: the error falls
+    return text + f" (RMSE {current.rmse:.3g} -> {fit.rmse:.3g}, {change:+.0f} %)"

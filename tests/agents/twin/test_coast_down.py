@@ -6,13 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from agents.twin.candidates import candidate_plan
 from agents.twin.coast_down import coast_down_torque, coast_downs, speed_tolerance
 from agents.twin.diagnose import diagnose
 from agents.twin.evidence import excitation_notes
+from agents.twin.fits import fit_structure
 from agents.twin.linear_fit import linear_fit
+from agents.twin.model import effect_items
 from agents.twin.open_loop import simulate_open_loop
 from agents.twin.records import Batch
-from benchmarks.real_like_sets import FOC_PLANT
+from benchmarks.real_like_sets import BELT_FRICTION, FOC_PLANT, belt_tacho_records
+from evaluation.twin_cli import _check_effects
 from gbo_envs import Experiment
 from gbo_envs.physics.effects import build_effects
 
@@ -65,3 +69,36 @@ def test_coulomb_friction_is_named_and_fitted_from_coast_downs():
     # 0.073: the plant's friction is smoothed over 0.5 rad/s near standstill, the candidate's is not
     assert d.fits["coulomb_friction"].effect_params["coulomb_friction"]["torque"] == pytest.approx(TORQUE, rel=0.3)
     assert d.fits["coulomb_friction"].rmse < 0.6 * d.current.rmse
+
+
+def test_friction_that_fades_out_near_standstill_is_fitted_with_its_ramp():
+    # the belt's friction ramps below 0.2 V of tacho speed: fitted as a sign, its level comes out at 0.67 and
+    # the error at 5.3x the noise (0.0091 V); with its ramp at 1.04, and 1.7x the noise
+    data = Batch.from_records(belt_tacho_records())
+    sign = fit_structure(data, ["input_map", "coulomb_friction"])
+    smooth = fit_structure(data, ["input_map", "coulomb_friction:smooth"])
+    params = smooth.effect_params["coulomb_friction"]
+    assert params["torque"] == pytest.approx(BELT_FRICTION["torque"], rel=0.1)
+    assert params["smoothing"] == pytest.approx(BELT_FRICTION["smoothing"], rel=0.6)
+    assert smooth.rmse < 0.4 * sign.rmse
+
+
+def test_the_ramp_of_friction_is_tried_only_where_the_data_coast_down():
+    def variants(records):
+        data = Batch.from_records(records)
+        plan = candidate_plan(data, linear_fit(data), ["coulomb_friction"], skip_unexcited=False, orders=False)
+        return plan.candidates[0].variants
+
+    assert {"variant": "smooth"} in variants(coasting_records())
+    driven = [r.replace(u=np.maximum(r.u, 0.3), r=np.maximum(r.r, 0.3)) for r in coasting_records()]  # never 0
+    assert {"variant": "smooth"} not in variants(driven)
+
+
+def test_effects_name_a_variant_after_a_colon_as_the_advice_prints_it():
+    assert effect_items("input_map,coulomb_friction:smooth") == [("input_map", {}),
+                                                                  ("coulomb_friction", {"variant": "smooth"})]
+    with pytest.raises(ValueError, match=r"'coulomb_friction' has no variant 'rough'; its variants: "
+                                         r"\['asymmetric', 'smooth'\]"):
+        effect_items(["coulomb_friction:rough"])
+    with pytest.raises(ValueError, match=r"^--effects: 'saturation' has no variant 'smooth'; its variants: none"):
+        _check_effects("saturation:smooth")

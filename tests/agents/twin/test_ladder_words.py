@@ -98,8 +98,9 @@ def test_rung_text_states_both_errors_before_and_after():
     assert unit_text("s", {"y": "rad/s"}) == "s" and unit_text("input units") == "input units"
 
 
-def _diagnosis(best=None, rmse=1.0, noise=0.1, pairs=(), blind=()):
-    return SimpleNamespace(best=best, current=SimpleNamespace(rmse=rmse), noise_rmse=noise,
+def _diagnosis(best=None, rmse=1.0, noise=0.1, pairs=(), blind=(), variant=None):
+    return SimpleNamespace(best=best, best_label=f"{best}:{variant}" if variant else best,
+                           current=SimpleNamespace(rmse=rmse), noise_rmse=noise,
                            indistinguishable=list(pairs), suggested_experiment="a speed reversal separates them",
                            unobservable=[{"effect": e} for e in blind])
 
@@ -108,6 +109,8 @@ def test_advice_names_the_next_step():
     assert advice(_diagnosis("drift"), ["saturation"], "d.csv") == \
         "next: add drift, then look for a further effect: `gbo twin diagnose d.csv --effects saturation,drift`"
     assert "still improves" in advice(_diagnosis("drift"), ["saturation"], stopped_at_max=True)
+    assert advice(_diagnosis("coulomb_friction", variant="smooth"), ["input_map"], "d.csv").endswith(
+        "--effects input_map,coulomb_friction:smooth`")  # the command refits the variant the diagnosis chose
     assert advice(_diagnosis(rmse=0.09, noise=0.1), []).startswith("stop: the model is at the noise floor")
     assert "explain the data equally well" in advice(_diagnosis(pairs=[["a", "b"]]), [])
     text = advice(_diagnosis(blind=["offset"]), ["saturation"], "d.csv")

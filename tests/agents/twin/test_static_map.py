@@ -14,9 +14,9 @@ from agents.twin.least_squares import fit_problems
 from agents.twin.linear_fit import linear_fit
 from agents.twin.map_figure import map_figure
 from agents.twin.open_loop import simulate_open_loop
-from agents.twin.ranking import _physics_first
+from agents.twin.ranking import _physics_first, effect_intervals
 from agents.twin.records import Batch
-from agents.twin.static_map import map_curve, map_options
+from agents.twin.static_map import map_curve, map_evidence, map_options
 from benchmarks.real_like_sets import BELT_SENSOR, belt_tacho_records
 from evaluation.twin_cli import _check_effects
 from gbo_envs import ContinuousPlant, Experiment
@@ -82,6 +82,15 @@ def test_an_input_map_is_fitted_with_the_linear_part_and_shows_the_falling_gain(
     _, _, knots, values = map_curve(fit, "input_map")
     slopes = np.diff(values) / np.diff(knots)
     assert slopes[0] > 1.5 * slopes[-1]  # the drive's gain falls with the level (1.5 -> 0.5 in the plant)
+
+
+def test_the_maps_evidence_gives_the_change_of_the_error_with_its_sign():
+    data = Batch.from_records(_records({"input_map": FALLING}))
+    base, fit = _fitted(data, "input_map")
+    change = 100.0 * (fit.rmse / base.rmse - 1.0)
+    assert map_evidence("input_map", data, base, fit).endswith(f", {change:+.0f} %)") and change < -50
+    # the fitted values get intervals; the breakpoints are placed, not fitted, and are not listed as if grid-fitted
+    assert set(effect_intervals(data, fit, "input_map")) == {"v1", "v2", "v3"}
 
 
 def test_a_one_way_sensor_is_an_output_map_with_nothing_below_zero():
