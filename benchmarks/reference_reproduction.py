@@ -74,8 +74,9 @@ def main() -> None:
         parser.error(str(error))
     if not 0 < args.rtol < 1:
         parser.error(f"--rtol: must be in (0, 1), got {args.rtol}")
-    if kernel_warning():
-        print(f"warning: {kernel_warning()}", file=sys.stderr)
+    warning = kernel_warning()
+    if warning:
+        print(f"warning: {warning}", file=sys.stderr)
     labels = args.tuner or suite.labels
     study = suite.subset(plants=args.plant, tuners=tuple(e for e in suite.tuners if e.label in labels))
     tasks = [task for task in plan_batches(study) if task.seed in args.seeds]

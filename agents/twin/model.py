@@ -316,11 +316,12 @@ def effect_items(effects) -> list[tuple[str, dict]]:
         if name not in EFFECTS and name not in STATIC_MAPS:
             raise ValueError(f"unknown effect {name!r}; the catalogue is {EFFECT_NAMES}, the static maps "
                              f"{tuple(STATIC_MAPS)}")
-        variant = dict(given or {}).get("variant")
+        given = dict(given or {})
+        variant = given.get("variant")
         if variant is not None and (name, "variant", variant) not in VARIANT_PARAMETERS:
             known = [v for n, option, v in VARIANT_PARAMETERS if n == name and option == "variant"]
             raise ValueError(f"effects: {name!r} has no variant {variant!r}; its variants: {known or 'none'}")
         if any(name == seen for seen, _ in out):
             raise ValueError(f"effects: {name!r} is named twice; each catalogue effect may be in the model once")
-        out.append((name, dict(given or {})))
+        out.append((name, given))
     return out
