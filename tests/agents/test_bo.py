@@ -531,6 +531,28 @@ def test_twin_metrics_of_a_noisy_twin_simulate_the_noise_only_near_its_expected_
     assert len(plain.gains) == 400
 
 
+def test_twin_metrics_give_every_admitted_candidate_of_a_multistart_plan_its_expected_metrics():
+    """Noise-free metrics are optimistic: none of EI's 2,048 candidates that the bound admits keeps them."""
+    from agents.twin.prior import TwinMetrics
+
+    class FlatTwin:  # every gain costs 1 noise-free and 1.5 with noise: all are admitted
+        weights, normalizers, unstable_cost = np.full(2, 0.5), np.full(2, 0.5), 10.0
+
+        def __init__(self, noisy: bool) -> None:
+            self.noisy, self.free = noisy, FlatTwin(False) if noisy else self
+
+        def noise_free(self):
+            return self.free
+
+        def evaluate(self, gains):
+            metrics = np.column_stack([np.full(len(gains), 0.5 * self.noisy), np.ones(len(gains))])
+            return metrics, metrics.sum(axis=1)
+
+    space = agents.GainSpace(low=[0.0, 0.0, 0.0], high=[1.0, 1.0, 1.0], names=("Kp", "Ki", "Kd"))
+    X = np.random.default_rng(1).uniform(size=(2048, 3))
+    np.testing.assert_array_equal(TwinMetrics(FlatTwin(noisy=True), space)(X)[:, 0], 0.5)
+
+
 def test_twin_metrics_simulate_each_gain_once_and_price_divergence_at_the_unstable_cost():
     from agents.twin.prior import TwinMetrics
 
