@@ -57,7 +57,7 @@ def effect_starts(name: str, data: Batch, base: GreyFit, with_starts: bool = Tru
     lower, upper, scale : ndarray of shape (n_effect_params,)
     """
     if name in STATIC_MAPS:
-        return map_starts(name, options)
+        return map_starts(name, options, data)
     sc = data_scales(data, base.spec.output)
     u_max, us, speed, horizon, dt = sc["u_max"], sc["u_scale"], sc["speed"], sc["horizon"], data.dt
     rest = float(np.max(np.abs(rest_command(base))))

@@ -42,10 +42,11 @@ FITTED_PARAMETERS: dict[str, tuple[tuple[str, bool], ...]] = {
     "offset": (("value", True),),
     "cogging": (("amplitude", True), ("period", True), ("phase", True)),
     "compliance": (("frequency", True), ("damping", True)),
-    # the static maps (:mod:`agents.twin.static_map`): the values at the inner breakpoints, the outer two
-    # held on the identity (the linear part keeps the gain and the rest levels the offset)
-    "input_map": (("v1", True), ("v2", True), ("v3", True)),
-    "output_map": (("v1", True), ("v2", True), ("v3", True)),
+    # the static maps (:mod:`agents.twin.static_map`): the inner breakpoints and the values there, as
+    # MATLAB's pwlinear estimates both; the outer two held on the identity (the linear part keeps the gain
+    # and the rest levels the offset)
+    "input_map": (("k1", True), ("k2", True), ("k3", True), ("v1", True), ("v2", True), ("v3", True)),
+    "output_map": (("k1", True), ("k2", True), ("k3", True), ("v1", True), ("v2", True), ("v3", True)),
 }
 
 
@@ -58,9 +59,9 @@ VARIANT_PARAMETERS: dict[tuple[str, str, str], tuple[tuple[str, bool], ...]] = {
     ("coulomb_friction", "variant", "smooth"): (("torque", True), ("smoothing", True)),
     ("compliance", "measured", "motor"): (("frequency", True), ("damping", True), ("inertia_ratio", True)),
     # a map whose signal takes both signs, its breakpoint k1 at zero: held there at zero and at k4 on the
-    # identity, v0 free (a one-way drive or sensor is v0 = 0)
-    ("input_map", "variant", "zero"): (("v0", True), ("v2", True), ("v3", True)),
-    ("output_map", "variant", "zero"): (("v0", True), ("v2", True), ("v3", True)),
+    # identity, v0 free (a one-way drive or sensor is v0 = 0), the breakpoints k2, k3 free
+    ("input_map", "variant", "zero"): (("k2", True), ("k3", True), ("v0", True), ("v2", True), ("v3", True)),
+    ("output_map", "variant", "zero"): (("k2", True), ("k3", True), ("v0", True), ("v2", True), ("v3", True)),
 }
 
 

@@ -499,7 +499,7 @@ def _physics_first(good: list[dict]) -> list[dict]:
     records), a pole pair 8 % ahead held out took the first rung; saturation, then backlash followed, to a
     held-out RMSE of 1.6e-5 m, where saturation then Coulomb friction reach 2.9e-6 m. A static map
     (:mod:`agents.twin.static_map`) names no physics either, but it is not a fallback for the catalogue's
-    limits and bands, which it can mimic with its three values: where an effect explains about as much,
+    limits and bands, which it can mimic with its breakpoints: where an effect explains about as much,
     the effect is named.
     """
     out = [c for c in good if c["kind"] == "effect"]

@@ -1,16 +1,22 @@
 """Static maps as candidates of a diagnosis: an input map (Hammerstein) or an output map (Wiener), piecewise linear.
 
 MATLAB's ``nlhw`` with a ``pwlinear`` estimator is the anchor: straight lines between breakpoints, fitted
-together with the linear part (:mod:`gbo_envs.physics.static_map`). Here the map has five breakpoints over
-the range of its signal (the commanded input ``u`` for an input map, the measured output ``y`` for an output
-map), widened by :data:`RANGE_MARGIN` on each side. Two of the values are held on the identity, since the
-linear part already carries the gain and the rest levels the offset (a map ``c m(x) + e`` and a linear part
-``G / c`` replay alike):
+together with the linear part (:mod:`gbo_envs.physics.static_map`), the breakpoints estimated as ``pwlinear``
+estimates them. Here the map has five breakpoints over the range of its signal (the commanded input ``u`` for
+an input map, the measured output ``y`` for an output map), widened by :data:`RANGE_MARGIN` on each side. Two
+of the values are held on the identity, since the linear part already carries the gain and the rest levels
+the offset (a map ``c m(x) + e`` and a linear part ``G / c`` replay alike):
 
-* a signal of one sign: the outer two, ``m(k_0) = k_0`` and ``m(k_4) = k_4``; ``v_1 .. v_3`` are fitted;
+* a signal of one sign: the outer two, ``m(k_0) = k_0`` and ``m(k_4) = k_4``; ``k_1 .. k_3`` and
+  ``v_1 .. v_3`` are fitted;
 * a signal that takes both signs: the breakpoint ``k_1`` is put at zero with ``m(0) = 0``, and
-  ``m(k_4) = k_4``; ``v_0, v_2, v_3`` are fitted. A drive or a sensor that works in one direction only is
-  ``v_0 = 0``: nothing below zero.
+  ``m(k_4) = k_4``; ``k_2, k_3`` and ``v_0, v_2, v_3`` are fitted. A drive or a sensor that works in one
+  direction only is ``v_0 = 0``: nothing below zero.
+
+A fitted breakpoint starts where :func:`map_options` places it and moves at most :data:`KNOT_REACH` of the
+way to its neighbours' starts, so the breakpoints stay in order. A kink of the map between two starting
+breakpoints (a drive whose gain falls above 3 V, placed at 2.6 and 4 V) is then found where it is, not
+smeared over the segments around it.
 
 The maps are tried after the catalogue (:func:`map_candidates`, and :func:`agents.twin.ranking.rank` puts a
 good catalogue effect first unless the map clearly explains and predicts more).
@@ -26,7 +32,7 @@ from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
 from gbo_envs.physics.static_map import N_KNOTS, STATIC_MAPS, piecewise_linear
 
-__all__ = ["MAP_NAMES", "RANGE_MARGIN", "identity_theta", "map_curve", "map_evidence", "map_options", "map_size",
+__all__ = ["KNOT_REACH", "MAP_NAMES", "RANGE_MARGIN", "identity_theta", "map_curve", "map_evidence", "map_options", "map_size",
            "map_starts"]
 
 #: The static maps tried: an input map and an output map (:data:`gbo_envs.physics.static_map.STATIC_MAPS`).
@@ -36,6 +42,9 @@ MAP_NAMES: tuple[str, ...] = tuple(STATIC_MAPS)
 RANGE_MARGIN = 0.1
 #: A signal takes both signs when it goes beyond this share of its range on each side of zero.
 SIGN_SHARE = 0.02
+#: Share of the gap to each neighbouring breakpoint's start that a fitted breakpoint may move: below one
+#: half, two neighbours cannot meet.
+KNOT_REACH = 0.45
 
 
 def _signal(name: str, data: Batch) -> np.ndarray:
@@ -85,26 +94,40 @@ def _knots(options) -> np.ndarray:
 
 
 def identity_theta(name: str, options) -> np.ndarray:
-    """The fitted values of map ``name`` with ``options`` that make it the identity (its breakpoints)."""
+    """The fitted parameters of map ``name`` with ``options`` that make it the identity: its breakpoints, and
+    the values there equal to them (``options`` holds the breakpoints, fitted ones included)."""
     knots = _knots(options)
     return np.array([knots[int(p[1:])] for p, _ in fitted_parameters(name, options)])
 
 
-def map_starts(name: str, options) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
+def map_starts(name: str, options, data: Batch) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
     """Starting values, bounds and scales of the fitted values of map ``name`` (as
     :func:`agents.twin.guesses.effect_starts` gives them for an effect).
 
     The identity, and for a signal of both signs also the one-way map (``v_0 = 0``). The values stay within
-    the breakpoints' range widened by its length on each side.
+    the breakpoints' range widened by its length on each side; a breakpoint within :data:`KNOT_REACH` of the
+    gaps to its neighbours. A breakpoint that ``options`` lacks (one given as a fitted value, which the fit
+    then starts from) is placed on ``data`` (:func:`map_options`).
     """
+    options = map_options(name, data) | dict(options)
     knots = _knots(options)
     span = knots[-1] - knots[0]
+    names = [p for p, _ in fitted_parameters(name, options)]
     start = identity_theta(name, options)
+    lower, upper, scale = np.full(start.size, knots[0] - span), np.full(start.size, knots[-1] + span), \
+        np.full(start.size, 0.25 * span)
+    for j, p in enumerate(names):
+        if p.startswith("k"):
+            i = int(p[1:])
+            lower[j] = knots[i] - KNOT_REACH * (knots[i] - knots[i - 1])
+            upper[j] = knots[i] + KNOT_REACH * (knots[i + 1] - knots[i])
+            scale[j] = 0.25 * min(knots[i] - knots[i - 1], knots[i + 1] - knots[i])
     starts = [start]
     if dict(options).get("variant") == "zero":
-        starts.append(np.concatenate([[0.0], start[1:]]))
-    n = start.size
-    return starts, np.full(n, knots[0] - span), np.full(n, knots[-1] + span), np.full(n, 0.25 * span)
+        one_way = start.copy()
+        one_way[names.index("v0")] = 0.0
+        starts.append(one_way)
+    return starts, lower, upper, scale
 
 
 def map_curve(fit: GreyFit, name: str, n: int = 201) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -123,7 +146,8 @@ def map_size(data: Batch, fit: GreyFit, name: str) -> float:
     theta0 = fit.theta.copy()
     pos = spec.n_linear + 1 + sum(len(fitted_parameters(n_, o)) for n_, o in spec.effects[: spec.effect_names.index(
         name)])
-    theta0[pos : pos + 3] = identity_theta(name, options)
+    identity = identity_theta(name, options | fit.effect_params[name])  # at the fitted breakpoints
+    theta0[pos : pos + identity.size] = identity
     rows = np.arange(data.n_records)
     sims = simulate_sets(data, [(spec, np.concatenate([th, fit.nuisance()]), rows) for th in (fit.theta, theta0)])
     size = rmse(output_error(sims[0], sims[1], data.mask, spec, data.closed_loop), mask=data.mask)
