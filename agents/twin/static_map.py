@@ -32,8 +32,8 @@ from agents.twin.records import Batch
 from agents.twin.simulation import simulate_sets
 from gbo_envs.physics.static_map import N_KNOTS, STATIC_MAPS, piecewise_linear
 
-__all__ = ["KNOT_REACH", "MAP_NAMES", "RANGE_MARGIN", "identity_theta", "map_curve", "map_evidence", "map_options", "map_size",
-           "map_starts"]
+__all__ = ["KNOT_REACH", "MAP_NAMES", "RANGE_MARGIN", "identity_theta", "map_curve", "map_evidence", "map_options",
+           "map_size", "map_starts"]
 
 #: The static maps tried: an input map and an output map (:data:`gbo_envs.physics.static_map.STATIC_MAPS`).
 MAP_NAMES: tuple[str, ...] = tuple(STATIC_MAPS)
