@@ -6,7 +6,10 @@
 * ``info["constraints"]``: name -> ``value - limit`` (Optuna's ``constraints_func``
   convention: ``<= 0`` is feasible, the size of a positive entry is the violation);
 * ``info["feasible"]``: every entry ``<= 0`` and the loop stable (a diverging experiment
-  is infeasible whatever its values; a failed one, without a record, too).
+  is infeasible whatever its values; a failed one, without a record, too). An entry within
+  floating-point noise above zero (:data:`LIMIT_RTOL` of the limit, or of 1) keeps its limit:
+  two counts of a 5 um encoder beyond a 10 mm target are an overshoot of 0.1000000000000334 %,
+  and a limit of 0.1 % is kept by them.
 
 A constraint names one of
 
@@ -31,12 +34,14 @@ import numpy as np
 from gbo_envs.experiment import Experiment
 from gbo_envs.metrics import METRIC_NAMES
 
-__all__ = ["BUILTIN", "Constraint", "Constraints", "PEAK_U"]
+__all__ = ["BUILTIN", "Constraint", "Constraints", "LIMIT_RTOL", "PEAK_U"]
 
 #: The signal-derived constraint: the largest ``|u|`` of the record.
 PEAK_U = "peak_u"
 #: Names a constraint may take without a function of its own.
 BUILTIN = (*METRIC_NAMES, PEAK_U)
+#: Relative floating-point noise of a value at its limit (of ``max(|limit|, 1)``) that still keeps the limit.
+LIMIT_RTOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -155,7 +160,8 @@ class Constraints:
             A diverging experiment is infeasible whatever its values.
         """
         slacks = {c.name: math.nan for c in self._items} if record is None else self.slacks(record)
-        kept = all(v <= 0.0 for v in slacks.values())  # NaN compares False: an unmeasurable value is not kept
+        # NaN compares False: an unmeasurable value is not kept
+        kept = all(slacks[c.name] <= LIMIT_RTOL * max(abs(c.limit), 1.0) for c in self._items)
         return {"constraints": slacks, "feasible": bool(record is not None and not unstable and kept)}
 
     def batch_slacks(self, metrics: np.ndarray, u: np.ndarray | None, records=None) -> np.ndarray:

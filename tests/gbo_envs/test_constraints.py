@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -9,6 +11,7 @@ import pytest
 import gbo_envs
 from gbo_envs import CostSpec, PIController, StepExperiment
 from gbo_envs.constraints import Constraints
+from gbo_envs.metrics import METRIC_NAMES, step_metrics
 from gbo_envs.envs.external import ExternalPlantEnv
 
 LIMITS = {"overshoot_pct": 2.0, "peak_u": 140.0}
@@ -139,3 +142,20 @@ def test_constrained_ground_truth_refuses_the_search_and_an_empty_feasible_set()
         gbo_envs.ground_truth("gbo_envs/DCMotorPID-v0", constraints=LIMITS)
     with pytest.raises(ValueError, match="no gain"):
         gbo_envs.ground_truth("gbo_envs/DCMotor-v0", resolution=5, n_jobs=1, constraints={"peak_u": 1.0})
+
+
+
+def test_a_quantised_overshoot_exactly_at_its_limit_keeps_it():
+    # two 5 um counts beyond a 10 mm target, as gbo_envs.metrics computes them: LinearMotorCascade-v0's
+    # safe-tuning limit (0.1 %); guided-bo safe counted such readings as violations
+    step, count = 0.01, 5e-6
+    t = np.arange(100) * 1e-3
+    y = np.concatenate([np.linspace(0.0, 2002 * count, 50), np.full(50, step)])  # the encoder's 2002nd level
+    overshoot = float(step_metrics(t, y, 0.0, step)[METRIC_NAMES.index("overshoot_pct")])
+    assert overshoot > 0.1  # by floating-point noise
+    limits = Constraints({"overshoot_pct": 0.1})
+    record = SimpleNamespace(metrics={"overshoot_pct": overshoot}, u=np.zeros(100))
+    judged = limits.judge(record)
+    assert judged["constraints"]["overshoot_pct"] > 0.0 and judged["feasible"] is True
+    above = SimpleNamespace(metrics={"overshoot_pct": 0.1 + 1e-6}, u=np.zeros(100))
+    assert limits.judge(above)["feasible"] is False
