@@ -11,8 +11,8 @@ import pytest
 import gbo_envs
 from gbo_envs import CostSpec, PIController, StepExperiment
 from gbo_envs.constraints import Constraints
-from gbo_envs.metrics import METRIC_NAMES, step_metrics
 from gbo_envs.envs.external import ExternalPlantEnv
+from gbo_envs.metrics import METRIC_NAMES, step_metrics
 
 LIMITS = {"overshoot_pct": 2.0, "peak_u": 140.0}
 #: The paper's nominal PGM gains of the DC motor; they break both limits.
