@@ -43,6 +43,8 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, DotProduct, Matern, WhiteKernel
 
+from gbo_envs.constraints import keeps
+
 __all__ = ["CLIP", "ConstrainedAcquisition", "ConstraintModel", "UNSTABLE_SLACK", "constraint_set",
            "reported_slacks", "run_risk", "validated_safe_start"]
 
@@ -157,6 +159,7 @@ class ConstraintModel:
         limits = np.asarray(limits, dtype=float).ravel()
         if limits.size != len(self.names):
             raise ValueError(f"limits: need one per constraint {self.names}, got {limits.size}")
+        self.limits = limits
         self.scales = np.where(np.abs(limits) > 0, np.abs(limits), 1.0)
         self.models: list[GaussianProcessRegressor] = []
         self._X: list[np.ndarray] = []
@@ -181,7 +184,8 @@ class ConstraintModel:
         if record.get("unstable", False):
             scaled = np.maximum(scaled, UNSTABLE_SLACK)
         scaled = np.where(np.isfinite(scaled), scaled, UNSTABLE_SLACK)
-        feasible = bool(record.get("feasible", bool(np.all(raw <= 0.0)) and not record.get("unstable", False)))
+        kept = bool(np.all(keeps(raw, self.limits))) and not record.get("unstable", False)
+        feasible = bool(record.get("feasible", kept))
         self._X.append(np.asarray(x, dtype=float).copy())
         self._S.append(scaled)
         self._feasible.append(feasible)

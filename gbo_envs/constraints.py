@@ -34,7 +34,7 @@ import numpy as np
 from gbo_envs.experiment import Experiment
 from gbo_envs.metrics import METRIC_NAMES
 
-__all__ = ["BUILTIN", "Constraint", "Constraints", "LIMIT_RTOL", "PEAK_U"]
+__all__ = ["BUILTIN", "Constraint", "Constraints", "LIMIT_RTOL", "PEAK_U", "keeps"]
 
 #: The signal-derived constraint: the largest ``|u|`` of the record.
 PEAK_U = "peak_u"
@@ -42,6 +42,18 @@ PEAK_U = "peak_u"
 BUILTIN = (*METRIC_NAMES, PEAK_U)
 #: Relative floating-point noise of a value at its limit (of ``max(|limit|, 1)``) that still keeps the limit.
 LIMIT_RTOL = 1e-9
+
+
+def keeps(slacks, limits) -> np.ndarray:
+    """Whether each ``value - limit`` keeps its limit: ``slack <= LIMIT_RTOL max(|limit|, 1)`` (NaN: not kept).
+
+    Parameters
+    ----------
+    slacks, limits : array_like of the same shape
+        ``value - limit`` and the limits, in the values' units.
+    """
+    limits = np.asarray(limits, dtype=float)
+    return np.asarray(slacks, dtype=float) <= LIMIT_RTOL * np.maximum(np.abs(limits), 1.0)
 
 
 @dataclass(frozen=True)
@@ -160,8 +172,7 @@ class Constraints:
             A diverging experiment is infeasible whatever its values.
         """
         slacks = {c.name: math.nan for c in self._items} if record is None else self.slacks(record)
-        # NaN compares False: an unmeasurable value is not kept
-        kept = all(slacks[c.name] <= LIMIT_RTOL * max(abs(c.limit), 1.0) for c in self._items)
+        kept = bool(np.all(keeps([slacks[c.name] for c in self._items], self.limits)))
         return {"constraints": slacks, "feasible": bool(record is not None and not unstable and kept)}
 
     def batch_slacks(self, metrics: np.ndarray, u: np.ndarray | None, records=None) -> np.ndarray:

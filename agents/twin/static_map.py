@@ -109,7 +109,9 @@ def map_starts(name: str, options, data: Batch) -> tuple[list[np.ndarray], np.nd
     gaps to its neighbours. A breakpoint that ``options`` lacks (one given as a fitted value, which the fit
     then starts from) is placed on ``data`` (:func:`map_options`).
     """
-    options = map_options(name, data) | dict(options)
+    options = dict(options)
+    if any(f"k{i}" not in options for i in range(N_KNOTS)):
+        options = map_options(name, data) | options
     knots = _knots(options)
     span = knots[-1] - knots[0]
     names = [p for p, _ in fitted_parameters(name, options)]
@@ -123,7 +125,7 @@ def map_starts(name: str, options, data: Batch) -> tuple[list[np.ndarray], np.nd
             upper[j] = knots[i] + KNOT_REACH * (knots[i + 1] - knots[i])
             scale[j] = 0.25 * min(knots[i] - knots[i - 1], knots[i + 1] - knots[i])
     starts = [start]
-    if dict(options).get("variant") == "zero":
+    if options.get("variant") == "zero":
         one_way = start.copy()
         one_way[names.index("v0")] = 0.0
         starts.append(one_way)
@@ -142,11 +144,10 @@ def map_curve(fit: GreyFit, name: str, n: int = 201) -> tuple[np.ndarray, np.nda
 def map_size(data: Batch, fit: GreyFit, name: str) -> float:
     """RMS change of the output (units of ``y``) when the map of ``fit`` is made the identity, all else kept."""
     spec = fit.spec
-    options = dict(spec.effects[spec.effect_names.index(name)][1])
     theta0 = fit.theta.copy()
     pos = spec.n_linear + 1 + sum(len(fitted_parameters(n_, o)) for n_, o in spec.effects[: spec.effect_names.index(
         name)])
-    identity = identity_theta(name, options | fit.effect_params[name])  # at the fitted breakpoints
+    identity = identity_theta(name, fit.effect_params[name])  # at the fitted breakpoints
     theta0[pos : pos + identity.size] = identity
     rows = np.arange(data.n_records)
     sims = simulate_sets(data, [(spec, np.concatenate([th, fit.nuisance()]), rows) for th in (fit.theta, theta0)])
