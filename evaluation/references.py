@@ -337,7 +337,8 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
     -------
     dict
         ``tuner label -> list of the plant labels rebuilt`` (empty lists for tuners that were current),
-        and ``"interrupted"`` / ``"failed"`` (batch files of failed runs) when that happened.
+        and ``"interrupted"`` / ``"failed"`` (batch files of failed runs) when that happened; the tuner
+        whose runs stopped is not among the labels (nothing of it was written).
     """
     study.check_tuner_labels(tuners)
     study.check_plant_labels(plants)
@@ -352,8 +353,8 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
     for entry in _selected(study, tuners):
         chosen = [p.label for p in study.plants if study.runs_on(entry, p) and (not plants or p.label in plants)
                   and (force or refs.status(entry.label, p.label) != "current")]
-        done[entry.label] = chosen
         if not chosen:
+            done[entry.label] = []
             continue
         part = study.subset(plants=chosen, tuners=(entry,), name=f"{study.name}-{slugify(entry.label)}")
         before = {p: current[(entry.label, p)] for p in chosen}
@@ -388,6 +389,7 @@ def rebuild(study: Study, tuners: list[str] | None = None, out: Path | str = Pat
         merged = merged.sort_values(["plant", "batch"], key=lambda s: s.map(order) if s.name == "plant" else s,
                                     kind="stable")
         write_references(merged, reference_file(entry.label, folder))
+        done[entry.label] = chosen
     _write_plant_table(study, budgets, optima, folder)
     return done
 

@@ -229,6 +229,19 @@ def test_a_rebuild_on_chosen_plants_reruns_only_those_and_names_an_unknown_plant
         rebuild(suite, out=tmp_path / "work", folder=refs, workers=1, plants=["Nope"])
 
 
+def test_an_interrupted_rebuild_names_no_plant_rebuilt_and_writes_nothing(tmp_path, monkeypatch):
+    import types
+
+    import evaluation.references as references
+
+    suite = tiny_suite([{"name": "random", "label": "bo"}])
+    refs = tmp_path / "refs"
+    monkeypatch.setattr(references, "run_study", lambda *a, **k: types.SimpleNamespace(interrupted=True, failed=[]))
+    done = rebuild(suite, out=tmp_path / "work", folder=refs, workers=1)
+    assert done == {"interrupted": True}  # the CLI printed "bo: rebuilt on DC, DCStep" after a Ctrl-C
+    assert not reference_file("bo", refs).exists()
+
+
 def test_the_shipped_references_cover_the_quick_suite():
     suite = load_suite("quick")
     budgets = {"DCMotor-v0": 35, "DCMotorRig-v0": 35, "LinearMotor-v0": 25}
