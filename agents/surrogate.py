@@ -18,7 +18,7 @@ from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 
 from agents.thread_limits import single_thread
 
-__all__ = ["GPSurrogate"]
+__all__ = ["GPSurrogate", "dimension_scale"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -31,6 +31,11 @@ class _Conditioned:
 
 #: Candidate rows per block in :meth:`GPSurrogate.predict` (measured fastest on the 100 x 100 grid).
 _PREDICT_BLOCK = 1024
+
+
+def dimension_scale(dim: int) -> float:
+    """``sqrt(d / 2)``: the factor of :class:`GPSurrogate`'s length scales for ``d`` inputs (1 for two gains)."""
+    return float(np.sqrt(dim / 2.0))
 
 
 class GPSurrogate:
@@ -58,7 +63,12 @@ class GPSurrogate:
     n_restarts : int, default 2
         Extra random starts of the likelihood optimiser per fit.
     length_scale_bounds : (float, float), default (0.05, 0.5)
-        Bounds of the ARD length scales, in units of the (unit-box) inputs.
+        Bounds of the ARD length scales for two inputs, in units of the (unit-box) inputs. For
+        ``d`` inputs they, and the prior length scale 0.3, are multiplied by ``sqrt(d / 2)``
+        (:func:`dimension_scale`): the distance between points of the unit box grows as ``sqrt(d)``,
+        and so do the length scales that fit a function of ``d`` inputs (Hvarfner, Hellsten and Nardi,
+        "Vanilla Bayesian optimization performs great in high dimensions", ICML 2024; BoTorch's default
+        length-scale prior scales with ``sqrt(d)`` for the same reason). Two gains are unchanged.
     noise_std : float, optional
         Known cost noise ``sigma_eps`` (cost units, e.g. from
         :func:`agents.cost_noise.estimate_noise`). ``None`` learns it (WhiteKernel).
@@ -73,7 +83,7 @@ class GPSurrogate:
     min_fit_points : int, default 5
         With fewer training points the hyperparameters are not fitted (the
         likelihood of 1-4 points is flat or degenerate); the prior kernel
-        (unit amplitude, length scales 0.3 clipped to the bounds, noise
+        (unit amplitude, length scales ``0.3 sqrt(d / 2)`` clipped to the bounds, noise
         variance 1e-2 in standardised units) is used as is.
     max_iter : int, default 60
         L-BFGS-B iterations per start.
@@ -113,9 +123,11 @@ class GPSurrogate:
         return self._prior_kernel(dim)
 
     def _prior_kernel(self, dim: int):
-        length_scale = float(np.clip(0.3, *self.length_scale_bounds))
+        scale = dimension_scale(dim)
+        bounds = tuple(scale * b for b in self.length_scale_bounds)
+        length_scale = float(np.clip(0.3 * scale, *bounds))
         kernel = ConstantKernel(1.0, (1e-2, 1e2)) * Matern(
-            length_scale=np.full(dim, length_scale), length_scale_bounds=self.length_scale_bounds, nu=2.5)
+            length_scale=np.full(dim, length_scale), length_scale_bounds=bounds, nu=2.5)
         if self.noise_std is None:
             kernel = kernel + WhiteKernel(float(np.clip(1e-2, *self.noise_bounds)), self.noise_bounds)
         return kernel

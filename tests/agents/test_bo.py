@@ -268,6 +268,24 @@ def test_likelihood_maximisation_is_as_good_as_sklearns():
     np.testing.assert_allclose(gp.kernel_.theta, reference.kernel_.theta, atol=1e-3)
 
 
+def test_length_scales_grow_with_the_number_of_gains_and_two_gains_keep_theirs():
+    # the bounds and the prior length scale times sqrt(d / 2) (Hvarfner et al. 2024): 4 gains may reach 0.71 of the
+    # unit box, two gains keep (0.05, 0.5) bit for bit
+    rng = np.random.default_rng(5)
+    X = rng.uniform(size=(40, 4))
+    y = np.sin(5 * X[:, 0]) + 0.1 * X[:, 1] + 0.01 * rng.standard_normal(40)  # inputs 3 and 4 do nothing
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        gp = GPSurrogate(min_fit_points=1, warm_start=False).fit(X, y, seed=0)
+    assert gp.length_scales_[2:].min() > 0.5  # at the old bound of 0.5 before
+    assert gp.length_scales_.max() <= 0.5 * np.sqrt(2.0) + 1e-9
+    two = GPSurrogate(min_fit_points=1, warm_start=False).fit(X[:, :2], y, seed=0)
+    assert two.length_scales_.max() <= 0.5 + 1e-12
+    from agents.surrogate import dimension_scale
+
+    assert dimension_scale(2) == 1.0 and dimension_scale(4) == pytest.approx(np.sqrt(2.0))
+
+
 # -- model="metrics": one GP per performance metric (paper, abstract and eq. (J_used)) ---------------------------
 class _MetricEnv:
     """Stands in for an env: only ``weights`` and ``normalizers`` of ``J = sum w_i f_i / n_i`` are read."""
