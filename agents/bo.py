@@ -69,7 +69,7 @@ class BayesianOptimization(Tuner):
        standardising the costs, noise learned or given, hyperparameters by log
        marginal likelihood with :class:`~agents.surrogate.GPSurrogate`'s defaults:
        2 random restarts on the first and every 5th fit, warm starts from the previous
-       fit, length scales in ``[0.05, 0.5]`` of the unit box, prior hyperparameters
+       fit, length scales in ``[0.05, 0.5] sqrt(d / 2)`` of the unit box for ``d`` gains, prior hyperparameters
        below 5 points; inputs scaled to the unit box) on the training set ``D`` of eq. (D); query the
        maximiser of Expected Improvement (eq. (LCB), no exploration margin, eq. (EI)):
        by default (``optimizer="auto"``) over a ``grid_points``-per-gain grid of the

@@ -21,7 +21,9 @@ to sit on the limit, ``PF = 1/2`` per constraint, never in a safe set) and a ker
 amplitude of at least :data:`MIN_AMPLITUDE` (in median slacks): unlike the cost GP it is not
 standardised, because a standardised GP fitted on a few equal slacks (a safe start measured
 again) becomes certain everywhere and calls the whole box safe. Kernel: ``s^2 Matern_5/2``
-(ARD length scales in ``[0.05, 0.5]`` of the unit box) plus a linear term ``s_l^2 (x . x' +
+(ARD length scales in ``[0.05, 0.5]`` of the unit box for any number of gains: unlike the cost GPs'
+(:func:`agents.surrogate.dimension_scale`) they do not grow with it, since a longer length scale makes a
+safety model confident farther from its data) plus a linear term ``s_l^2 (x . x' +
 0.01)`` on the gains centred on the box (a slack that grows with a gain, as the peak command
 with ``Kp``, is extrapolated along its trend: a stationary zero-mean GP alone reverts to the
 limit slowly and called gains beyond the trend safe) plus white noise; hyperparameters by
