@@ -2,7 +2,8 @@
 
 A twin guides BO only as far as it orders gains as the plant does. For each seed, ``guided-bo``
 runs ``--experiments`` plant experiments on ``--env``; then the twin it holds
-(``GuidedBO.keeper_.twin_cost``: its expected cost, the noise it simulates included) and the
+(``GuidedBO.keeper_.twin_env().evaluate``: its expected cost, the noise it simulates included;
+``unstable_cost`` where it diverges) and the
 plant's ground truth (``env.unwrapped.evaluate``: the expected cost over the plant's noise) are
 evaluated at every measured gain and at ``J*``'s gains. It prints one Markdown row per seed:
 
@@ -29,6 +30,7 @@ from tqdm import tqdm
 
 import agents
 import gbo_envs
+from agents.base import MAX_BUDGET
 from agents.thread_limits import single_thread
 from gbo_envs.optimum_search import SearchDisagreement
 
@@ -42,7 +44,7 @@ def twin_against_plant(env_id: str, seed: int, experiments: int) -> dict:
         ``twin`` and ``plant``: expected costs at the measured gains, the last entry at ``J*``'s gains
         (cost units); ``effects``: the twin's effects.
     """
-    env = gym.make(env_id)
+    env = gym.make(env_id, max_episode_steps=experiments)
     plant = env.unwrapped
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SearchDisagreement)  # an uncertified table still has J*'s gains
@@ -53,9 +55,11 @@ def twin_against_plant(env_id: str, seed: int, experiments: int) -> dict:
     rows = result.to_pandas()
     gains = np.vstack([rows[list(plant.gain_names)].to_numpy(dtype=float), optimum])
     keeper = tuner.keeper_
-    if keeper.twin_env() is None:
+    twin_env = keeper.twin_env()
+    if twin_env is None:
         raise SystemExit(f"seed {seed}: the records identified no twin after {experiments} experiments")
-    twin = np.array([keeper.twin_cost(g) for g in gains])
+    twin = twin_env.evaluate(gains)[1]
+    twin = np.where(np.isfinite(twin), twin, twin_env.unstable_cost)
     truth = plant.evaluate(gains)[1]
     return {"twin": twin, "plant": np.asarray(truth, dtype=float), "effects": keeper.describe().get("twin_effects", "")}
 
@@ -66,8 +70,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="seeds (default: 0 1)")
     parser.add_argument("--experiments", type=int, default=12, help="plant experiments before the twin is read")
     args = parser.parse_args()
-    if not 2 <= args.experiments <= 200:
-        parser.error(f"--experiments: must be in [2, 200], got {args.experiments}")
+    if not 2 <= args.experiments <= MAX_BUDGET:
+        parser.error(f"--experiments: must be in [2, {MAX_BUDGET}], got {args.experiments}")
     print(f"{args.env}, {args.experiments} experiments of guided-bo; costs at the measured gains and at J*'s\n")
     print("| seed | J~ - J, mean | RMS | Spearman | measured gains the twin puts below J*'s | J~ at J*'s / J* | twin |")
     print("|---|---|---|---|---|---|---|")
