@@ -16,10 +16,13 @@ height ``|r2 - r1|`` and ``e = 2 max(s, 10^-3)`` the RMSE the noise explains:
   added since the fit exceeds ``max(1.5 rmse_, e)`` (the linear twin:
   ``max(1.5 rmse_, eta2 / 4)``), warm-started. ``twin="auto"`` starts from the paper's SRIVC
   twin; a refitted twin whose ``rmse_ > e`` is diagnosed
-  (:func:`agents.twin.selection.diagnosed_twin`, at most :data:`MAX_TWIN_EFFECTS` effects) at
-  1, 2, 4 and 8 records (:data:`MAX_DIAGNOSED_RECORDS`), each time from the linear model; a twin
-  with effects is kept only while its closed loop predicts the measured costs better than the
-  linear twin's (RMS relative error ``sqrt(mean_i ((J~(theta_i) - J_i) / J_i)^2)``).
+  (:func:`agents.twin.selection.diagnosed_twins`, at most :data:`MAX_TWIN_EFFECTS` effects) at
+  1, 2, 4 and 8 records (:data:`MAX_DIAGNOSED_RECORDS`), each time from the linear model; from
+  :data:`COST_SELECTION_RECORDS` records on, so is a twin with effects that missed a cost, and a
+  diagnosis keeps, of the ladder's twin and the single-effect twins that also replay ``D~`` within
+  ``e``, the one whose closed loop predicts the measured costs best. A twin with effects is kept
+  only while it predicts them better than the linear twin (RMS relative error
+  ``sqrt(mean_i ((J~(theta_i) - J_i) / J_i)^2)``).
 * **Plant changes.** Let ``m`` be the records of ``D~`` a twin simulated within ``e``. When the
   twin refitted on all of ``D~`` no longer does, but one of its structure fitted on the records
   after the ``m``-th (at least :data:`PLANT_CHANGE_RECORDS`) does, ``D~`` keeps those records only.
@@ -53,12 +56,12 @@ from agents.twin.model import ModelSpec
 from agents.twin.noise_floor import noiseless_quantum
 from agents.twin.prior import TwinMetrics, TwinSimulation
 from agents.twin.records import Batch, as_records
-from agents.twin.selection import diagnosed_twin, measurement_noise
+from agents.twin.selection import diagnosed_twins, measurement_noise
 from gbo_envs.experiment import SIGNALS, Experiment
 from gbo_envs.physics.sensor import Quantization
 
-__all__ = ["MAX_DIAGNOSED_RECORDS", "MAX_TWIN_EFFECTS", "PLANT_CHANGE_RECORDS", "RMSE_FLOOR", "SIMULATED_NOISE_FLOOR",
-           "TWIN_CHOICES", "TWIN_NOISE_DRAWS", "TwinKeeper"]
+__all__ = ["COST_SELECTION_RECORDS", "MAX_DIAGNOSED_RECORDS", "MAX_TWIN_EFFECTS", "PLANT_CHANGE_RECORDS",
+           "RMSE_FLOOR", "SIMULATED_NOISE_FLOOR", "TWIN_CHOICES", "TWIN_NOISE_DRAWS", "TwinKeeper"]
 
 #: ``twin`` by name: the workbench-diagnosed grey-box twin, or the paper's linear SRIVC twin.
 TWIN_CHOICES = ("auto", "linear")
@@ -68,6 +71,9 @@ MAX_TWIN_EFFECTS = 2
 
 #: Records in ``D~`` beyond which the effects are settled: no further diagnosis, only warm refits.
 MAX_DIAGNOSED_RECORDS = 8
+
+#: Records in ``D~`` from which a diagnosis chooses among twins that replay them within the noise by their costs.
+COST_SELECTION_RECORDS = 4
 
 #: Records a twin must have simulated within the noise before a cost miss, or a later twin, reads as a plant change.
 PLANT_CHANGE_RECORDS = 2
@@ -513,18 +519,13 @@ class TwinKeeper:
             n = len(self._records)
             doubled = n >= 2 * self._diagnosed_on and self._diagnosed_on < MAX_DIAGNOSED_RECORDS
             due = self._diagnosed_on == 0 or doubled
+            # effects that replay the records but missed a cost: another twin may replay them as well and close the
+            # loop right, which the costs of COST_SELECTION_RECORDS records can tell
+            recheck = bool(effects) and self._cost_missed and n >= COST_SELECTION_RECORDS
             if due and not effects and not twin.rmse_ <= self.explained_rmse_:  # decimation, or a missing effect?
                 twin = self._whole_record_twin(twin)
-            if due and not twin.rmse_ <= self.explained_rmse_:  # an error the noise does not explain
-                spec = ModelSpec(n_poles=self.twin_poles, n_integrators=self._integrators(),
-                                 output=self._env.loop.plant.output)
-                self._diagnosed_on = n
-                # from the linear model, not from the current effects: the ladder only adds effects, and one that
-                # fewer records evidenced (a wrong one, when the true effect showed in only one of them) is dropped
-                diagnosed = diagnosed_twin(self._batch(self.n_samples), spec, max_effects=MAX_TWIN_EFFECTS,
-                                           n_samples=self.n_samples)[0]
-                if diagnosed.rmse_ < twin.rmse_:
-                    twin = diagnosed
+            if due and (recheck or not twin.rmse_ <= self.explained_rmse_):  # an error the noise does not explain
+                twin = self._diagnosed(twin)
             if getattr(twin, "effect_params_", None):
                 linear = self._linear_twin()
                 if self._cost_error(linear) < self._cost_error(twin):
@@ -533,6 +534,21 @@ class TwinKeeper:
         template = self._default_twin() if self.twin == "linear" else self.twin
         twin = previous if previous is not None and previous is not self.twin else clone(template)
         return twin.fit(self._data_for(twin))  # warm start
+
+    def _diagnosed(self, twin):
+        """The diagnosed twin of ``D~`` if it replays the records better than ``twin``; from
+        :data:`COST_SELECTION_RECORDS` records on, of it, ``twin`` and the single-effect twins that replay them within
+        the noise, the one whose closed loop predicts the measured costs best (:meth:`_cost_error`)."""
+        spec = ModelSpec(n_poles=self.twin_poles, n_integrators=self._integrators(), output=self._env.loop.plant.output)
+        self._diagnosed_on = len(self._records)
+        # from the linear model, not from the current effects: the ladder only adds effects, and one that
+        # fewer records evidenced (a wrong one, when the true effect showed in only one of them) is dropped
+        diagnosed, *alternatives = diagnosed_twins(self._batch(self.n_samples), spec, within=self.explained_rmse_,
+                                                   max_effects=MAX_TWIN_EFFECTS, n_samples=self.n_samples)
+        best = diagnosed if diagnosed.rmse_ < twin.rmse_ else twin
+        if not alternatives or len(self._records) < COST_SELECTION_RECORDS:
+            return best
+        return min((best, *alternatives), key=self._cost_error)
 
     def _batch(self, n_samples: int | None = None) -> Batch:
         """``D~`` as one :class:`~agents.twin.records.Batch` decimated to ``n_samples`` per record (``None``: whole),

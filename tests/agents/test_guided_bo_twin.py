@@ -354,13 +354,13 @@ def test_a_diagnosis_drops_a_wrong_effect_that_fewer_records_evidenced(monkeypat
     records = _records(gym.make("gbo_envs/DCMotor-v0", **SATURATED), [[0.17, 1.7], [0.52, 1.22], [0.4, 1.5],
                                                                       [0.9, 2.0]])
     wrong = GreyBoxTwin(effects=["coulomb_friction"], n_samples=keeper.n_samples).fit(records[:2])
-    diagnosed, calls = twin_keeper.diagnosed_twin, []
+    diagnosed, calls = twin_keeper.diagnosed_twins, []
 
     def wrong_at_first(records, *args, **kwargs):
         calls.append(records.n_records)
-        return (wrong, []) if len(calls) == 1 else diagnosed(records, *args, **kwargs)
+        return (wrong,) if len(calls) == 1 else diagnosed(records, *args, **kwargs)
 
-    monkeypatch.setattr(twin_keeper, "diagnosed_twin", wrong_at_first)
+    monkeypatch.setattr(twin_keeper, "diagnosed_twins", wrong_at_first)
     _tell(keeper, records[:2])
     assert keeper.twin_env() is not None and set(keeper.twin_.effect_params_) == {"coulomb_friction"}
     _tell(keeper, records[2:])  # four records are a doubling: the next fit diagnoses again, from the linear model
@@ -378,7 +378,7 @@ def test_the_keeper_stacks_its_records_once_for_the_grey_box_refit_and_the_diagn
                                                                       [0.9, 2.0]])
     wrong = GreyBoxTwin(effects=["coulomb_friction"], n_samples=keeper.n_samples).fit(records[:2])
     diagnosed, fitted, grey_fit = [], [], GreyBoxTwin.fit
-    monkeypatch.setattr(twin_keeper, "diagnosed_twin", lambda data, *_, **__: diagnosed.append(data) or (wrong, []))
+    monkeypatch.setattr(twin_keeper, "diagnosed_twins", lambda data, *_, **__: diagnosed.append(data) or (wrong,))
     monkeypatch.setattr(GreyBoxTwin, "fit", lambda twin, data, y=None: fitted.append(data) or grey_fit(twin, data))
     _tell(keeper, records[:2])
     keeper.twin_env()
@@ -407,11 +407,76 @@ def test_effects_that_mispredict_the_recorded_costs_give_way_to_the_linear_twin(
     wrong = _wrong_twin()  # another plant's model, dressed as a diagnosed twin that replays the records exactly
     wrong.effect_params_, wrong.rmse_ = {"time_delay": {"delay": 0.06}}, 0.0
     calls = []
-    monkeypatch.setattr(twin_keeper, "diagnosed_twin", lambda *args, **kwargs: calls.append(1) or (wrong, []))
+    monkeypatch.setattr(twin_keeper, "diagnosed_twins", lambda *args, **kwargs: calls.append(1) or (wrong,))
     twin_env = keeper.twin_env()
     assert calls, "the linear twin explained the records: no diagnosis"
     assert keeper.twin_ is not wrong and not getattr(keeper.twin_, "effect_params_", None)
     assert _cost_error(make_twin_env(env, wrong), records) > _cost_error(twin_env, records)
+
+
+@pytest.mark.parametrize("n_records", [3, 4])
+def test_a_diagnosis_chooses_among_twins_that_replay_the_records_by_their_costs(monkeypatch, n_records):
+    """Two effects can replay the records within the noise and close the loop differently (on
+    LinearMotorCascadeRig-v0 the ladder's Coulomb + stiction twin cost 1.25 at the optimum, Coulomb alone 0.737,
+    the plant 0.743). From COST_SELECTION_RECORDS records on, the diagnosis keeps the one whose costs at the
+    recorded gains are right; before, the ladder's twin (here given way to the linear twin)."""
+    env = gym.make("gbo_envs/DCMotor-v0", **SATURATED)
+    keeper = _keeper(env)
+    records = _records(gym.make("gbo_envs/DCMotor-v0", **SATURATED),
+                       [[0.3, 1.2], [0.6, 1.6], [0.9, 1.0], [0.45, 1.4]][:n_records])
+    _tell(keeper, records)
+    ladder = _wrong_twin()  # another plant's model, dressed as the ladder's twin that replays the records exactly
+    ladder.effect_params_, ladder.rmse_ = {"time_delay": {"delay": 0.06}}, 0.0
+    right = GreyBoxTwin(effects={"saturation": {"limit": 138.0}}, n_samples=keeper.n_samples).fit(records)
+    assert right.rmse_ <= keeper.explained_rmse_
+    monkeypatch.setattr(twin_keeper, "diagnosed_twins", lambda *args, **kwargs: (ladder, right))
+    keeper.twin_env()
+    assert (keeper.twin_ is right) == (n_records >= twin_keeper.COST_SELECTION_RECORDS)
+    assert keeper.twin_ is not ladder
+
+
+@pytest.mark.parametrize("missed", [False, True])
+def test_a_twin_with_effects_that_missed_a_cost_is_diagnosed_again(monkeypatch, missed):
+    """A twin with effects that replays its records is settled, unless a measured cost missed its prediction by more
+    than the cost noise: then the next doubling diagnoses D~ again (from COST_SELECTION_RECORDS records on)."""
+    env = gym.make("gbo_envs/DCMotor-v0", **SATURATED)
+    keeper = _keeper(env, refit_on_cost_miss=True)
+    records = _records(gym.make("gbo_envs/DCMotor-v0", **SATURATED), [[0.3, 1.2], [0.6, 1.6], [0.9, 1.0],
+                                                                      [0.45, 1.4]])
+    calls = []
+    # the plant's structure fitted on all four records: it replays them and predicts their costs within the noise
+    right = GreyBoxTwin(effects={"saturation": {"limit": 138.0}}, n_samples=keeper.n_samples).fit(records)
+
+    def saturation(data, *args, **kwargs):
+        calls.append(data.n_records)
+        return (right,)
+
+    monkeypatch.setattr(twin_keeper, "diagnosed_twins", saturation)
+    _tell(keeper, records[:2])
+    keeper.twin_env()
+    assert calls == [2] and keeper.twin_.rmse_ <= keeper.explained_rmse_
+    for k, info in enumerate(records[2:]):  # the first of them measured 50 % above its cost: a miss
+        keeper.tell(info["gains"], info["cost"] * (1.5 if missed and k == 0 else 1.0), info)
+    keeper.twin_env()
+    assert calls == ([2, 4] if missed else [2])
+
+
+def test_diagnosed_twins_offers_single_effects_that_replay_the_records_within_the_noise():
+    """The ladder's twin first, then each single-effect twin within ``within``; none beyond the ladder's twin when
+    nothing may be added (``within = 0``) or the records evidence no effect."""
+    from agents.twin.model import ModelSpec
+    from agents.twin.selection import TWIN_CANDIDATES, diagnosed_twins
+
+    spec = ModelSpec(n_poles=2, n_integrators=0, output="speed")
+    records = _records(gym.make("gbo_envs/DCMotor-v0", **SATURATED), [[0.3, 1.2], [0.6, 1.6]])
+    ladder, *alternatives = diagnosed_twins(records, spec, within=np.inf)
+    assert "saturation" in ladder.effect_params_
+    assert alternatives and all(len(twin.effect_params_) == 1 for twin in alternatives)
+    assert all(set(twin.effect_params_) <= set(TWIN_CANDIDATES) for twin in alternatives)
+    assert {frozenset(twin.effect_params_) for twin in alternatives}.isdisjoint({frozenset(ladder.effect_params_)})
+    assert len(diagnosed_twins(records, spec, within=0.0)) == 1
+    linear = _records(gym.make("gbo_envs/DCMotor-v0"), [[0.3, 1.2], [0.6, 1.6]])
+    assert len(diagnosed_twins(linear, spec, within=np.inf)) == 1
 
 
 class _StubTwin:
