@@ -40,6 +40,7 @@ docs/design.md ("Which twin drives guided BO") gives the reasons and the measure
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Mapping
 from typing import Any
@@ -524,21 +525,22 @@ class TwinKeeper:
             recheck = bool(effects) and self._cost_missed and n >= COST_SELECTION_RECORDS
             if due and not effects and not twin.rmse_ <= self.explained_rmse_:  # decimation, or a missing effect?
                 twin = self._whole_record_twin(twin)
+            cost_error = functools.cache(self._cost_error)  # each twin's closed loop simulated once per fit
             if due and (recheck or not twin.rmse_ <= self.explained_rmse_):  # an error the noise does not explain
-                twin = self._diagnosed(twin)
+                twin = self._diagnosed(twin, cost_error)
             if getattr(twin, "effect_params_", None):
-                linear = self._linear_twin()
-                if self._cost_error(linear) < self._cost_error(twin):
+                linear = self._linear_twin()  # refitted in place, so its error is not the cached one
+                if self._cost_error(linear) < cost_error(twin):
                     twin = linear  # the effects replay the records but mispredict the experiments' costs
             return twin
         template = self._default_twin() if self.twin == "linear" else self.twin
         twin = previous if previous is not None and previous is not self.twin else clone(template)
         return twin.fit(self._data_for(twin))  # warm start
 
-    def _diagnosed(self, twin):
+    def _diagnosed(self, twin, cost_error):
         """The diagnosed twin of ``D~`` if it replays the records better than ``twin``; from
         :data:`COST_SELECTION_RECORDS` records on, of it, ``twin`` and the single-effect twins that replay them within
-        the noise, the one whose closed loop predicts the measured costs best (:meth:`_cost_error`)."""
+        the noise, the one whose closed loop predicts the measured costs best (``cost_error``: :meth:`_cost_error`)."""
         spec = ModelSpec(n_poles=self.twin_poles, n_integrators=self._integrators(), output=self._env.loop.plant.output)
         self._diagnosed_on = len(self._records)
         # from the linear model, not from the current effects: the ladder only adds effects, and one that
@@ -548,7 +550,7 @@ class TwinKeeper:
         best = diagnosed if diagnosed.rmse_ < twin.rmse_ else twin
         if not alternatives or len(self._records) < COST_SELECTION_RECORDS:
             return best
-        return min((best, *alternatives), key=self._cost_error)
+        return min((best, *alternatives), key=cost_error)
 
     def _batch(self, n_samples: int | None = None) -> Batch:
         """``D~`` as one :class:`~agents.twin.records.Batch` decimated to ``n_samples`` per record (``None``: whole),
